@@ -1,0 +1,41 @@
+"""stereocam: the Zynq stereo camera daemon, its FPGA rectify core model and emulated fabric.
+
+The repository follows the design card in SYSTEM.md: ``board/``, ``overlays/``,
+``drivers/`` and ``server/`` live at the top of the tree and are installed as
+sub-packages of ``stereocam`` (``stereocam.overlays`` and so on).
+"""
+from setuptools import setup
+
+SUBPACKAGES = {
+    "stereocam": "stereocam",
+    "stereocam.board": "board",
+    "stereocam.overlays": "overlays",
+    "stereocam.overlays.spec": "overlays/spec",
+    "stereocam.overlays.model": "overlays/model",
+    "stereocam.overlays.emulated": "overlays/emulated",
+    "stereocam.drivers": "drivers",
+    "stereocam.server": "server",
+}
+
+setup(
+    name="stereocam",
+    version="0.1.0",
+    description="Zynq stereo camera daemon: FPGA rectification, live view, captures, virtual camera",
+    python_requires=">=3.10",
+    packages=list(SUBPACKAGES),
+    package_dir=SUBPACKAGES,
+    package_data={
+        "stereocam.overlays": ["*.md"],
+        "stereocam.board": ["*.service", "*.yaml"],
+        "stereocam.server": ["static/*"],
+    },
+    install_requires=[
+        "numpy>=1.21",
+        "opencv-python-headless>=4.5.4",
+        "aiohttp>=3.8",
+        "pillow>=9.0",
+        "pyyaml>=5.4",
+    ],
+    extras_require={"board": ["pynq>=3.0"]},
+    entry_points={"console_scripts": ["stereocam=stereocam.cli:main"]},
+)
