@@ -1,0 +1,142 @@
+"""Driver for the rectify core (register map in ``overlays/spec/rectify.py``).
+
+Same code on the board (window = ``pynq.MMIO``) and on the emulated fabric.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, Optional
+
+from ..overlays.model.config import plan
+from ..overlays.model.linebuffer import LineBufferFit
+from ..overlays.spec.rectify import (
+    CAMERAS,
+    CORE_ID,
+    CORE_VERSION,
+    PARAM_NAMES,
+    RECTIFY_MAP,
+    CameraParams,
+    CoreConfig,
+    f64_to_words,
+    words_to_f64,
+)
+from .mmio import DriverError, Registers, RegisterWindow, UnsupportedIP
+
+
+class ConfigRefused(DriverError):
+    """The core raised CONFIG_ERROR on APPLY: it kept its previous parameters."""
+
+
+@dataclass(frozen=True)
+class CoreStatus:
+    frame_count: int
+    busy: bool
+    apply_pending: bool
+    flags: Dict[str, bool]
+    control: Dict[str, int]
+
+
+class RectifyCore:
+    """Program and watch one rectify core.
+
+    :meth:`program` blocks until the core has latched the new parameters
+    (at the next frame start while frames flow, at once when disabled), at
+    most ``timeout`` seconds.
+    """
+
+    def __init__(self, window: RegisterWindow, *, timeout: float = 1.0) -> None:
+        self.regs = Registers(window, RECTIFY_MAP)
+        self.timeout = timeout
+        ident = self.regs.read("ID")
+        if ident != CORE_ID:
+            raise UnsupportedIP(
+                f"rectify: ID register reads {ident:#010x}, expected {CORE_ID:#010x}: "
+                "the overlay does not contain a stereocam rectify core at this address"
+            )
+        major = self.regs.field("VERSION", "MAJOR")
+        if major != CORE_VERSION >> 16:
+            raise UnsupportedIP(f"rectify: core version {major}.x is not supported by this driver (1.x)")
+        self.max_width = self.regs.read("MAX_WIDTH")
+        self.max_height = self.regs.read("MAX_HEIGHT")
+        self.lb_rows = self.regs.read("LB_ROWS")
+
+    def plan(self, left: CameraParams, right: CameraParams, width: int, height: int) -> "tuple[CoreConfig, LineBufferFit]":
+        """Check a calibration against this core; raises ``ConfigError`` with what to change."""
+        return plan(left, right, width, height, lb_rows=self.lb_rows,
+                    max_width=self.max_width, max_height=self.max_height)
+
+    def program(self, left: CameraParams, right: CameraParams, width: int, height: int) -> "tuple[CoreConfig, LineBufferFit]":
+        """Check a calibration, then write and APPLY it; a refused one leaves the core untouched."""
+        config, fit = self.plan(left, right, width, height)
+        self.load(config)
+        return config, fit
+
+    def load(self, config: CoreConfig) -> None:
+        """Write a config to the shadow registers and APPLY it, without the line-buffer check.
+
+        The core itself still refuses out-of-range values (CONFIG_ERROR ->
+        :class:`ConfigRefused`); prefer :meth:`program`.
+        """
+        self.regs.write("WIDTH", RECTIFY_MAP["WIDTH"].encode(VALUE=config.width))
+        self.regs.write("HEIGHT", RECTIFY_MAP["HEIGHT"].encode(VALUE=config.height))
+        self.regs.write("LB_DELAY", RECTIFY_MAP["LB_DELAY"].encode(VALUE=config.lb_delay))
+        for cam in CAMERAS:
+            for name, value in config.camera(cam).values().items():
+                lo, hi = f64_to_words(value)
+                self.regs.write(f"{cam}_{name}_LO", lo)
+                self.regs.write(f"{cam}_{name}_HI", hi)
+        self.clear_flags("CONFIG_ERROR")
+        self.regs.modify("CONTROL", APPLY=1)
+        self.regs.wait("CONTROL", lambda v: not RECTIFY_MAP["CONTROL"].get(v, "APPLY"),
+                       expected="cleared APPLY (no frame start reached the core?)", timeout=self.timeout)
+        if self.regs.field("FLAGS", "CONFIG_ERROR"):
+            raise ConfigRefused("rectify: the core refused the parameters (CONFIG_ERROR); previous ones stay active")
+
+    def read_config(self) -> CoreConfig:
+        """The shadow parameter set as the registers hold it."""
+        cams = {}
+        for cam in CAMERAS:
+            values = {n: words_to_f64(self.regs.read(f"{cam}_{n}_LO"), self.regs.read(f"{cam}_{n}_HI"))
+                      for n in PARAM_NAMES}
+            cams[cam] = CameraParams.from_values(values)
+        return CoreConfig(cams["L"], cams["R"], self.regs.field("WIDTH", "VALUE"),
+                          self.regs.field("HEIGHT", "VALUE"), self.regs.field("LB_DELAY", "VALUE"))
+
+    def set_mode(self, *, enable: Optional[bool] = None, bypass: Optional[bool] = None,
+                 gray: Optional[bool] = None, debug_row: Optional[int] = None, debug_line: Optional[bool] = None) -> None:
+        """Change control bits; ``None`` leaves a setting as it is. Takes effect at the next frame."""
+        if debug_row is not None:
+            limit = self.max_height - 1
+            if not 0 <= debug_row <= limit:
+                raise ValueError(f"debug row {debug_row} is outside 0..{limit}")
+            self.regs.write("DEBUG_ROW", RECTIFY_MAP["DEBUG_ROW"].encode(VALUE=debug_row))
+        fields = {name: int(value) for name, value in (
+            ("ENABLE", enable), ("BYPASS", bypass), ("GRAY", gray), ("DEBUG_LINE", debug_line)) if value is not None}
+        if fields:
+            self.regs.modify("CONTROL", APPLY=0, **fields)
+
+    def enable(self) -> None:
+        self.set_mode(enable=True)
+
+    def disable(self) -> None:
+        self.set_mode(enable=False)
+
+    def clear_flags(self, *names: str) -> None:
+        """Write-1-to-clear the named sticky flags (all of them if none named)."""
+        reg = RECTIFY_MAP["FLAGS"]
+        names = names or tuple(f.name for f in reg.fields)
+        self.regs.write("FLAGS", reg.encode(**{n: 1 for n in names}))
+
+    def status(self) -> CoreStatus:
+        status = RECTIFY_MAP["STATUS"].decode(self.regs.read("STATUS"))
+        return CoreStatus(
+            frame_count=self.regs.read("FRAME_COUNT"),
+            busy=bool(status["BUSY"]),
+            apply_pending=bool(status["APPLY_PENDING"]),
+            flags={k: bool(v) for k, v in RECTIFY_MAP["FLAGS"].decode(self.regs.read("FLAGS")).items()},
+            control=RECTIFY_MAP["CONTROL"].decode(self.regs.read("CONTROL")),
+        )
+
+    def dump(self) -> Dict[str, int]:
+        """Every register by name: what a capture's metadata records."""
+        return {reg.name: self.regs.read(reg.name) for reg in RECTIFY_MAP}
