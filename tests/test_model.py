@@ -206,3 +206,18 @@ def test_rows_needed_for_the_sample_calibration() -> None:
     assert 20 < fit.rows <= 80
     options = CoreOptions(lb_rows=fit.rows - 1, lb_delay=fit.delay)
     assert RectifyModel(cal.left, cal.right, 640, 480, options).lb_overflow
+
+
+def test_reference_equals_fast_on_the_sample_calibration_at_full_size() -> None:
+    """Bands of a real 640x480 calibration, colour noise input: bit-exact."""
+    from .sample import calibrate_sample
+
+    cal = calibrate_sample()
+    fit = rows_needed([cal.left, cal.right], 640, 480)
+    options = CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay)
+    frame = random_frame(np.random.default_rng(7), 640, 480)
+    fast = RectifyModel(cal.left, cal.right, 640, 480, options).process(frame).frame
+    for band in (range(0, 12), range(234, 246), range(468, 480)):
+        ref = rectify_reference(frame, cal.left, cal.right, options, rows=band).frame
+        np.testing.assert_array_equal(ref[band.start:band.stop], fast[band.start:band.stop])
+        assert ref[band.start:band.stop].any()

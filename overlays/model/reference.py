@@ -95,10 +95,16 @@ def interpolate(
 
 
 def rectify_reference(
-    frame: np.ndarray, left: CameraParams, right: CameraParams, options: CoreOptions
+    frame: np.ndarray, left: CameraParams, right: CameraParams, options: CoreOptions,
+    rows: Optional[range] = None,
 ) -> ModelResult:
-    """Run the core on one ``(H, W, 8)`` stream frame, pixel by pixel."""
+    """Run the core on one ``(H, W, 8)`` stream frame, pixel by pixel.
+
+    ``rows`` limits the work to some output rows (the others stay 0), for
+    spot checks and for measuring the reference's speed.
+    """
     height, width = frame.shape[:2]
+    out_rows = range(height) if rows is None else rows
     out = np.zeros_like(frame)
     overflow = False
     if options.bypass:
@@ -107,14 +113,14 @@ def rectify_reference(
         for cam, params in ((0, left), (1, right)):
             base = 4 * cam
             channels: List[int] = [base + 3] if options.gray else [base + c for c in range(4)]
-            for y in range(height):
-                rows = window(y, height, options.lb_rows, options.lb_delay)
+            for y in out_rows:
+                held = window(y, height, options.lb_rows, options.lb_delay)
                 for x in range(width):
                     pos = source_position(params, x, y)
                     if pos is None:
                         continue
                     for ch in channels:
-                        value, ovf = interpolate(frame[:, :, ch], pos[0], pos[1], rows)
+                        value, ovf = interpolate(frame[:, :, ch], pos[0], pos[1], held)
                         out[y, x, ch] = value
                         overflow |= ovf
             if options.gray:
