@@ -65,17 +65,20 @@ class RectifyCore:
         return plan(left, right, width, height, lb_rows=self.lb_rows,
                     max_width=self.max_width, max_height=self.max_height)
 
-    def program(self, left: CameraParams, right: CameraParams, width: int, height: int) -> "tuple[CoreConfig, LineBufferFit]":
+    def program(self, left: CameraParams, right: CameraParams, width: int, height: int, *,
+                wait: bool = True) -> "tuple[CoreConfig, LineBufferFit]":
         """Check a calibration, then write and APPLY it; a refused one leaves the core untouched."""
         config, fit = self.plan(left, right, width, height)
-        self.load(config)
+        self.load(config, wait=wait)
         return config, fit
 
-    def load(self, config: CoreConfig) -> None:
+    def load(self, config: CoreConfig, *, wait: bool = True) -> None:
         """Write a config to the shadow registers and APPLY it, without the line-buffer check.
 
         The core itself still refuses out-of-range values (CONFIG_ERROR ->
-        :class:`ConfigRefused`); prefer :meth:`program`.
+        :class:`ConfigRefused`); prefer :meth:`program`. With ``wait=False``
+        it returns after setting APPLY (for a clock the caller steps itself);
+        :meth:`check_applied` then confirms.
         """
         self.regs.write("WIDTH", RECTIFY_MAP["WIDTH"].encode(VALUE=config.width))
         self.regs.write("HEIGHT", RECTIFY_MAP["HEIGHT"].encode(VALUE=config.height))
@@ -87,8 +90,13 @@ class RectifyCore:
                 self.regs.write(f"{cam}_{name}_HI", hi)
         self.clear_flags("CONFIG_ERROR")
         self.regs.modify("CONTROL", APPLY=1)
+        if wait:
+            self.check_applied(timeout=self.timeout)
+
+    def check_applied(self, *, timeout: float = 0.0) -> None:
+        """Wait (at most ``timeout`` s) for APPLY to clear, then raise if the core refused the set."""
         self.regs.wait("CONTROL", lambda v: not RECTIFY_MAP["CONTROL"].get(v, "APPLY"),
-                       expected="cleared APPLY (no frame start reached the core?)", timeout=self.timeout)
+                       expected="cleared APPLY (no frame start reached the core?)", timeout=timeout)
         if self.regs.field("FLAGS", "CONFIG_ERROR"):
             raise ConfigRefused("rectify: the core refused the parameters (CONFIG_ERROR); previous ones stay active")
 

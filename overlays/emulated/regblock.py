@@ -89,12 +89,12 @@ class RegisterBlock:
             reg = self.map.at(offset)
             if reg is None:
                 raise UnknownRegister(self.ip, offset, "write")
-            if not reg.fields and reg.access is Access.RO:
+            ro = reg.mask_of(Access.RO) | reg.unassigned_mask
+            if not ~ro & 0xFFFFFFFF:  # no writable bit: wholly read-only (with or without fields)
                 raise ReadOnlyRegister(self.ip, reg, value)
             if self.record:
                 self.log.append(("w", offset, value))
             old = self.values[offset]
-            ro = reg.mask_of(Access.RO) | reg.unassigned_mask
             w1c = reg.mask_of(Access.W1C)
             new = (old & ro) | (value & ~ro & ~w1c & 0xFFFFFFFF)
             new |= old & w1c & ~value  # W1C: a 1 clears, a 0 keeps

@@ -1,0 +1,137 @@
+"""The emulated programmable logic: the overlay's IP wired as in SYSTEM.md.
+
+```
+ cameras ──┬──────────────────────────► vdma_raw  S2MM ──► DDR
+           └─► mux SI0 ┐
+ DDR ──► vdma_proc MM2S ─► mux SI1 ┴► mux ─► rectify ─► vdma_proc S2MM ──► DDR
+```
+
+Each frame tick of the :class:`FrameClock` moves one frame along every path.
+Software reaches the blocks only through their register windows (at the
+addresses of :data:`ADDRESS_MAP`, as the board's device tree would place
+them) and the DDR allocator, exactly as on the board.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+import numpy as np
+
+from ..spec.axis_switch import LIVE, VIRTUAL
+from ..spec.rectify import DEFAULT_LB_ROWS, DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
+from .cameras import CameraSource, SyntheticRig
+from .clock import FrameClock
+from .ddr import EmulatedDDR
+from .rectify import EmulatedRectifyCore
+from .regblock import RegisterBlock
+from .switch import EmulatedAxisSwitch
+from .vdma import EmulatedVDMA
+
+log = logging.getLogger(__name__)
+
+# Base addresses of the IP register windows (64 KiB each), as in the overlay's .hwh.
+ADDRESS_MAP: Dict[str, int] = {
+    "vdma_raw": 0x4300_0000,
+    "vdma_proc": 0x4301_0000,
+    "rectify": 0x43C0_0000,
+    "mux": 0x43C1_0000,
+}
+WINDOW_SIZE = 0x1_0000
+NUM_FSTORES = 3
+
+
+@dataclass
+class FabricCounters:
+    """What happened on the stream paths, for tests and status pages."""
+
+    ticks: int = 0
+    camera_frames: int = 0
+    raw_frames: int = 0
+    mux_frames: int = 0  # frames that reached the core
+    core_frames: int = 0  # frames the core emitted
+    proc_frames: int = 0  # frames written by vdma_proc S2MM
+    camera_errors: int = 0
+    last_error: str = ""
+    per_input: Dict[int, int] = field(default_factory=lambda: {LIVE: 0, VIRTUAL: 0})
+
+
+class EmulatedFabric:
+    """All emulated IP plus the camera source and the frame clock.
+
+    ``clock="stepped"`` makes :meth:`step` the only way frames move (tests,
+    benchmarks); ``"realtime"`` runs a thread at ``fps`` once :meth:`start`
+    is called. ``source`` defaults to a :class:`SyntheticRig`; the fabric
+    closes it on :meth:`close`.
+    """
+
+    def __init__(
+        self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
+        num_fstores: int = NUM_FSTORES, lb_rows: int = DEFAULT_LB_ROWS,
+        max_width: int = DEFAULT_MAX_WIDTH, max_height: int = DEFAULT_MAX_HEIGHT,
+        ddr_size: int = 256 << 20,
+    ) -> None:
+        self.ddr = EmulatedDDR(size=ddr_size)
+        self.vdma_raw = EmulatedVDMA(self.ddr, num_fstores, "vdma_raw")
+        self.vdma_proc = EmulatedVDMA(self.ddr, num_fstores, "vdma_proc")
+        self.mux = EmulatedAxisSwitch(name="mux")
+        self.core = EmulatedRectifyCore(max_width=max_width, max_height=max_height, lb_rows=lb_rows)
+        self.num_fstores = num_fstores
+        self.source: CameraSource = source if source is not None else SyntheticRig()
+        self.cameras_running = True  # tests: False models cameras that stopped sending
+        self.counters = FabricCounters()
+        self._tick_lock = threading.Lock()
+        self.clock = FrameClock(fps, self.tick, mode=clock, name="emulated-fabric")
+
+    @property
+    def blocks(self) -> Dict[str, RegisterBlock]:
+        return {"vdma_raw": self.vdma_raw, "vdma_proc": self.vdma_proc, "rectify": self.core, "mux": self.mux}
+
+    @property
+    def frame_size(self):  # type: ignore[no-untyped-def]
+        return self.source.frame_size
+
+    def tick(self, index: int, t: float) -> None:
+        """One frame period on every stream path."""
+        with self._tick_lock:
+            c = self.counters
+            c.ticks += 1
+            live: Optional[np.ndarray] = None
+            if self.cameras_running:
+                try:
+                    live = self.source.read(index, t)
+                    c.camera_frames += 1
+                except Exception as exc:  # a replay folder that vanished, a decode error...
+                    c.camera_errors += 1
+                    c.last_error = f"camera source: {exc}"
+                    log.warning("camera source failed at frame %d: %s", index, exc)
+            if live is not None and self.vdma_raw.s2mm_accept(live):
+                c.raw_frames += 1
+            selected = self.mux.selected
+            virtual = self.vdma_proc.mm2s_fetch()  # MM2S runs whether or not the mux listens
+            frame = live if selected == LIVE else virtual if selected == VIRTUAL else None
+            if frame is None:
+                return
+            c.mux_frames += 1
+            c.per_input[selected] = c.per_input.get(selected, 0) + 1
+            out = self.core.process(frame)
+            if out is None:
+                return
+            c.core_frames += 1
+            if self.vdma_proc.s2mm_accept(out):
+                c.proc_frames += 1
+
+    def step(self, n: int = 1) -> None:
+        self.clock.step(n)
+
+    def start(self) -> None:
+        self.clock.start()
+
+    def stop(self) -> None:
+        self.clock.stop()
+
+    def close(self) -> None:
+        self.clock.stop()
+        self.source.close()

@@ -1,0 +1,24 @@
+"""The overlay's IP instances: names, identities and what each driver needs from the metadata.
+
+Written once: the board overlay binds drivers by these names and checks the
+VLNV of what it finds there; the emulated fabric places its blocks under the
+same names.
+"""
+from __future__ import annotations
+
+from typing import Dict, Tuple
+
+from .rectify import VLNV as RECTIFY_VLNV
+
+BITSTREAM = "stereocam.bit"  # with stereocam.hwh beside it
+
+VDMA_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axi_vdma:6.2", "xilinx.com:ip:axi_vdma:6.3")
+SWITCH_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axis_switch:1.1",)
+
+# instance name -> accepted VLNVs
+INSTANCES: Dict[str, Tuple[str, ...]] = {
+    "vdma_raw": VDMA_VLNVS,  # S2MM: raw camera frames to DDR
+    "vdma_proc": VDMA_VLNVS,  # MM2S: virtual camera; S2MM: rectified frames to DDR
+    "mux": SWITCH_VLNVS,  # SI0 live cameras, SI1 virtual camera -> rectify core
+    "rectify": (RECTIFY_VLNV,),
+}

@@ -1,0 +1,149 @@
+"""The emulated cameras' frame clock: exact stepped ticks; a realtime thread that starts and stops cleanly.
+
+Realtime assertions are deliberately loose (the machine is 2 shared cores):
+they check that frames happen within generous windows, never their timing.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Callable, List, Tuple
+
+import pytest
+
+from stereocam.overlays.emulated.clock import ClockError, ClockStopTimeout, FrameClock
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.005)
+    return condition()
+
+
+def test_stepped_clock_ticks_exactly() -> None:
+    ticks: List[Tuple[int, float]] = []
+    clock = FrameClock(30, lambda i, t: ticks.append((i, t)), mode="stepped")
+    with clock:  # start/stop are accepted and do nothing
+        clock.step()
+        clock.step(2)
+    clock.step(0)
+    assert ticks == [(0, 0.0), (1, 1 / 30), (2, 2 / 30)]
+    assert clock.frames == 3 and clock.index == 3 and clock.skipped == 0 and clock.errors == 0
+    assert clock.fps == 30 and not clock.running
+
+
+def test_stepped_clock_lets_exceptions_through() -> None:
+    def tick(index: int, t: float) -> None:
+        raise KeyError(index)
+
+    clock = FrameClock(10, tick, mode="stepped")
+    with pytest.raises(KeyError):
+        clock.step()
+    assert clock.index == 1
+
+
+@pytest.mark.parametrize("fps", [0, -5, float("nan"), float("inf"), "fast", None])
+def test_bad_rates_are_refused(fps: object) -> None:
+    with pytest.raises(ClockError, match="fps"):
+        FrameClock(fps, lambda i, t: None)
+
+
+def test_bad_mode_and_misuse_are_refused() -> None:
+    with pytest.raises(ClockError, match="mode must be one of realtime, stepped"):
+        FrameClock(30, lambda i, t: None, mode="fast")
+    with pytest.raises(ClockError, match="callable"):
+        FrameClock(30, None)
+    with pytest.raises(ClockError, match="realtime"):
+        FrameClock(30, lambda i, t: None).step()
+    with pytest.raises(ClockError, match="n >= 0"):
+        FrameClock(30, lambda i, t: None, mode="stepped").step(-1)
+
+
+def test_realtime_clock_runs_and_stops_promptly() -> None:
+    ticks: List[Tuple[int, float, str]] = []
+    clock = FrameClock(200, lambda i, t: ticks.append((i, t, threading.current_thread().name)),
+                       name="cam-clock")
+    with clock:
+        assert clock.start() is clock  # idempotent
+        assert clock.running
+        assert wait_for(lambda: clock.frames >= 5)
+        began = time.monotonic()
+    assert time.monotonic() - began < 1.0
+    assert not clock.running
+    clock.stop()  # idempotent
+    indexes = [i for i, _, _ in ticks]
+    assert indexes == sorted(set(indexes)) and indexes[0] == 0
+    assert all(t == i / 200 for i, t, _ in ticks)
+    assert {name for _, _, name in ticks} == {"cam-clock"}
+    assert clock.frames == len(ticks) and clock.fps > 0
+    assert indexes[-1] + 1 == len(ticks) + clock.skipped
+    # a restart carries on from the next index
+    before, count = clock.index, len(ticks)
+    with clock:
+        assert wait_for(lambda: clock.frames >= count + 2)
+    assert ticks[count][0] >= before
+
+
+def test_a_late_clock_skips_frames_instead_of_bursting() -> None:
+    seen: List[int] = []
+
+    def tick(index: int, t: float) -> None:
+        seen.append(index)
+        if index == 0:
+            time.sleep(0.06)  # six frame periods
+
+    with FrameClock(100, tick) as clock:
+        assert wait_for(lambda: len(seen) >= 3)
+    assert clock.skipped >= 4
+    assert seen[1] >= 5  # frames 1..4 were skipped, not run back to back
+
+
+def test_tick_errors_are_logged_and_counted(caplog: pytest.LogCaptureFixture) -> None:
+    def tick(index: int, t: float) -> None:
+        raise ValueError(f"bad frame {index}")
+
+    with caplog.at_level(logging.ERROR, logger="stereocam.overlays.emulated.clock"):
+        with FrameClock(200, tick) as clock:
+            assert wait_for(lambda: clock.errors >= 5)
+            assert clock.running
+    assert clock.errors == clock.frames
+    records = [r for r in caplog.records if "raised" in r.getMessage()]
+    assert 1 <= len(records) <= 3 + clock.errors // 100
+    assert "bad frame 0" in caplog.text
+
+
+def test_tick_may_stop_its_own_clock() -> None:
+    clock: FrameClock
+
+    def tick(index: int, t: float) -> None:
+        if index == 2:
+            clock.stop()
+
+    clock = FrameClock(200, tick)
+    clock.start()
+    assert wait_for(lambda: not clock.running)
+    assert clock.frames == 3
+    clock.stop()
+
+
+def test_stop_times_out_on_a_blocked_tick_and_can_wait_again() -> None:
+    release = threading.Event()
+    entered = threading.Event()
+
+    def tick(index: int, t: float) -> None:
+        entered.set()
+        release.wait(5.0)
+
+    clock = FrameClock(100, tick).start()
+    assert entered.wait(3.0)
+    with pytest.raises(ClockStopTimeout, match="blocking call in the tick callback"):
+        clock.stop(timeout=0.05)
+    with pytest.raises(ClockStopTimeout, match="still inside tick"):
+        clock.start()
+    release.set()
+    clock.stop()
+    assert not clock.running and clock.frames == 1
