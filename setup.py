@@ -31,7 +31,8 @@ setup(
     },
     install_requires=[
         "numpy>=1.21",
-        "opencv-python-headless>=4.5.4",
+        # The PYNQ image (armv7l) ships OpenCV outside pip; building the wheel there takes hours.
+        "opencv-python-headless>=4.5.4; platform_machine != 'armv7l'",
         "aiohttp>=3.8",
         "pillow>=9.0",
         "pyyaml>=5.4",

@@ -5,6 +5,7 @@
 (``CTRL.REG_UPDATE``), briefly resetting itself; :meth:`AxisSwitch.select`
 waits, bounded, for the commit to finish.
 """
+
 from __future__ import annotations
 
 from typing import Optional
@@ -17,7 +18,7 @@ from ..overlays.spec.axis_switch import (
     axis_switch_map,
     mi_mux_name,
 )
-from .mmio import DriverError, Registers, RegisterRangeError, RegisterWindow
+from .mmio import DriverError, RegisterRangeError, Registers, RegisterWindow
 
 __all__ = ["AxisSwitch", "LIVE", "VIRTUAL", "INPUT_NAMES", "SwitchError"]
 
@@ -33,10 +34,13 @@ class AxisSwitch:
     metadata (``NUM_SI``).
     """
 
-    def __init__(self, window: RegisterWindow, *, inputs: int = 2, name: str = "axis_switch",
-                 timeout: float = 1.0) -> None:
+    def __init__(
+        self, window: RegisterWindow, *, inputs: int = 2, name: str = "axis_switch", timeout: float = 1.0
+    ) -> None:
         if isinstance(inputs, bool) or not isinstance(inputs, int) or not 1 <= inputs <= MAX_INTERFACES:
-            raise SwitchError(f"{name}: NUM_SI={inputs!r}; an AXI4-Stream switch has 1..{MAX_INTERFACES} inputs")
+            raise SwitchError(
+                f"{name}: NUM_SI={inputs!r}; an AXI4-Stream switch has 1..{MAX_INTERFACES} inputs"
+            )
         self.inputs = inputs
         self.name = name
         self.timeout = timeout
@@ -48,8 +52,10 @@ class AxisSwitch:
     def select(self, index: int, timeout: Optional[float] = None) -> None:
         """Route slave interface ``index`` to MI0; blocks (at most ``timeout`` s) until committed."""
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < self.inputs:
-            raise RegisterRangeError(f"{self.name}: input {index!r} does not exist (0..{self.inputs - 1}: "
-                                     f"{', '.join(f'{i}={n}' for i, n in INPUT_NAMES.items() if i < self.inputs)})")
+            raise RegisterRangeError(
+                f"{self.name}: input {index!r} does not exist (0..{self.inputs - 1}: "
+                f"{', '.join(f'{i}={n}' for i, n in INPUT_NAMES.items() if i < self.inputs)})"
+            )
         self._commit(self._mux.encode(MUX=index, DISABLE=0), timeout)
 
     def disable(self, timeout: Optional[float] = None) -> None:
@@ -59,9 +65,12 @@ class AxisSwitch:
     def _commit(self, mux: int, timeout: Optional[float]) -> None:
         self.regs.write(self._mux.name, mux)
         self.regs.write(self._ctrl.name, self._ctrl.encode(REG_UPDATE=1))
-        self.regs.wait(self._ctrl.name, lambda v: not self._ctrl.get(v, "REG_UPDATE"),
-                       expected="cleared REG_UPDATE (commit never finished: is the switch clocked?)",
-                       timeout=self.timeout if timeout is None else timeout)
+        self.regs.wait(
+            self._ctrl.name,
+            lambda v: not self._ctrl.get(v, "REG_UPDATE"),
+            expected="cleared REG_UPDATE (commit never finished: is the switch clocked?)",
+            timeout=self.timeout if timeout is None else timeout,
+        )
 
     def selected(self) -> Optional[int]:
         """The input MI0 is set to (read back from ``MI0_MUX``), or None when disabled."""

@@ -36,6 +36,7 @@ Each channel serialises its own calls with a lock, and the read-modify-write
 of the shared ``PARK_PTR_REG`` is serialised across channels, so the two
 channels may be driven from different threads.
 """
+
 from __future__ import annotations
 
 import threading
@@ -61,7 +62,15 @@ from ..overlays.spec.vdma import (
     reg,
     start_address,
 )
-from .mmio import Allocator, DriverError, Registers, RegisterRangeError, RegisterTimeout, RegisterWindow, UnsupportedIP
+from .mmio import (
+    Allocator,
+    DriverError,
+    RegisterRangeError,
+    Registers,
+    RegisterTimeout,
+    RegisterWindow,
+    UnsupportedIP,
+)
 
 ADDRESS_LIMIT = 1 << 32  # 32-bit start-address registers
 
@@ -171,8 +180,15 @@ class _Channel:
         return self.regs.field("PARK_PTR_REG", PARK_STORE[self.name])
 
     # -- lifecycle ----------------------------------------------------------------------
-    def start(self, width: int, height: int, *, buffers: Optional[Sequence[Any]] = None,
-              circular: bool = True, timeout: Optional[float] = None) -> None:
+    def start(
+        self,
+        width: int,
+        height: int,
+        *,
+        buffers: Optional[Sequence[Any]] = None,
+        circular: bool = True,
+        timeout: Optional[float] = None,
+    ) -> None:
         """(Re)start the channel on ``num_fstores`` frame buffers of ``(height, width, 8)`` uint8.
 
         ``buffers`` (one per store, in DMA-able memory) stay the caller's;
@@ -186,22 +202,31 @@ class _Channel:
             raise TypeError("width and height are pixel counts")
         width, height = int(width), int(height)
         if not 1 <= height <= MAX_VSIZE:
-            raise RegisterRangeError(f"{self.vdma.name} {self.name}: height {height} is outside 1..{MAX_VSIZE} (VSIZE)")
+            raise RegisterRangeError(
+                f"{self.vdma.name} {self.name}: height {height} is outside 1..{MAX_VSIZE} (VSIZE)"
+            )
         if not 1 <= width * STREAM_BYTES <= MAX_HSIZE:
             raise RegisterRangeError(
                 f"{self.vdma.name} {self.name}: width {width} is outside 1..{MAX_HSIZE // STREAM_BYTES} "
-                f"({STREAM_BYTES}-byte pixels, HSIZE)")
+                f"({STREAM_BYTES}-byte pixels, HSIZE)"
+            )
         given = None if buffers is None else self._check_buffers(buffers, width, height)
         with self.lock:
             self.reset(timeout)
             if given is not None:
                 self._free_owned()
                 self.buffers, self._owned = given, False
-            elif not (self._owned and self.buffers and self.buffers[0].shape == (height, width, STREAM_BYTES)
-                      and not any(getattr(b, "freed", False) for b in self.buffers)):
+            elif not (
+                self._owned
+                and self.buffers
+                and self.buffers[0].shape == (height, width, STREAM_BYTES)
+                and not any(getattr(b, "freed", False) for b in self.buffers)
+            ):
                 self._free_owned()
-                self.buffers = tuple(self.vdma.allocator((height, width, STREAM_BYTES), np.uint8)
-                                     for _ in range(self.num_fstores))
+                self.buffers = tuple(
+                    self.vdma.allocator((height, width, STREAM_BYTES), np.uint8)
+                    for _ in range(self.num_fstores)
+                )
                 self._owned = True
                 self._check_buffers(self.buffers, width, height)
             stride = int(self.buffers[0].strides[0])
@@ -212,34 +237,49 @@ class _Channel:
         bufs = tuple(buffers)
         where = f"{self.vdma.name} {self.name}"
         if len(bufs) != self.num_fstores:
-            raise FrameShapeError(f"{where}: {len(bufs)} buffers given, the VDMA has {self.num_fstores} frame stores")
+            raise FrameShapeError(
+                f"{where}: {len(bufs)} buffers given, the VDMA has {self.num_fstores} frame stores"
+            )
         strides = {int(b.strides[0]) for b in bufs}
         for i, b in enumerate(bufs):
             if b.shape != (height, width, STREAM_BYTES) or b.dtype != np.uint8:
-                raise FrameShapeError(f"{where}: buffer {i} is {b.shape} {b.dtype}, "
-                                      f"expected ({height}, {width}, {STREAM_BYTES}) uint8")
+                raise FrameShapeError(
+                    f"{where}: buffer {i} is {b.shape} {b.dtype}, "
+                    f"expected ({height}, {width}, {STREAM_BYTES}) uint8"
+                )
             if b.strides[1:] != (STREAM_BYTES, 1):
                 raise FrameShapeError(f"{where}: buffer {i} must have contiguous lines (strides {b.strides})")
             address = int(b.physical_address)
             if address % STREAM_BYTES or not 0 <= address < ADDRESS_LIMIT:
                 raise RegisterRangeError(
-                    f"{where}: buffer {i} at {address:#x} is not an {STREAM_BYTES}-byte aligned 32-bit address")
+                    f"{where}: buffer {i} at {address:#x} is not an {STREAM_BYTES}-byte aligned "
+                    "32-bit address"
+                )
         if len(strides) != 1:
             raise FrameShapeError(f"{where}: all buffers need the same line stride, got {sorted(strides)}")
         stride = strides.pop()
         if stride % STREAM_BYTES or not width * STREAM_BYTES <= stride <= MAX_STRIDE:
-            raise RegisterRangeError(f"{where}: line stride {stride} must be a multiple of {STREAM_BYTES} "
-                                     f"in {width * STREAM_BYTES}..{MAX_STRIDE}")
+            raise RegisterRangeError(
+                f"{where}: line stride {stride} must be a multiple of {STREAM_BYTES} "
+                f"in {width * STREAM_BYTES}..{MAX_STRIDE}"
+            )
         return bufs
 
     def _program(self, cfg: ChannelConfig, timeout: Optional[float]) -> None:
         """PG020 register-direct start: park pointer, RS=1, addresses, stride, HSIZE, VSIZE last."""
         self._set_park_ref(0)
-        self.regs.write(self.CR.name, self.CR.encode(
-            RS=1, Circular_Park=int(cfg.circular), FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1))
-        self.regs.wait(self.SR.name, lambda v: not self.SR.get(v, "Halted"),
-                       expected="cleared Halted after RS=1 (fatal error pending, or the IP is not clocked?)",
-                       timeout=self._timeout(timeout))
+        self.regs.write(
+            self.CR.name,
+            self.CR.encode(
+                RS=1, Circular_Park=int(cfg.circular), FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1
+            ),
+        )
+        self.regs.wait(
+            self.SR.name,
+            lambda v: not self.SR.get(v, "Halted"),
+            expected="cleared Halted after RS=1 (fatal error pending, or the IP is not clocked?)",
+            timeout=self._timeout(timeout),
+        )
         banked = self.num_fstores > BANK_SIZE
         index = reg(self.name, "REG_INDEX")
         for store, address in enumerate(cfg.addresses):
@@ -270,9 +310,12 @@ class _Channel:
         """
         with self.lock:
             self.regs.modify(self.CR.name, RS=0)
-            self.regs.wait(self.SR.name, lambda v: bool(self.SR.get(v, "Halted")),
-                           expected="set Halted after RS=0 (the frame in flight never finished?)",
-                           timeout=self._timeout(timeout))
+            self.regs.wait(
+                self.SR.name,
+                lambda v: bool(self.SR.get(v, "Halted")),
+                expected="set Halted after RS=0 (the frame in flight never finished?)",
+                timeout=self._timeout(timeout),
+            )
 
     def reset(self, timeout: Optional[float] = None) -> None:
         """Soft-reset the channel: write ``VDMACR.Reset`` and wait for it to clear itself.
@@ -283,9 +326,12 @@ class _Channel:
         with self.lock:
             self.regs.write(self.CR.name, self.CR.encode(Reset=1))
             self._forget_frames()
-            self.regs.wait(self.CR.name, lambda v: not self.CR.get(v, "Reset"),
-                           expected="cleared Reset (soft reset never completed)",
-                           timeout=self._timeout(timeout))
+            self.regs.wait(
+                self.CR.name,
+                lambda v: not self.CR.get(v, "Reset"),
+                expected="cleared Reset (soft reset never completed)",
+                timeout=self._timeout(timeout),
+            )
 
     def recover(self, timeout: Optional[float] = None) -> Recovery:
         """Get a faulted channel running again with its previous configuration and buffers.
@@ -321,7 +367,9 @@ class _Channel:
         with self.lock:
             cfg = self._require_config()
             if not 0 <= store < self.num_fstores:
-                raise RegisterRangeError(f"{self.vdma.name} {self.name}: store {store} is outside 0..{self.num_fstores - 1}")
+                raise RegisterRangeError(
+                    f"{self.vdma.name} {self.name}: store {store} is outside 0..{self.num_fstores - 1}"
+                )
             self._set_park_ref(store)
             if cfg.circular:
                 self.regs.modify(self.CR.name, Circular_Park=0)
@@ -368,8 +416,10 @@ class S2MMChannel(_Channel):
             cfg = self._require_config()
             where = f"{self.vdma.name} S2MM"
             if not cfg.circular or self.num_fstores < 2:
-                raise VDMAError(f"{where}: frames can only be read in circular mode with 2 or more stores "
-                                f"(the parked or only store is always being written)")
+                raise VDMAError(
+                    f"{where}: frames can only be read in circular mode with 2 or more stores "
+                    f"(the parked or only store is always being written)"
+                )
             sr = self.regs.read(self.SR.name)
             fatal = tuple(e for e in self._errors_in(sr) if e in FATAL_ERRORS)
             if fatal:
@@ -401,13 +451,18 @@ class S2MMChannel(_Channel):
             if fresh:
                 self.regs.write(self.SR.name, irq)
             sr = self.regs.wait(
-                self.SR.name, lambda v: bool(self.SR.get(v, "FrmCnt_Irq") or self.SR.get(v, "Halted")),
-                expected="set FrmCnt_Irq (no frame completed: is the stream running and the channel started?)",
-                timeout=self._timeout(timeout))
+                self.SR.name,
+                lambda v: bool(self.SR.get(v, "FrmCnt_Irq") or self.SR.get(v, "Halted")),
+                expected="set FrmCnt_Irq (no frame completed: is the stream running, the channel started?)",
+                timeout=self._timeout(timeout),
+            )
             if not self.SR.get(sr, "FrmCnt_Irq"):
                 errors = self._errors_in(sr)
-                raise ChannelFault(f"{self.vdma.name} S2MM halted while waiting for a frame"
-                                   f"{' on ' + ', '.join(errors) if errors else ' (stopped)'}", errors)
+                raise ChannelFault(
+                    f"{self.vdma.name} S2MM halted while waiting for a frame"
+                    f"{' on ' + ', '.join(errors) if errors else ' (stopped)'}",
+                    errors,
+                )
             self.regs.write(self.SR.name, irq)
             self._have_frame = True
             return self.latest_completed()
@@ -434,8 +489,10 @@ class MM2SChannel(_Channel):
             where = f"{self.vdma.name} MM2S"
             frame = np.asarray(frame)
             if frame.shape != (cfg.height, cfg.width, STREAM_BYTES) or frame.dtype != np.uint8:
-                raise FrameShapeError(f"{where}: frame is {frame.shape} {frame.dtype}, expected "
-                                      f"({cfg.height}, {cfg.width}, {STREAM_BYTES}) uint8")
+                raise FrameShapeError(
+                    f"{where}: frame is {frame.shape} {frame.dtype}, expected "
+                    f"({cfg.height}, {cfg.width}, {STREAM_BYTES}) uint8"
+                )
             if self.num_fstores < 2:
                 raise VDMAError(f"{where}: needs 2 or more frame stores to change frames without tearing")
             park = VDMA_MAP["PARK_PTR_REG"]
@@ -444,15 +501,19 @@ class MM2SChannel(_Channel):
                 target = self._free_store(ptr)
                 if target is None:
                     ptr = self.regs.wait(
-                        park.name, lambda v: park.get(v, "RdFrmStore") == park.get(v, "RdFrmPtrRef"),
+                        park.name,
+                        lambda v: park.get(v, "RdFrmStore") == park.get(v, "RdFrmPtrRef"),
                         expected="showed RdFrmStore == RdFrmPtrRef (MM2S never reached its park store)",
-                        timeout=self._timeout(timeout))
+                        timeout=self._timeout(timeout),
+                    )
                     target = self._free_store(ptr)
                     assert target is not None
                 buf = self.buffers[target]
                 np.copyto(buf, frame)
                 buf.flush()
-                self.regs.write(park.name, park.encode(RdFrmPtrRef=target, WrFrmPtrRef=park.get(ptr, "WrFrmPtrRef")))
+                self.regs.write(
+                    park.name, park.encode(RdFrmPtrRef=target, WrFrmPtrRef=park.get(ptr, "WrFrmPtrRef"))
+                )
             if cfg.circular:
                 self.regs.modify(self.CR.name, Circular_Park=0)
                 self.config = ChannelConfig(cfg.width, cfg.height, False, cfg.stride, cfg.addresses)
@@ -473,9 +534,11 @@ class MM2SChannel(_Channel):
             self._require_config()
             park = VDMA_MAP["PARK_PTR_REG"]
             ptr = self.regs.wait(
-                park.name, lambda v: park.get(v, "RdFrmStore") == park.get(v, "RdFrmPtrRef"),
+                park.name,
+                lambda v: park.get(v, "RdFrmStore") == park.get(v, "RdFrmPtrRef"),
                 expected="showed RdFrmStore == RdFrmPtrRef (is the MM2S channel running?)",
-                timeout=self._timeout(timeout))
+                timeout=self._timeout(timeout),
+            )
             return park.get(ptr, "RdFrmStore")
 
 
@@ -489,12 +552,28 @@ class VDMA:
     constructor reads ``VDMA_VERSION`` and refuses anything but v6.x.
     """
 
-    def __init__(self, window: RegisterWindow, allocator: Allocator, *, num_fstores: int,
-                 name: str = "vdma", timeout: float = 1.0, addr_width: int = 32) -> None:
-        if isinstance(num_fstores, bool) or not isinstance(num_fstores, int) or not 1 <= num_fstores <= MAX_FSTORES:
-            raise UnsupportedIP(f"{name}: C_NUM_FSTORES={num_fstores!r}; an AXI VDMA has 1..{MAX_FSTORES} frame stores")
+    def __init__(
+        self,
+        window: RegisterWindow,
+        allocator: Allocator,
+        *,
+        num_fstores: int,
+        name: str = "vdma",
+        timeout: float = 1.0,
+        addr_width: int = 32,
+    ) -> None:
+        if (
+            isinstance(num_fstores, bool)
+            or not isinstance(num_fstores, int)
+            or not 1 <= num_fstores <= MAX_FSTORES
+        ):
+            raise UnsupportedIP(
+                f"{name}: C_NUM_FSTORES={num_fstores!r}; an AXI VDMA has 1..{MAX_FSTORES} frame stores"
+            )
         if addr_width != 32:
-            raise UnsupportedIP(f"{name}: {addr_width}-bit addressing is not supported (32-bit start addresses only)")
+            raise UnsupportedIP(
+                f"{name}: {addr_width}-bit addressing is not supported (32-bit start addresses only)"
+            )
         self.name = name
         self.num_fstores = num_fstores
         self.allocator = allocator
@@ -506,7 +585,8 @@ class VDMA:
         if fields["Major"] != SUPPORTED_MAJOR:
             raise UnsupportedIP(
                 f"{name}: VDMA_VERSION reads {version:#010x} (major {fields['Major']}); this driver drives "
-                f"AXI VDMA v{SUPPORTED_MAJOR}.x: is there a VDMA at this address?")
+                f"AXI VDMA v{SUPPORTED_MAJOR}.x: is there a VDMA at this address?"
+            )
         self.version = (fields["Major"], fields["Minor"], fields["Revision"])
         self.s2mm = S2MMChannel(self)
         self.mm2s = MM2SChannel(self)

@@ -1,4 +1,5 @@
 """The emulated DDR: page allocator, PynqBuffer-like arrays, and access by physical address."""
+
 from __future__ import annotations
 
 import gc
@@ -30,7 +31,11 @@ def test_allocations_are_page_aligned_zeroed_and_distinct(ddr: EmulatedDDR) -> N
     c = ddr.allocate((PAGE + 1,), "u1")  # pynq passes dtype strings
     assert isinstance(a, EmulatedBuffer) and a.shape == (3, 4, 8) and a.dtype == np.uint8
     assert b.dtype == np.uint32
-    assert [a.physical_address, b.physical_address, c.physical_address] == [BASE, BASE + PAGE, BASE + 2 * PAGE]
+    assert [a.physical_address, b.physical_address, c.physical_address] == [
+        BASE,
+        BASE + PAGE,
+        BASE + 2 * PAGE,
+    ]
     assert a.device_address == a.physical_address
     assert not a.any() and not c.any()
     assert ddr.num_buffers == 3
@@ -118,7 +123,9 @@ def test_context_manager_and_close_free(ddr: EmulatedDDR) -> None:
 
 def test_out_of_memory_says_how_much_is_free(ddr: EmulatedDDR) -> None:
     keep = ddr.allocate((60 * PAGE,))
-    with pytest.raises(OutOfDDR, match=f"cannot allocate {5 * PAGE} bytes: {4 * PAGE} of {64 * PAGE} bytes free"):
+    with pytest.raises(
+        OutOfDDR, match=f"cannot allocate {5 * PAGE} bytes: {4 * PAGE} of {64 * PAGE} bytes free"
+    ):
         ddr.allocate((5 * PAGE,))
     assert isinstance(OutOfDDR("x"), MemoryError)
     keep.freebuffer()
@@ -191,4 +198,4 @@ def test_concurrent_allocations_never_overlap(ddr: EmulatedDDR) -> None:
     assert not errors
     assert ddr.num_buffers == len(live)
     spans = sorted((b.physical_address, b.physical_address + b.nbytes) for b in live)
-    assert all(end <= start for (_, end), (start, _) in zip(spans, spans[1:]))
+    assert all(end <= start for (_, end), (start, _) in zip(spans, spans[1:], strict=False))

@@ -4,6 +4,7 @@ Values are built from the register table; the first tests pin the table
 itself to PG020 and to the literal words pynq's driver writes, so the
 sequences below are anchored to the datasheet, not to themselves.
 """
+
 from __future__ import annotations
 
 from typing import List, Tuple
@@ -48,11 +49,25 @@ def sr_word(ch: str, **fields: int) -> int:
 # -- the table against PG020 and pynq ------------------------------------------------------
 def test_register_offsets_follow_pg020_table_2_5() -> None:
     expected = {
-        "MM2S_VDMACR": 0x00, "MM2S_VDMASR": 0x04, "MM2S_REG_INDEX": 0x14, "PARK_PTR_REG": 0x28,
-        "VDMA_VERSION": 0x2C, "S2MM_VDMACR": 0x30, "S2MM_VDMASR": 0x34, "S2MM_VDMA_IRQ_MASK": 0x3C,
-        "S2MM_REG_INDEX": 0x44, "MM2S_VSIZE": 0x50, "MM2S_HSIZE": 0x54, "MM2S_FRMDLY_STRIDE": 0x58,
-        "MM2S_START_ADDRESS1": 0x5C, "MM2S_START_ADDRESS16": 0x98, "S2MM_VSIZE": 0xA0, "S2MM_HSIZE": 0xA4,
-        "S2MM_FRMDLY_STRIDE": 0xA8, "S2MM_START_ADDRESS1": 0xAC, "S2MM_START_ADDRESS16": 0xE8,
+        "MM2S_VDMACR": 0x00,
+        "MM2S_VDMASR": 0x04,
+        "MM2S_REG_INDEX": 0x14,
+        "PARK_PTR_REG": 0x28,
+        "VDMA_VERSION": 0x2C,
+        "S2MM_VDMACR": 0x30,
+        "S2MM_VDMASR": 0x34,
+        "S2MM_VDMA_IRQ_MASK": 0x3C,
+        "S2MM_REG_INDEX": 0x44,
+        "MM2S_VSIZE": 0x50,
+        "MM2S_HSIZE": 0x54,
+        "MM2S_FRMDLY_STRIDE": 0x58,
+        "MM2S_START_ADDRESS1": 0x5C,
+        "MM2S_START_ADDRESS16": 0x98,
+        "S2MM_VSIZE": 0xA0,
+        "S2MM_HSIZE": 0xA4,
+        "S2MM_FRMDLY_STRIDE": 0xA8,
+        "S2MM_START_ADDRESS1": 0xAC,
+        "S2MM_START_ADDRESS16": 0xE8,
     }
     assert {name: VDMA_MAP.offset(name) for name in expected} == expected
     assert start_address("S2MM", 17) == (1, VDMA_MAP["S2MM_START_ADDRESS2"])
@@ -68,9 +83,17 @@ def test_field_layout_reproduces_the_words_pynq_writes() -> None:
     assert s2mm_sr.encode(VDMAIntErr=1, SOFEarlyErr=1, Err_Irq=1) == 0x4090
     assert s2mm_sr.bit("FrmCnt_Irq") == 0x1000 and s2mm_sr.bit("Halted") == 0x1
     assert [PARK.field(f).mask for f in ("RdFrmPtrRef", "WrFrmPtrRef", "RdFrmStore", "WrFrmStore")] == [
-        0x1F, 0x1F00, 0x1F_0000, 0x1F00_0000]
+        0x1F,
+        0x1F00,
+        0x1F_0000,
+        0x1F00_0000,
+    ]
     version = VDMA_MAP["VDMA_VERSION"]
-    assert [version.field(f).mask for f in ("Major", "Minor", "Revision")] == [0xF000_0000, 0x0FF0_0000, 0x000F_0000]
+    assert [version.field(f).mask for f in ("Major", "Minor", "Revision")] == [
+        0xF000_0000,
+        0x0FF0_0000,
+        0x000F_0000,
+    ]
     assert VDMA_MAP["MM2S_VDMASR"].reset == 0x0001_0001  # Halted, IRQFrameCntSts = 1
     assert VDMA_MAP["S2MM_VDMACR"].reset == 0x0001_0000  # IRQFrameCount = 1
     assert "EOLLateErr" not in {f.name for f in VDMA_MAP["MM2S_VDMASR"].fields}
@@ -102,10 +125,19 @@ def reset_ops(ch: str) -> List[Op]:
     return [("w", cr(ch), reset), ("r", cr(ch), reset), ("r", cr(ch), reg(ch, "VDMACR").reset)]
 
 
-def program_ops(ch: str, addresses: List[int], *, circular: bool, park_before: int, park_after: int,
-                width: int = W, height: int = H) -> List[Op]:
-    control = reg(ch, "VDMACR").encode(RS=1, Circular_Park=int(circular), FrmCnt_IrqEn=1, Err_IrqEn=1,
-                                       IRQFrameCount=1)
+def program_ops(
+    ch: str,
+    addresses: List[int],
+    *,
+    circular: bool,
+    park_before: int,
+    park_after: int,
+    width: int = W,
+    height: int = H,
+) -> List[Op]:
+    control = reg(ch, "VDMACR").encode(
+        RS=1, Circular_Park=int(circular), FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1
+    )
     ops: List[Op] = [
         ("r", 0x28, park_before),
         ("w", 0x28, park_after),
@@ -133,9 +165,15 @@ def test_start_s2mm_circular_exact_sequence() -> None:
     win, vdma, ddr = make()
     win.expect(*reset_ops("S2MM"))
     # the MM2S park pointer (2) is preserved, S2MM's set to 0, read-only store fields not written back
-    win.expect(*program_ops("S2MM", [DDR_BASE, DDR_BASE + PAGE, DDR_BASE + 2 * PAGE], circular=True,
-                            park_before=PARK.encode(RdFrmPtrRef=2, WrFrmPtrRef=1, WrFrmStore=1, RdFrmStore=2),
-                            park_after=PARK.encode(RdFrmPtrRef=2)))
+    win.expect(
+        *program_ops(
+            "S2MM",
+            [DDR_BASE, DDR_BASE + PAGE, DDR_BASE + 2 * PAGE],
+            circular=True,
+            park_before=PARK.encode(RdFrmPtrRef=2, WrFrmPtrRef=1, WrFrmStore=1, RdFrmStore=2),
+            park_after=PARK.encode(RdFrmPtrRef=2),
+        )
+    )
     vdma.s2mm.start(W, H)
     win.assert_done()
     assert program_ops("S2MM", [0], circular=True, park_before=0, park_after=0)[2] == ("w", 0x30, 0x0001_5003)
@@ -149,19 +187,32 @@ def test_start_mm2s_parked_exact_sequence_with_given_buffers() -> None:
     wide = ddr.allocate((3, H, 2 * W, 8))  # lines of 64 bytes, frames use the first 32
     buffers = [wide[i, :, :W] for i in range(3)]
     win.expect(*reset_ops("MM2S"))
-    win.expect(*program_ops("MM2S", [b.physical_address for b in buffers], circular=False,
-                            park_before=PARK.encode(WrFrmPtrRef=2), park_after=PARK.encode(WrFrmPtrRef=2)))
+    win.expect(
+        *program_ops(
+            "MM2S",
+            [b.physical_address for b in buffers],
+            circular=False,
+            park_before=PARK.encode(WrFrmPtrRef=2),
+            park_after=PARK.encode(WrFrmPtrRef=2),
+        )
+    )
     win.expected[-3] = ("w", 0x58, 0x0100_0000 | 64)  # stride from the buffers, not the width
     vdma.mm2s.start(W, H, buffers=buffers, circular=False)
     win.assert_done()
-    assert program_ops("MM2S", [0], circular=False, park_before=0, park_after=0)[2] == ("w", 0x00, 0x0001_5001)
+    assert program_ops("MM2S", [0], circular=False, park_before=0, park_after=0)[2] == (
+        "w",
+        0x00,
+        0x0001_5001,
+    )
     assert vdma.mm2s.buffers == tuple(buffers) and ddr.num_buffers == 1  # nothing allocated
 
 
 def test_start_with_more_than_16_stores_switches_register_banks() -> None:
     win, vdma, _ = make(num_fstores=20)
     win.expect(*reset_ops("S2MM"))
-    ops = program_ops("S2MM", [DDR_BASE + i * PAGE for i in range(20)], circular=True, park_before=0, park_after=0)
+    ops = program_ops(
+        "S2MM", [DDR_BASE + i * PAGE for i in range(20)], circular=True, park_before=0, park_after=0
+    )
     win.expect(*ops)
     vdma.s2mm.start(W, H)
     win.assert_done()
@@ -205,13 +256,22 @@ def test_recover_exact_sequence(ch: str, w1c: int) -> None:
     faulted = sr_word(ch, VDMADecErr=1, Err_Irq=1)
     win.expect(
         ("r", sr(ch), faulted),
-        ("r", cr(ch), reg(ch, "VDMACR").encode(Circular_Park=1, FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1)),
-        ("w", cr(ch), reg(ch, "VDMACR").encode(Circular_Park=1, FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1)),
+        (
+            "r",
+            cr(ch),
+            reg(ch, "VDMACR").encode(Circular_Park=1, FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1),
+        ),
+        (
+            "w",
+            cr(ch),
+            reg(ch, "VDMACR").encode(Circular_Park=1, FrmCnt_IrqEn=1, Err_IrqEn=1, IRQFrameCount=1),
+        ),
         ("r", sr(ch), faulted),  # a fatal error already halted the channel
         *reset_ops(ch),
         ("w", sr(ch), w1c),
-        *program_ops(ch, [DDR_BASE, DDR_BASE + PAGE, DDR_BASE + 2 * PAGE], circular=True,
-                     park_before=0, park_after=0),
+        *program_ops(
+            ch, [DDR_BASE, DDR_BASE + PAGE, DDR_BASE + 2 * PAGE], circular=True, park_before=0, park_after=0
+        ),
     )
     assert vdma.channels[ch].recover() == Recovery(("VDMADecErr",), True)
     win.assert_done()
@@ -306,7 +366,9 @@ def test_arguments_are_checked_before_any_register_access() -> None:
     with pytest.raises(FrameShapeError, match="2 buffers given, the VDMA has 3 frame stores"):
         vdma.s2mm.start(W, H, buffers=[ddr.allocate((H, W, 8)) for _ in range(2)])
     with pytest.raises(FrameShapeError, match=r"buffer 1 is \(3, 5, 8\) uint8"):
-        vdma.s2mm.start(W, H, buffers=[ddr.allocate((H, W, 8)), ddr.allocate((H, W + 1, 8)), ddr.allocate((H, W, 8))])
+        vdma.s2mm.start(
+            W, H, buffers=[ddr.allocate((H, W, 8)), ddr.allocate((H, W + 1, 8)), ddr.allocate((H, W, 8))]
+        )
     with pytest.raises(FrameShapeError, match="contiguous lines"):
         vdma.s2mm.start(W, H, buffers=[ddr.allocate((H, 2 * W, 8))[:, ::2] for _ in range(3)])
     with pytest.raises(ChannelNotStarted, match="call start"):

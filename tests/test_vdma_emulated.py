@@ -1,4 +1,5 @@
 """The VDMA driver against the emulated VDMA and DDR: behaviour, not register sequences."""
+
 from __future__ import annotations
 
 import threading
@@ -286,7 +287,7 @@ def test_timeouts_name_the_register_that_never_changed(rig) -> None:
     hw.hang("S2MM", "reset", False)
     hw.hang("MM2S", "run")
     with pytest.raises(RegisterTimeout, match="MM2S_VDMASR never cleared Halted after RS=1"):
-        vdma.mm2s.start(W, H, timeout=0.02)
+        vdma.mm2s.start(W, H, timeout=0.1)  # long enough for the reset, which does finish
     hw.hang("MM2S", "run", False)
     vdma.s2mm.start(W, H)
     with pytest.raises(RegisterTimeout, match="S2MM_VDMASR never set FrmCnt_Irq"):
@@ -295,7 +296,7 @@ def test_timeouts_name_the_register_that_never_changed(rig) -> None:
     hw.hang("S2MM", "halt")
     with pytest.raises(RegisterTimeout, match="S2MM_VDMASR never set Halted after RS=0"):
         vdma.s2mm.stop(timeout=0.02)
-    recovery = vdma.s2mm.recover(timeout=0.02)  # the reset ends what the stop could not
+    recovery = vdma.s2mm.recover(timeout=0.1)  # the reset ends what the stop could not
     assert recovery == Recovery((), False) and vdma.s2mm.running
     vdma.mm2s.start(W, H, circular=False)
     assert vdma.mm2s.wait_parked() == 0

@@ -24,6 +24,7 @@ Rules, as on the board:
 Thread-safe: the frame clock thread and driver threads may allocate, free
 and access at once.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -106,8 +107,10 @@ class EmulatedBuffer(np.ndarray):
     @property
     def physical_address(self) -> int:
         if self._ddr is None:
-            raise NotInDDR("this array does not live in an EmulatedDDR (allocate it there; "
-                           "results computed from a buffer are ordinary memory)")
+            raise NotInDDR(
+                "this array does not live in an EmulatedDDR (allocate it there; "
+                "results computed from a buffer are ordinary memory)"
+            )
         return self._ddr.address_of(self)
 
     @property
@@ -183,7 +186,9 @@ class EmulatedDDR:
         if base % PAGE or size % PAGE or size <= 0:
             raise ValueError(f"DDR base {base:#x} and size {size:#x} must be positive multiples of {PAGE:#x}")
         if base < 0 or base + size > 1 << 32:
-            raise ValueError(f"DDR window [{base:#x}, {base + size:#x}) must lie below 4 GiB (32-bit DMA addresses)")
+            raise ValueError(
+                f"DDR window [{base:#x}, {base + size:#x}) must lie below 4 GiB (32-bit DMA addresses)"
+            )
         self.base = base
         self.size = size
         self._mem = np.zeros(size, np.uint8)  # calloc: pages are committed when touched
@@ -199,8 +204,15 @@ class EmulatedDDR:
         self.invalidates = 0
 
     # -- allocation ---------------------------------------------------------------------
-    def allocate(self, shape: Any, dtype: Any = np.uint8, *, pointer: Optional[_Allocation] = None,
-                 cache: Any = None, **ignored: Any) -> EmulatedBuffer:
+    def allocate(
+        self,
+        shape: Any,
+        dtype: Any = np.uint8,
+        *,
+        pointer: Optional[_Allocation] = None,
+        cache: Any = None,
+        **ignored: Any,
+    ) -> EmulatedBuffer:
         """A zero-initialised-at-first-use array of ``shape``/``dtype`` in DDR.
 
         ``pointer``/``cache`` follow pynq's frame-cache protocol: ``pointer``
@@ -216,11 +228,15 @@ class EmulatedDDR:
             if not isinstance(pointer, _Allocation) or pointer.freed:
                 raise ValueError(f"pointer {pointer!r} is not a live allocation of this DDR")
             if nbytes > pointer.nbytes:
-                raise ValueError(f"{nbytes} bytes do not fit the {pointer.nbytes}-byte allocation being reused")
+                raise ValueError(
+                    f"{nbytes} bytes do not fit the {pointer.nbytes}-byte allocation being reused"
+                )
             alloc = pointer
         else:
             alloc = self._take(nbytes)
-        buf = np.ndarray.__new__(EmulatedBuffer, shape, dtype=dt, buffer=self._mem, offset=alloc.start - self.base)
+        buf = np.ndarray.__new__(
+            EmulatedBuffer, shape, dtype=dt, buffer=self._mem, offset=alloc.start - self.base
+        )
         buf._ddr = self
         buf._allocation = alloc
         buf._root = True
@@ -339,7 +355,7 @@ class EmulatedDDR:
         """Writable ``uint8`` view of ``nbytes`` at ``address``; :class:`DecodeError` outside allocations."""
         self._lookup(address, nbytes)
         off = address - self.base
-        return self._mem[off:off + nbytes]
+        return self._mem[off : off + nbytes]
 
     def view2d(self, address: int, lines: int, line_bytes: int, stride: int) -> np.ndarray:
         """Writable ``(lines, line_bytes)`` uint8 view of a 2-D transfer, as a VDMA addresses it.
@@ -349,7 +365,9 @@ class EmulatedDDR:
         inside one live allocation, else :class:`DecodeError`.
         """
         if lines < 1 or line_bytes < 1 or stride < 1:
-            raise ValueError(f"a 2-D transfer needs lines, line_bytes and stride >= 1, got {lines}, {line_bytes}, {stride}")
+            raise ValueError(
+                f"a 2-D transfer needs lines, line_bytes and stride >= 1, got {lines}, {line_bytes}, {stride}"
+            )
         extent = (lines - 1) * stride + line_bytes
         flat = self.view(address, extent)
         return np.lib.stride_tricks.as_strided(flat, shape=(lines, line_bytes), strides=(stride, 1))
@@ -358,5 +376,9 @@ class EmulatedDDR:
         return self.view(address, nbytes).tobytes()
 
     def write(self, address: int, data: Any) -> None:
-        raw = np.frombuffer(bytes(data), np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1).view(np.uint8)
+        """Copy bytes (or an array's bytes, C order) to ``address``; :class:`DecodeError` outside."""
+        if isinstance(data, np.ndarray):
+            raw = np.ascontiguousarray(data).reshape(-1).view(np.uint8)
+        else:
+            raw = np.frombuffer(bytes(data), np.uint8)
         self.view(address, raw.size)[:] = raw

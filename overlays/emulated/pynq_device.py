@@ -21,6 +21,7 @@ using :class:`EmulatedPynqDevice` or :func:`pynq_axi_vdma` does. pynq's
 import-time warnings off the board (``pkg_resources`` deprecation, "does
 not support the CPU Architecture") are silenced for that import only.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -33,8 +34,8 @@ from .ddr import EmulatedDDR
 from .regblock import EmulationError, RegisterBlock
 from .vdma import EmulatedVDMA
 
-__all__ = ["EmulatedPynqDevice", "EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma",
-           "import_pynq"]
+__all__ = ["EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma", "import_pynq"]
+# ``EmulatedPynqDevice`` is also public; it is made on first access (module ``__getattr__``).
 
 
 class InterruptTimeout(EmulationError):
@@ -45,8 +46,9 @@ def import_pynq() -> Any:
     """Import and return the ``pynq`` package (raises ImportError where it is not installed)."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="pkg_resources is deprecated", category=DeprecationWarning)
-        warnings.filterwarnings("ignore", message="Pynq does not support the CPU Architecture",
-                                category=ResourceWarning)
+        warnings.filterwarnings(
+            "ignore", message="Pynq does not support the CPU Architecture", category=ResourceWarning
+        )
         import pynq
         import pynq.lib.video.dma  # noqa: F401  (the driver under test)
         import pynq.pl_server.device  # noqa: F401
@@ -72,7 +74,9 @@ class EmulatedInterrupt:
         raise InterruptTimeout(f"interrupt {self.name} stayed low for {self.max_ticks} emulated frames")
 
 
-def loopback_tick(vdma: EmulatedVDMA, source: Optional[Callable[[], np.ndarray]] = None) -> Callable[[], None]:
+def loopback_tick(
+    vdma: EmulatedVDMA, source: Optional[Callable[[], np.ndarray]] = None
+) -> Callable[[], None]:
     """A frame clock for one VDMA: each tick its MM2S output (or ``source()``) goes into its S2MM."""
 
     def tick() -> None:
@@ -104,8 +108,15 @@ def _device_class() -> type:
         (``description["device"]``, ``MMIO(..., device=dev)``, ``target=``).
         """
 
-        def __init__(self, ddr: EmulatedDDR, blocks: Mapping[str, Tuple[int, RegisterBlock]], *,
-                     tick: Callable[[], None], max_ticks: int = 64, tag: str = "stereocam-emulated") -> None:
+        def __init__(
+            self,
+            ddr: EmulatedDDR,
+            blocks: Mapping[str, Tuple[int, RegisterBlock]],
+            *,
+            tick: Callable[[], None],
+            max_ticks: int = 64,
+            tag: str = "stereocam-emulated",
+        ) -> None:
             super().__init__(tag)
             self.capabilities = {"REGISTER_RW": True, "MEMORY_MAPPED": False, "CALLABLE": False}
             self.ddr = ddr
@@ -113,8 +124,9 @@ def _device_class() -> type:
             self.max_ticks = max_ticks
             self.blocks = dict(blocks)
             self._windows: List[Tuple[int, int, str, RegisterBlock]] = sorted(
-                (base, block.map.size, name, block) for name, (base, block) in self.blocks.items())
-            for (b0, s0, n0, _), (b1, _, n1, _) in zip(self._windows, self._windows[1:]):
+                (base, block.map.size, name, block) for name, (base, block) in self.blocks.items()
+            )
+            for (b0, s0, n0, _), (b1, _, n1, _) in zip(self._windows, self._windows[1:], strict=False):
                 if b0 + s0 > b1:
                     raise ValueError(f"register windows of {n0} and {n1} overlap")
             self.ip_dict = {name: self.ip_description(name) for name in self.blocks}
@@ -140,14 +152,18 @@ def _device_class() -> type:
 
         def read_registers(self, address: int, length: int) -> bytes:
             if address % 4 or length % 4 or length <= 0:
-                raise EmulationError(f"register read of {length} bytes at {address:#x}: whole aligned words only")
+                raise EmulationError(
+                    f"register read of {length} bytes at {address:#x}: whole aligned words only"
+                )
             block, offset = self._block_at(address, length)
             words = [block.read(offset + 4 * i) for i in range(length // 4)]
             return np.array(words, dtype="<u4").tobytes()
 
         def write_registers(self, address: int, data: bytes) -> None:
             if address % 4 or len(data) % 4 or not data:
-                raise EmulationError(f"register write of {len(data)} bytes at {address:#x}: whole aligned words only")
+                raise EmulationError(
+                    f"register write of {len(data)} bytes at {address:#x}: whole aligned words only"
+                )
             block, offset = self._block_at(address, len(data))
             for i, word in enumerate(np.frombuffer(bytes(data), dtype="<u4")):
                 block.write(offset + 4 * i, int(word))
@@ -157,14 +173,22 @@ def _device_class() -> type:
             """The ``description`` dict pynq drivers take (what ``Overlay.ip_dict`` would hold)."""
             base, block = self.blocks[name]
             desc: Dict[str, Any] = {
-                "phys_addr": base, "addr_range": block.map.size, "fullpath": name, "device": self,
-                "type": "", "parameters": {}, "state": None,
+                "phys_addr": base,
+                "addr_range": block.map.size,
+                "fullpath": name,
+                "device": self,
+                "type": "",
+                "parameters": {},
+                "state": None,
             }
             if isinstance(block, EmulatedVDMA):
                 desc["type"] = VDMA_VLNV[-1]
                 desc["parameters"] = {
-                    "C_INCLUDE_S2MM": "1", "C_INCLUDE_MM2S": "1", "C_NUM_FSTORES": str(block.num_fstores),
-                    "C_M_AXI_S2MM_ADDR_WIDTH": "32", "C_M_AXI_MM2S_ADDR_WIDTH": "32",
+                    "C_INCLUDE_S2MM": "1",
+                    "C_INCLUDE_MM2S": "1",
+                    "C_NUM_FSTORES": str(block.num_fstores),
+                    "C_M_AXI_S2MM_ADDR_WIDTH": "32",
+                    "C_M_AXI_MM2S_ADDR_WIDTH": "32",
                 }
             return desc
 

@@ -8,6 +8,7 @@ reads 1 for ``settle_reads`` register reads before it clears itself, so a
 driver has to poll it. Selecting a slave interface the switch does not have,
 or setting a reserved bit, raises: the real switch would silently misroute.
 """
+
 from __future__ import annotations
 
 from typing import List, Optional
@@ -20,8 +21,14 @@ from .regblock import EmulationError, RegisterBlock
 class EmulatedAxisSwitch(RegisterBlock):
     """A switch with ``inputs`` slave and ``outputs`` master interfaces."""
 
-    def __init__(self, inputs: int = NUM_INPUTS, outputs: int = NUM_OUTPUTS, name: str = "axis_switch",
-                 *, settle_reads: int = 2) -> None:
+    def __init__(
+        self,
+        inputs: int = NUM_INPUTS,
+        outputs: int = NUM_OUTPUTS,
+        name: str = "axis_switch",
+        *,
+        settle_reads: int = 2,
+    ) -> None:
         if not 1 <= inputs <= MAX_INTERFACES:
             raise ValueError(f"an AXI4-Stream switch has 1..{MAX_INTERFACES} slave interfaces, not {inputs}")
         if settle_reads < 1:
@@ -64,13 +71,16 @@ class EmulatedAxisSwitch(RegisterBlock):
             if reg is not None:
                 reserved = int(value) & reg.unassigned_mask
                 if reserved:
-                    raise EmulationError(f"{self.ip}: write of {int(value):#x} to {reg.name} sets reserved bits "
-                                         f"{reserved:#x}")
+                    raise EmulationError(
+                        f"{self.ip}: write of {int(value):#x} to {reg.name} sets reserved bits {reserved:#x}"
+                    )
                 if reg.name.endswith("_MUX"):
                     fields = reg.decode(int(value))
                     if not fields["DISABLE"] and fields["MUX"] >= self.inputs:
-                        raise EmulationError(f"{self.ip}: {reg.name} selects SI{fields['MUX']}, but the switch has "
-                                             f"{self.inputs} slave interfaces (SI0..SI{self.inputs - 1})")
+                        raise EmulationError(
+                            f"{self.ip}: {reg.name} selects SI{fields['MUX']}, but the switch has "
+                            f"{self.inputs} slave interfaces (SI0..SI{self.inputs - 1})"
+                        )
             super().write(offset, value)
 
     def on_write(self, reg: Register, old: int, written: int) -> None:

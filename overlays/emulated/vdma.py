@@ -54,6 +54,7 @@ which are "being sent" until the next tick.
 
 Thread-safe through the block's lock; the pixel copy happens under it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -113,7 +114,9 @@ class ChannelState:
 class EmulatedVDMA(RegisterBlock):
     """An AXI VDMA with both channels and ``num_fstores`` frame stores, moving frames in ``ddr``."""
 
-    def __init__(self, ddr: EmulatedDDR, num_fstores: int = 3, name: str = "vdma", *, settle_reads: int = 3) -> None:
+    def __init__(
+        self, ddr: EmulatedDDR, num_fstores: int = 3, name: str = "vdma", *, settle_reads: int = 3
+    ) -> None:
         if not 1 <= num_fstores <= MAX_FSTORES:
             raise ValueError(f"an AXI VDMA has 1..{MAX_FSTORES} frame stores, not {num_fstores}")
         if settle_reads < 1:
@@ -126,10 +129,10 @@ class EmulatedVDMA(RegisterBlock):
         for ch in CHANNELS:
             for reg in VDMA_MAP:
                 if reg.name.startswith(ch + "_"):
-                    kind = reg.name[len(ch) + 1:]
+                    kind = reg.name[len(ch) + 1 :]
                     index = 0
                     if kind.startswith("START_ADDRESS"):
-                        index = int(kind[len("START_ADDRESS"):]) - 1
+                        index = int(kind[len("START_ADDRESS") :]) - 1
                         kind = "START_ADDRESS"
                     self._where[reg.offset] = (ch, kind, index)
         super().__init__(VDMA_MAP, name)
@@ -153,7 +156,7 @@ class EmulatedVDMA(RegisterBlock):
         return self.mm2s.frames
 
     def hang(self, channel: str, what: str, hang: bool = True) -> None:
-        """Make a channel's soft ``reset``, its ``halt`` after RS=0, or its ``run`` after RS=1 never finish."""
+        """Make a channel's soft ``reset``, its ``halt`` after RS=0 or its ``run`` after RS=1 never finish."""
         if what not in HANGS:
             raise ValueError(f"can hang one of {HANGS}, not {what!r}")
         hangs = self.channels[channel].hangs
@@ -167,8 +170,11 @@ class EmulatedVDMA(RegisterBlock):
         with self.lock:
             sr = VDMA_MAP[f"{channel}_VDMASR"].decode(self.get(f"{channel}_VDMASR"))
             cr = VDMA_MAP[f"{channel}_VDMACR"].decode(self.get(f"{channel}_VDMACR"))
-            return bool((sr["FrmCnt_Irq"] and cr["FrmCnt_IrqEn"]) or (sr["DlyCnt_Irq"] and cr["DlyCnt_IrqEn"])
-                        or (sr["Err_Irq"] and cr["Err_IrqEn"]))
+            return bool(
+                (sr["FrmCnt_Irq"] and cr["FrmCnt_IrqEn"])
+                or (sr["DlyCnt_Irq"] and cr["DlyCnt_IrqEn"])
+                or (sr["Err_Irq"] and cr["Err_IrqEn"])
+            )
 
     # -- registers ----------------------------------------------------------------------
     def reset_registers(self) -> None:
@@ -221,19 +227,19 @@ class EmulatedVDMA(RegisterBlock):
                 assert reg is not None
                 if ch.reset_countdown is not None:
                     raise EmulationError(
-                        f"{self.ip}: write of {int(value):#x} to {reg.name} while the {ch.name} soft reset is in "
-                        f"progress; poll {ch.name}_VDMACR.Reset until it reads 0 first"
+                        f"{self.ip}: write of {int(value):#x} to {reg.name} while the {ch.name} soft reset "
+                        f"is in progress; poll {ch.name}_VDMACR.Reset until it reads 0 first"
                     )
                 if where[1] == "START_ADDRESS":
                     store = self._store_of(ch, where[2])
                     if store >= self.num_fstores:
                         raise EmulationError(
-                            f"{self.ip}: {reg.name} with REG_INDEX={store // BANK_SIZE} is frame store {store + 1}, "
-                            f"but this VDMA has {self.num_fstores} frame stores (C_NUM_FSTORES)"
+                            f"{self.ip}: {reg.name} with REG_INDEX={store // BANK_SIZE} is frame store "
+                            f"{store + 1}, but this VDMA has {self.num_fstores} frame stores (C_NUM_FSTORES)"
                         )
             elif offset == VDMA_MAP.offset("PARK_PTR_REG"):
                 refs = VDMA_MAP["PARK_PTR_REG"].decode(int(value))
-                for ch_name, ref in PARK_REF.items():
+                for ref in PARK_REF.values():
                     if refs[ref] >= self.num_fstores:
                         raise EmulationError(
                             f"{self.ip}: PARK_PTR_REG.{ref}={refs[ref]}, but this VDMA has "
@@ -301,9 +307,12 @@ class EmulatedVDMA(RegisterBlock):
         ch.started = False
 
     def _running(self, ch: ChannelState) -> bool:
-        return (ch.reset_countdown is None and ch.halt_countdown is None
-                and bool(self.get_field(f"{ch.name}_VDMACR", "RS"))
-                and not self.get_field(f"{ch.name}_VDMASR", "Halted"))
+        return (
+            ch.reset_countdown is None
+            and ch.halt_countdown is None
+            and bool(self.get_field(f"{ch.name}_VDMACR", "RS"))
+            and not self.get_field(f"{ch.name}_VDMASR", "Halted")
+        )
 
     def _on_vsize(self, ch: ChannelState) -> None:
         if not self._running(ch):
@@ -386,7 +395,9 @@ class EmulatedVDMA(RegisterBlock):
         completed after this call.
         """
         if frame.ndim != 3 or frame.shape[2] != STREAM_BYTES or frame.dtype != np.uint8:
-            raise ValueError(f"a stream frame is (H, W, {STREAM_BYTES}) uint8, got {frame.shape} {frame.dtype}")
+            raise ValueError(
+                f"a stream frame is (H, W, {STREAM_BYTES}) uint8, got {frame.shape} {frame.dtype}"
+            )
         with self.lock:
             ch = self.s2mm
             begun = self._begin_frame(ch)

@@ -18,6 +18,7 @@ reserved.
 The reset value of the ``MIx_MUX`` registers is our assumption (PG085 does
 not state it): master disabled. Software always selects a source explicitly.
 """
+
 from __future__ import annotations
 
 from .regs import Access, Field, Register, RegisterMap
@@ -43,20 +44,38 @@ def axis_switch_map(outputs: int = NUM_OUTPUTS) -> RegisterMap:
         raise ValueError(f"an AXI4-Stream switch has 1..{MAX_INTERFACES} master interfaces, not {outputs}")
     regs = [
         Register(
-            "CTRL", 0x00, Access.RW, 0,
-            fields=(Field("REG_UPDATE", 1, access=Access.SC,
-                          doc="commit the MIx_MUX registers; clears itself when the switch is back"),),
+            "CTRL",
+            0x00,
+            Access.RW,
+            0,
+            fields=(
+                Field(
+                    "REG_UPDATE",
+                    1,
+                    access=Access.SC,
+                    doc="commit the MIx_MUX registers; clears itself when the switch is back",
+                ),
+            ),
             doc="control register (PG085 'Control Register')",
         )
     ]
     for mi in range(outputs):
-        regs.append(Register(
-            mi_mux_name(mi), MI_MUX_BASE + 4 * mi, Access.RW, 0x8000_0000,
-            fields=(Field("MUX", 0, 4, doc="slave interface routed to this master"),
-                    Field("DISABLE", 31, doc="1 = master interface disabled")),
-            doc=f"MI{mi} source select, staged until CTRL.REG_UPDATE (PG085 'MI_MUX[0-15]')",
-        ))
-    return RegisterMap("axis_switch", regs, size=0x1_0000, doc="Xilinx AXI4-Stream Switch, control register routing")
+        regs.append(
+            Register(
+                mi_mux_name(mi),
+                MI_MUX_BASE + 4 * mi,
+                Access.RW,
+                0x8000_0000,
+                fields=(
+                    Field("MUX", 0, 4, doc="slave interface routed to this master"),
+                    Field("DISABLE", 31, doc="1 = master interface disabled"),
+                ),
+                doc=f"MI{mi} source select, staged until CTRL.REG_UPDATE (PG085 'MI_MUX[0-15]')",
+            )
+        )
+    return RegisterMap(
+        "axis_switch", regs, size=0x1_0000, doc="Xilinx AXI4-Stream Switch, control register routing"
+    )
 
 
 AXIS_SWITCH_MAP = axis_switch_map(NUM_OUTPUTS)

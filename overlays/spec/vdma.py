@@ -23,6 +23,7 @@ Notes on how PG020 maps onto :mod:`.regs`:
 * Our overlay's stream is 64 bits wide (one stereo pixel per beat, see
   :mod:`.pixel`), so ``HSIZE`` and ``STRIDE`` are multiples of 8 bytes.
 """
+
 from __future__ import annotations
 
 from typing import Dict, List, Tuple
@@ -72,7 +73,10 @@ def _vdmacr(ch: str) -> Register:
     """PG020 Table 2-6 (MM2S_VDMACR, 00h) and Table 2-11 (S2MM_VDMACR, 30h)."""
     pntr = "RdPntrNum" if ch == "MM2S" else "WrPntrNum"
     return Register(
-        f"{ch}_VDMACR", BASE[ch] + 0x00, Access.RW, reset=0x0001_0000,
+        f"{ch}_VDMACR",
+        BASE[ch] + 0x00,
+        Access.RW,
+        reset=0x0001_0000,
         fields=(
             Field("RS", 0, doc="run/stop: 1 runs the channel; 0 halts it after the current frame"),
             Field("Circular_Park", 1, doc="1 = circular through all frame stores, 0 = park on PARK_PTR_REG"),
@@ -118,31 +122,62 @@ def _vdmasr(ch: str) -> Register:
         Field("IRQFrameCntSts", 16, 8, access=Access.RO, doc="frames left before the next FrmCnt_Irq"),
         Field("IRQDelayCntSts", 24, 8, access=Access.RO, doc="current delay-timer value"),
     ]
-    return Register(f"{ch}_VDMASR", BASE[ch] + 0x04, Access.RO, reset=0x0001_0001,
-                    fields=tuple(fields), doc=f"{ch} VDMA status register (PG020)")
+    return Register(
+        f"{ch}_VDMASR",
+        BASE[ch] + 0x04,
+        Access.RO,
+        reset=0x0001_0001,
+        fields=tuple(fields),
+        doc=f"{ch} VDMA status register (PG020)",
+    )
 
 
 def _reg_index(ch: str) -> Register:
     """PG020 "MM2S_REG_INDEX" (14h) and "S2MM_REG_INDEX" (44h)."""
-    return Register(f"{ch}_REG_INDEX", BASE[ch] + 0x14, Access.RW, 0,
-                    fields=(Field("RegIndex", 0, doc="0: start addresses 1-16, 1: 17-32"),))
+    return Register(
+        f"{ch}_REG_INDEX",
+        BASE[ch] + 0x14,
+        Access.RW,
+        0,
+        fields=(Field("RegIndex", 0, doc="0: start addresses 1-16, 1: 17-32"),),
+    )
 
 
 def _frame_registers(ch: str) -> List[Register]:
     """PG020 Tables 2-15..2-22: VSIZE, HSIZE, FRMDLY_STRIDE and START_ADDRESS1..16."""
     base = ADDR_BASE[ch]
     regs = [
-        Register(f"{ch}_VSIZE", base + 0x0, Access.RW, 0,
-                 fields=(Field("VSIZE", 0, 13, doc="lines per frame; writing it (last) starts the transfers"),)),
-        Register(f"{ch}_HSIZE", base + 0x4, Access.RW, 0,
-                 fields=(Field("HSIZE", 0, 16, doc="bytes per line"),)),
-        Register(f"{ch}_FRMDLY_STRIDE", base + 0x8, Access.RW, 0x0100_0000,
-                 fields=(Field("Stride", 0, 16, doc="bytes between the first pixels of two lines"),
-                         Field("FrameDelay", 24, 5, doc="genlock slave frame delay"))),
+        Register(
+            f"{ch}_VSIZE",
+            base + 0x0,
+            Access.RW,
+            0,
+            fields=(Field("VSIZE", 0, 13, doc="lines per frame; writing it (last) starts the transfers"),),
+        ),
+        Register(
+            f"{ch}_HSIZE", base + 0x4, Access.RW, 0, fields=(Field("HSIZE", 0, 16, doc="bytes per line"),)
+        ),
+        Register(
+            f"{ch}_FRMDLY_STRIDE",
+            base + 0x8,
+            Access.RW,
+            0x0100_0000,
+            fields=(
+                Field("Stride", 0, 16, doc="bytes between the first pixels of two lines"),
+                Field("FrameDelay", 24, 5, doc="genlock slave frame delay"),
+            ),
+        ),
     ]
     for i in range(BANK_SIZE):
-        regs.append(Register(f"{ch}_START_ADDRESS{i + 1}", base + 0xC + 4 * i, Access.RW, 0,
-                             doc=f"{ch} frame store {i + 1} (or {i + 17} with REG_INDEX=1) start address"))
+        regs.append(
+            Register(
+                f"{ch}_START_ADDRESS{i + 1}",
+                base + 0xC + 4 * i,
+                Access.RW,
+                0,
+                doc=f"{ch} frame store {i + 1} (or {i + 17} with REG_INDEX=1) start address",
+            )
+        )
     return regs
 
 
@@ -153,7 +188,10 @@ VDMA_MAP = RegisterMap(
         _vdmasr("MM2S"),
         _reg_index("MM2S"),
         Register(
-            "PARK_PTR_REG", 0x28, Access.RW, 0,
+            "PARK_PTR_REG",
+            0x28,
+            Access.RW,
+            0,
             fields=(
                 Field("RdFrmPtrRef", 0, 5, doc="MM2S store to park on"),
                 Field("WrFrmPtrRef", 8, 5, doc="S2MM store to park on"),
@@ -163,7 +201,9 @@ VDMA_MAP = RegisterMap(
             doc="park pointers and current frame stores of both channels (PG020 Table 2-9)",
         ),
         Register(
-            "VDMA_VERSION", 0x2C, Access.RO,
+            "VDMA_VERSION",
+            0x2C,
+            Access.RO,
             reset=(EMULATED_VERSION[0] << 28) | (EMULATED_VERSION[1] << 20) | (EMULATED_VERSION[2] << 16),
             fields=(
                 Field("XilinxInternal", 0, 16),
@@ -176,7 +216,10 @@ VDMA_MAP = RegisterMap(
         _vdmacr("S2MM"),
         _vdmasr("S2MM"),
         Register(
-            "S2MM_VDMA_IRQ_MASK", 0x3C, Access.RW, 0,
+            "S2MM_VDMA_IRQ_MASK",
+            0x3C,
+            Access.RW,
+            0,
             fields=tuple(Field(name, bit) for bit, name in enumerate(S2MM_IRQ_MASK_OF.values())),
             doc="1 keeps a frame-size error from raising Err_Irq (PG020 Table 2-13)",
         ),
