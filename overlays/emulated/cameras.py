@@ -355,15 +355,29 @@ class _CameraScene:
 
 @dataclass
 class _Sensor:
-    """Per-camera sensor response: DN = gain * radiance + offset + noise, rounded and clipped to 0..255."""
+    """Per-camera sensor response and readout.
 
-    gain: float = 1.0
+    DN = gain * exposure * radiance + offset + gain * noise, rounded and
+    clipped to 0..255; then the readout flips (``flip_h`` mirrors columns,
+    ``flip_v`` rows), or ``pattern`` (an (H, W) uint8 gray image) replaces
+    the picture. Set through :meth:`SyntheticRig.set_sensor`.
+    """
+
+    gain: float = 1.0  # analog gain: scales the signal and the read noise
     offset: float = 0.0
-    noise: float = 0.0  # standard deviation in DN, fresh for every frame index
+    noise: float = 0.0  # read noise at unit gain: standard deviation in DN, fresh for every frame index
+    exposure: float = 1.0  # exposure time relative to the reference exposure: scales the signal only
+    flip_h: bool = False
+    flip_v: bool = False
+    pattern: Optional[np.ndarray] = None
+
+    @property
+    def scale(self) -> float:
+        return self.gain * self.exposure
 
     @property
     def key(self) -> Tuple[float, float]:
-        return (self.gain, self.offset)
+        return (self.scale, self.offset)
 
 
 class SyntheticRig:
@@ -383,6 +397,8 @@ class SyntheticRig:
     float radiance textures with bilinear ``cv2.remap`` and passes through a
     per-camera sensor stage (gain, offset, noise, quantisation to 8 bits).
     Only the region the moving planes can reach is re-rendered per frame.
+    :meth:`set_sensor` sets a camera's exposure, gain, flips and test
+    pattern (what the emulated MT9V034 sensors do once per frame).
 
     ``read`` returns a new, writable frame owned by the caller. Calls from
     several threads are safe (they are serialised).
@@ -450,18 +466,65 @@ class SyntheticRig:
                 raise SourceClosedError("this SyntheticRig is closed: make a new one")
             return self._read(index, t if self.motion else 0.0)
 
+    def set_sensor(
+        self, camera: int, *, gain: float = 1.0, exposure_scale: float = 1.0, flip_h: bool = False,
+        flip_v: bool = False, test_pattern: Optional[np.ndarray] = None, noise: Optional[float] = None,
+    ) -> None:
+        """Set camera ``camera``'s (0 left, 1 right) sensor stage for the frames read from now on.
+
+        The image is ``gain * exposure_scale`` times the unit-gain image
+        (``exposure_scale`` is the exposure time over the reference exposure
+        the scene's radiance is given for), with read noise of standard
+        deviation ``gain * noise`` DN (``noise=None`` keeps the rig's).
+        ``flip_h``/``flip_v`` mirror the columns/rows read out.
+        ``test_pattern``, an ``(H, W)`` uint8 image at the frame size,
+        replaces the picture (gray: R = G = B = Y) and is not flipped. The
+        rig keeps a reference to the pattern: do not modify it afterwards.
+        """
+        if camera not in (0, 1):
+            raise ValueError(f"camera is 0 (left) or 1 (right), not {camera!r}")
+        gain, exposure_scale = float(gain), float(exposure_scale)
+        if not (math.isfinite(gain) and gain >= 0 and math.isfinite(exposure_scale) and exposure_scale >= 0):
+            raise ValueError(f"gain and exposure_scale must be finite and >= 0, got {gain}, {exposure_scale}")
+        if noise is not None and not (math.isfinite(noise) and noise >= 0):
+            raise ValueError(f"noise is a standard deviation in DN (>= 0), got {noise}")
+        if test_pattern is not None:
+            w, h = self._size
+            if test_pattern.shape != (h, w) or test_pattern.dtype != np.uint8:
+                raise ValueError(f"test_pattern must be a ({h}, {w}) uint8 image, "
+                                 f"got {test_pattern.shape} {test_pattern.dtype}")
+        with self._lock:
+            s = self._sensors[camera]
+            s.gain, s.exposure = gain, exposure_scale
+            s.flip_h, s.flip_v, s.pattern = bool(flip_h), bool(flip_v), test_pattern
+            if noise is not None:
+                s.noise = float(noise)
+
     def _read(self, index: int, t: float) -> np.ndarray:
-        if any(s.noise > 0 for s in self._sensors):
+        if any(s.noise > 0 and s.pattern is None for s in self._sensors):
             w, h = self._size
             frame = np.empty((h, w, 8), np.uint8)
             for cam in (0, 1):
-                self._write_rgby(frame, cam, self._sensor(self._radiance(cam, t)[0], cam, index))
-            return frame
+                if self._sensors[cam].pattern is None:
+                    self._write_rgby(frame, cam, self._sensor(self._radiance(cam, t)[0], cam, index))
+            return self._readout(frame)
         if not self.motion:
             if self._still is None or self._static_key != self._sensor_key():
                 self._still = self._render_fast(0.0)
-            return self._still.copy()
-        return self._render_fast(t)
+            return self._readout(self._still.copy())
+        return self._readout(self._render_fast(t))
+
+    def _readout(self, frame: np.ndarray) -> np.ndarray:
+        """Apply each camera's test pattern or flips to ``frame`` in place; returns it."""
+        for cam, s in enumerate(self._sensors):
+            if s.pattern is None and not (s.flip_h or s.flip_v):
+                continue
+            view = frame[..., 4 * cam:4 * cam + 4]
+            if s.pattern is not None:
+                view[...] = s.pattern[..., None]
+            else:  # numpy copies overlapping operands first
+                view[...] = view[::-1 if s.flip_v else 1, ::-1 if s.flip_h else 1]
+        return frame
 
     def close(self) -> None:
         """Release the precomputed rays and textures. Idempotent."""
@@ -603,11 +666,11 @@ class SyntheticRig:
         sensor = self._sensors[cam]
         if sensor.noise > 0:
             noise = self._noise_field(cam, index, radiance.shape)
-            x = cv2.addWeighted(radiance, sensor.gain, noise, sensor.noise, sensor.offset)
+            x = cv2.addWeighted(radiance, sensor.scale, noise, sensor.noise * sensor.gain, sensor.offset)
             return cv2.convertScaleAbs(cv2.max(x, 0.0))  # clip at 0, round, saturate at 255
-        if sensor.gain >= 0 and sensor.offset >= 0:  # radiance >= 0, so |x| == x
-            return cv2.convertScaleAbs(radiance, alpha=sensor.gain, beta=sensor.offset)
-        scaled = radiance * np.float32(sensor.gain) + np.float32(sensor.offset)
+        if sensor.scale >= 0 and sensor.offset >= 0:  # radiance >= 0, so |x| == x
+            return cv2.convertScaleAbs(radiance, alpha=sensor.scale, beta=sensor.offset)
+        scaled = radiance * np.float32(sensor.scale) + np.float32(sensor.offset)
         return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
 
     def _noise_field(self, cam: int, index: int, shape: Tuple[int, ...]) -> np.ndarray:
@@ -813,6 +876,8 @@ class ReplaySource:
         sbs: Dict[str, Path] = {}
         captures: List[_Entry] = []
         for path in sorted(folder.iterdir()):
+            if path.name.startswith("."):
+                continue  # hidden: e.g. a capture still being written (.incoming-*) or deleted
             if path.is_dir():
                 present = [(path / f).is_file() for f in _CAPTURE_FILES]
                 if all(present):
