@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass, field
-from typing import Dict, Optional
+from typing import Dict, Optional, Protocol
 
 import numpy as np
 
@@ -43,6 +43,20 @@ WINDOW_SIZE = 0x1_0000
 NUM_FSTORES = 3
 
 
+class FrameSensors(Protocol):
+    """The emulated image sensors, told about every camera frame (:class:`.sensors.EmulatedSensorPair`).
+
+    ``start_frame`` runs before the source renders frame ``index`` (the
+    sensors latch their registers into the source: exposure, gain, flips,
+    test pattern); ``end_frame`` gets the rendered frame (read-only) for the
+    sensors' auto exposure. Both run on the frame clock's thread.
+    """
+
+    def start_frame(self, index: int) -> None: ...
+
+    def end_frame(self, index: int, frame: np.ndarray) -> None: ...
+
+
 @dataclass
 class FabricCounters:
     """What happened on the stream paths, for tests and status pages."""
@@ -64,14 +78,15 @@ class EmulatedFabric:
     ``clock="stepped"`` makes :meth:`step` the only way frames move (tests,
     benchmarks); ``"realtime"`` runs a thread at ``fps`` once :meth:`start`
     is called. ``source`` defaults to a :class:`SyntheticRig`; the fabric
-    closes it on :meth:`close`.
+    closes it on :meth:`close`. ``sensors`` (optional, settable later) are
+    ticked around every camera frame (:class:`FrameSensors`).
     """
 
     def __init__(
         self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
         num_fstores: int = NUM_FSTORES, lb_rows: int = DEFAULT_LB_ROWS,
         max_width: int = DEFAULT_MAX_WIDTH, max_height: int = DEFAULT_MAX_HEIGHT,
-        ddr_size: int = 256 << 20,
+        ddr_size: int = 256 << 20, sensors: Optional[FrameSensors] = None,
     ) -> None:
         self.ddr = EmulatedDDR(size=ddr_size)
         self.vdma_raw = EmulatedVDMA(self.ddr, num_fstores, "vdma_raw")
@@ -80,6 +95,7 @@ class EmulatedFabric:
         self.core = EmulatedRectifyCore(max_width=max_width, max_height=max_height, lb_rows=lb_rows)
         self.num_fstores = num_fstores
         self.source: CameraSource = source if source is not None else SyntheticRig()
+        self.sensors: Optional[FrameSensors] = sensors
         self.cameras_running = True  # tests: False models cameras that stopped sending
         self.counters = FabricCounters()
         self._tick_lock = threading.Lock()
@@ -101,7 +117,12 @@ class EmulatedFabric:
             live: Optional[np.ndarray] = None
             if self.cameras_running:
                 try:
+                    sensors = self.sensors
+                    if sensors is not None:
+                        sensors.start_frame(index)
                     live = self.source.read(index, t)
+                    if sensors is not None:
+                        sensors.end_frame(index, live)
                     c.camera_frames += 1
                 except Exception as exc:  # a replay folder that vanished, a decode error...
                     c.camera_errors += 1

@@ -234,9 +234,8 @@ class Register16Map:
             if r.name in self._by_name:
                 raise ValueError(f"{name}: register {r.name} defined twice")
             if r.address in self._by_address:
-                raise ValueError(
-                    f"{name}: address {r.address:#04x} used by {self._by_address[r.address].name} and {r.name}"
-                )
+                other = self._by_address[r.address].name
+                raise ValueError(f"{name}: address {r.address:#04x} used by {other} and {r.name}")
             self._by_name[r.name] = r
             self._by_address[r.address] = r
 
@@ -293,7 +292,7 @@ MT9V034_MAP = Register16Map("mt9v034", [
                doc="columns per row [linux MT9V032_WINDOW_WIDTH_*]"),
     Register16("HORIZONTAL_BLANKING", 0x05, RW, HBLANK_DEFAULT,
                limits=(("HORIZONTAL_BLANKING", HBLANK_MIN, HBLANK_MAX),),
-               doc="pixel clocks between rows; width + blanking >= 690 [linux MT9V034_HORIZONTAL_BLANKING_MIN]"),
+               doc="pixel clocks between rows; width + blanking >= 690 [linux MT9V034_*_BLANKING_MIN]"),
     Register16("VERTICAL_BLANKING", 0x06, RW, VBLANK_DEFAULT,
                limits=(("VERTICAL_BLANKING", VBLANK_MIN, VBLANK_MAX),),
                doc="rows between frames [linux MT9V034_VERTICAL_BLANKING_MIN/MAX]"),
@@ -375,7 +374,8 @@ MT9V034_MAP = Register16Map("mt9v034", [
         ),
         doc="automatic exposure and gain, contexts A and B; both on at reset [linux, openmv]",
     ),
-    Register16("AGC_OUTPUT", 0xBA, RO, GAIN_UNIT, doc="analog gain in use, x16 [openmv MT9V0XX_AGC_GAIN_OUTPUT]"),
+    Register16("AGC_OUTPUT", 0xBA, RO, GAIN_UNIT,
+               doc="analog gain in use, x16 [openmv MT9V0XX_AGC_GAIN_OUTPUT]"),
     Register16("AEC_OUTPUT", 0xBB, RO, SHUTTER_DEFAULT,
                doc="exposure in use, rows [openmv MT9V0XX_AEC_EXPOSURE_OUTPUT]"),
     Register16("AGC_AEC_CURRENT_BIN", 0xBC, RO, 0, doc="brightness of the last frame, 64ths [ds Figure 27]"),
