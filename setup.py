@@ -36,6 +36,8 @@ setup(
         "aiohttp>=3.8",
         "pillow>=9.0",
         "pyyaml>=5.4",
+        # MATLAB .mat calibration import (scipy.io.loadmat). The PYNQ image ships scipy outside pip.
+        "scipy>=1.7; platform_machine != 'armv7l'",
     ],
     extras_require={"board": ["pynq>=3.0"]},
     entry_points={"console_scripts": ["stereocam=stereocam.cli:main"]},

@@ -146,6 +146,14 @@ def measure_fabric(left: object, right: object, frames: List[np.ndarray], second
 
 def run_bench(args: argparse.Namespace) -> int:
     result = measure(seconds=args.seconds)
+    if getattr(args, "serve", False):  # the daemon's MJPEG fan-out: stereocam/bench_serve.py
+        from .bench_serve import ServeBenchError, measure_serve
+
+        try:
+            result["serve"] = measure_serve(seconds=args.serve_seconds)
+        except ServeBenchError as exc:
+            print(f"stereocam bench: error: serve: {exc}", file=sys.stderr)
+            return 2
     if args.json:
         print(json.dumps(result))
     else:

@@ -54,14 +54,54 @@ def _write_png(path: Path, image: np.ndarray) -> None:
         raise UserError(f"cannot write {path}: {exc.strerror}") from None
 
 
+def _parse_size(text: str) -> "tuple[int, int]":
+    import re
+
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an image size WIDTHxHEIGHT, e.g. 752x480")
+    return int(m.group(1)), int(m.group(2))
+
+
+def _alpha(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(
+            f"alpha is from 0 (only valid pixels) to 1 (all source pixels), not {text}"
+        )
+    return value
+
+
+def _lb_rows(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"line-buffer rows must be at least 1, not {value}")
+    return value
+
+
+def _output_file(path: str) -> Path:
+    """Where a file will be written: its folder must exist (checked before any work)."""
+    out = Path(path)
+    if out.is_dir():
+        raise UserError(
+            f"{out} is a folder: give the calibration file's name, e.g. {out / 'calibration.yaml'}"
+        )
+    if not out.parent.is_dir():
+        raise UserError(f"cannot write {out}: folder {out.parent} does not exist")
+    return out
+
+
 def cmd_rectify(args: argparse.Namespace) -> int:
-    from .calibration_io import load_opencv_pair, parse_calibration_arg
-    from .overlays.model.config import plan
+    from .calibration_file import load_calibration
     from .overlays.model.fast import RectifyModel
     from .overlays.model.result import CoreOptions
     from .overlays.spec import pixel
-    from .overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
-    from .stereo import core_cameras
 
     left, right = _read_image(Path(args.left)), _read_image(Path(args.right))
     if left.shape[:2] != right.shape[:2]:
@@ -71,16 +111,11 @@ def cmd_rectify(args: argparse.Namespace) -> int:
         )
     gray = left.ndim == 2 and right.ndim == 2
     h, w = left.shape[:2]
-    intr, extr = parse_calibration_arg(args.calibration)
-    model, rect = load_opencv_pair(intr, extr, (w, h))
-    try:
-        cam_l, cam_r = core_cameras(model, rect)
-    except np.linalg.LinAlgError:
-        raise UserError(f"{extr}: the rectification (P1*R1 or P2*R2) is singular; the file is not a valid calibration") from None
-    config, fit = plan(cam_l, cam_r, w, h, lb_rows=args.lb_rows, max_width=DEFAULT_MAX_WIDTH, max_height=DEFAULT_MAX_HEIGHT)
-    options = CoreOptions(lb_rows=args.lb_rows, lb_delay=config.lb_delay, gray=gray)
+    cal = load_calibration(args.calibration, image_size=(w, h), lb_rows=args.lb_rows)
+    fit = cal.fit
+    options = CoreOptions(lb_rows=args.lb_rows, lb_delay=fit.delay, gray=gray)
     frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
-    out = RectifyModel(cam_l, cam_r, w, h, options).process(frame).frame
+    out = RectifyModel(cal.left, cal.right, w, h, options).process(frame).frame
     outdir = Path(args.output)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
@@ -95,10 +130,173 @@ def cmd_rectify(args: argparse.Namespace) -> int:
     return 0
 
 
+class _ProgressDisplay:
+    """``calibrate_pairs``' progress on stderr: one updating line on a terminal, else a line per step."""
+
+    LABELS = {
+        "detect": "finding corners", "calibrate": "calibrating", "check": "measuring rows through the core",
+    }
+
+    def __init__(self, *, quiet: bool) -> None:
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self.last = ""
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        text = f"{self.LABELS.get(stage, stage)} {done}/{total}"
+        if self.tty:
+            sys.stderr.write("\r" + text.ljust(len(self.last)))
+            sys.stderr.flush()
+        elif stage == "detect" and done < total or done == 0:
+            sys.stderr.write(text + "\n")
+        self.last = text
+
+    def finish(self) -> None:
+        if self.tty and self.last and not self.quiet:
+            sys.stderr.write("\r" + " " * len(self.last) + "\r")
+            sys.stderr.flush()
+        self.last = ""
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    import json
+
+    from .calibrate import Pattern, calibrate_pairs, find_pairs, pairs_from_files
+
+    pattern = Pattern.parse(args.pattern, args.square)
+    if args.left is not None or args.right is not None:
+        if args.inputs:
+            raise UserError("give capture folders or --left/--right image files, not both")
+        pairs = pairs_from_files(args.left or [], args.right or [])
+    else:
+        pairs = find_pairs(args.inputs)
+    out = _output_file(args.output)
+    progress = _ProgressDisplay(quiet=args.quiet or False)
+    source = (f"stereocam calibrate: {len(pairs)} pairs, pattern {pattern}, "
+              f"squares {pattern.square * 1000:g} mm, alpha {args.alpha:g}")
+    try:
+        report = calibrate_pairs(pairs, pattern, alpha=args.alpha, lb_rows=args.lb_rows, progress=progress,
+                                 source=source)
+    finally:
+        progress.finish()
+    written = None
+    if report.fits:
+        report.calibration.save(out)
+        written = out
+    if args.json:
+        print(json.dumps({**report.to_dict(), "output": str(written) if written else None}))
+    else:
+        print("\n".join(report.lines()))
+        if written:
+            print(f"wrote {written} (calibration {report.calibration.id})")
+    report.check()  # a calibration the bitstream cannot run: exit 2, nothing written
+    return 0
+
+
+def cmd_calibration_import(args: argparse.Namespace) -> int:
+    from .calibration_file import load_calibration
+
+    out = _output_file(args.output)
+    sources = [p for src in args.sources for p in src.split(",") if p]
+    cal = load_calibration(sources, image_size=args.size, alpha=args.alpha, lb_rows=args.lb_rows,
+                           derive_missing=True)
+    cal.save(out)
+    print(f"wrote {out}: {cal.summary()}")
+    return 0
+
+
+def cmd_calibration_export(args: argparse.Namespace) -> int:
+    from .calibration_file import load_calibration
+
+    cal = load_calibration(args.calibration, lb_rows=None)
+    intr, extr = cal.to_opencv(Path(args.opencv))
+    print(f"wrote {intr} and {extr} (calibration {cal.id})")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
     return run_bench(args)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from .overlays.backend import BackendError
+    from .server.app import ServeError, run
+    from .server.captures import CaptureError
+    from .server.config import Config
+    from .server.config import ConfigError as SettingsError
+
+    try:
+        config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
+                             captures=args.captures, calibration=args.calibration, bitstream=args.bitstream,
+                             source=args.source, fps=args.fps)
+        return run(config)
+    except (SettingsError, ServeError, BackendError) as exc:
+        raise UserError(str(exc)) from None
+    except CaptureError as exc:
+        raise UserError(exc.message) from None
+
+
+def cmd_install_service(args: argparse.Namespace) -> int:
+    from .server.systemd import ServiceError, install_service, unit_text
+
+    if args.print:
+        print(unit_text(venv=args.venv, config=Path(args.config)), end="")
+        return 0
+    try:
+        done = install_service(unit_dir=Path(args.unit_dir), config=Path(args.config), venv=args.venv,
+                               host=args.host, port=args.port, captures=args.captures, start=not args.no_start)
+    except ServiceError as exc:
+        raise UserError(str(exc)) from None
+    for line in done:
+        print(line)
+    return 0
+
+
+def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+    from .server import systemd
+    from .server.config import BACKENDS, DEFAULT_CAPTURES
+
+    s = sub.add_parser(
+        "serve", help="run the daemon (web page, streams, API)",
+        description="Serve live raw and rectified video, captures, the virtual camera and verify over HTTP. "
+                    "Off the board it runs on the emulated fabric. Options override the --config file.")
+    s.add_argument("--host", help="address to listen on (default 127.0.0.1; the board's service uses 0.0.0.0)")
+    s.add_argument("--port", type=int, help="port (default 8080)")
+    s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
+    s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/config.py)")
+    s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
+    s.add_argument("--calibration", metavar="CAL",
+                   help="OpenCV stereo_calib files intrinsics.yml,extrinsics.yml (default on the emulated "
+                        "fabric: the synthetic rig's known calibration)")
+    s.add_argument("--bitstream", metavar="FILE", help="the overlay's .bit (pynq backend)")
+    s.add_argument("--source", metavar="SRC",
+                   help="emulated cameras: synthetic (default) or a folder of recorded pairs to replay")
+    s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
+    s.set_defaults(func=cmd_serve)
+
+    i = sub.add_parser(
+        "install-service", help="install and start the systemd service (on the board, as root)",
+        description=f"Write {systemd.DEFAULT_UNIT_DIR / systemd.UNIT_NAME} (Type=notify, watchdog, restart on "
+                    f"failure, in the PYNQ venv) and, if missing, the settings file; then systemctl "
+                    f"daemon-reload and enable --now.")
+    i.add_argument("--port", type=int, default=systemd.DEFAULT_PORT,
+                   help=f"port for a new settings file (default {systemd.DEFAULT_PORT}; not 80 or 9090)")
+    i.add_argument("--host", default="0.0.0.0", help="address for a new settings file (default 0.0.0.0)")
+    i.add_argument("--captures", default=systemd.DEFAULT_CAPTURES, metavar="DIR",
+                   help=f"capture folder for a new settings file (default {systemd.DEFAULT_CAPTURES})")
+    i.add_argument("--config", default=str(systemd.DEFAULT_CONFIG), metavar="FILE",
+                   help=f"the settings file the service reads (default {systemd.DEFAULT_CONFIG})")
+    i.add_argument("--venv", default=systemd.PYNQ_VENV, metavar="DIR",
+                   help=f"the Python environment stereocam is installed in (default {systemd.PYNQ_VENV})")
+    i.add_argument("--unit-dir", default=str(systemd.DEFAULT_UNIT_DIR), metavar="DIR",
+                   help=f"where the unit goes (default {systemd.DEFAULT_UNIT_DIR})")
+    i.add_argument("--no-start", action="store_true", help="write the files only; no systemctl")
+    i.add_argument("--print", action="store_true", help="print the unit and do nothing else")
+    i.set_defaults(func=cmd_install_service)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -112,23 +310,84 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("rectify", help="run the core's model on an image pair",
                        description="Rectify and undistort LEFT and RIGHT with the core's bit-exact model.")
     p.add_argument("--calibration", required=True, metavar="CAL",
-                   help="OpenCV stereo_calib files: intrinsics.yml,extrinsics.yml")
+                   help="a stereocam calibration.yaml, a MATLAB stereoParameters .mat, or two files "
+                        "separated by a comma: intrinsics.yml,extrinsics.yml (OpenCV stereo_calib) or "
+                        "left.yaml,right.yaml (ROS camera_info)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="writes OUTDIR/left.png and OUTDIR/right.png")
-    p.add_argument("--lb-rows", type=int, default=DEFAULT_LB_ROWS, metavar="N",
+    p.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
                    help=f"line-buffer rows of the bitstream to model (default {DEFAULT_LB_ROWS})")
     p.add_argument("left")
     p.add_argument("right")
     p.set_defaults(func=cmd_rectify)
 
+    c = sub.add_parser(
+        "calibrate", help="calibrate the stereo rig from checkerboard pairs",
+        description="Find the checkerboard in each pair, calibrate both cameras with the core's lens model "
+                    "(k1, k2, p1, p2), rectify, and write the calibration with the core's register values. "
+                    "Inputs are capture folders (raw_left.png, raw_right.png), folders of captures or of "
+                    "left*/right* images, or image files given with --left ... --right ....",
+    )
+    c.add_argument("--pattern", required=True, metavar="COLSxROWS",
+                   help="inner corners of the checkerboard, e.g. 9x6 (a board of 10x7 squares)")
+    c.add_argument("--square", required=True, metavar="LENGTH",
+                   help="side of one square with its unit, e.g. 25mm")
+    c.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
+                   help="0 keeps only valid pixels (default), 1 keeps every source pixel")
+    c.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
+                   help=f"line-buffer rows of the bitstream to check against (default {DEFAULT_LB_ROWS})")
+    c.add_argument("-o", "--output", required=True, metavar="FILE",
+                   help="the calibration file to write (YAML)")
+    c.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
+    c.add_argument("-q", "--quiet", action="store_true", help="no progress display on stderr")
+    c.add_argument("--left", nargs="+", metavar="FILE", help="left images, paired in order with --right")
+    c.add_argument("--right", nargs="+", metavar="FILE", help="right images, paired in order with --left")
+    c.add_argument("inputs", nargs="*", metavar="INPUT", help="capture folders or folders of captures")
+    c.set_defaults(func=cmd_calibrate)
+
+    k = sub.add_parser("calibration", help="import or export calibration files",
+                       description="Convert calibrations between stereocam's YAML and other tools' formats.")
+    ksub = k.add_subparsers(dest="action", metavar="ACTION")
+    ksub.required = True
+    imp = ksub.add_parser(
+        "import", help="write a stereocam calibration from another tool's files",
+        description="SRC is a MATLAB stereoParameters .mat (saved with toStruct), two OpenCV "
+                    "stereo_calib files (intrinsics.yml extrinsics.yml), two ROS camera_info files "
+                    "(left.yaml right.yaml), or a stereocam calibration whose core and id were deleted "
+                    "after an edit.",
+    )
+    imp.add_argument("sources", nargs="+", metavar="SRC")
+    imp.add_argument("-o", "--output", required=True, metavar="FILE",
+                     help="the calibration file to write (YAML)")
+    imp.add_argument("--size", type=_parse_size, metavar="WxH",
+                     help="image size, for files that do not record it (OpenCV stereo_calib)")
+    imp.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
+                     help="rectification alpha for sources without a rectification (MATLAB); default 0")
+    imp.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
+                     help=f"line-buffer rows of the bitstream to check against (default {DEFAULT_LB_ROWS})")
+    imp.set_defaults(func=cmd_calibration_import)
+    exp = ksub.add_parser("export", help="write another tool's files from a stereocam calibration",
+                          description="Write OpenCV stereo_calib files intrinsics.yml and extrinsics.yml.")
+    exp.add_argument("calibration", metavar="CALIBRATION", help="a stereocam calibration file")
+    exp.add_argument("--opencv", required=True, metavar="OUTDIR",
+                     help="write OUTDIR/intrinsics.yml and OUTDIR/extrinsics.yml")
+    exp.set_defaults(func=cmd_calibration_export)
+
     b = sub.add_parser("bench", help="measure model, fabric and OpenCV throughput",
                        description="Benchmarks on 752x480 stereo pairs, all 8 channels, one process.")
     b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     b.add_argument("--seconds", type=float, default=2.0, help="time per measurement (default 2)")
+    b.add_argument("--serve", action="store_true",
+                   help='also run the daemon at 60 fps with 1 and 20 MJPEG clients (key "serve")')
+    b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
+                   help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
+
+    _add_server_commands(sub)
     return parser
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    from .calibrate import CalibrationError
     from .calibration_io import CalibrationFileError
     from .overlays.model.config import ConfigError
 
@@ -138,8 +397,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args))
-    except (UserError, CalibrationFileError, ConfigError) as exc:
-        print(f"stereocam {args.command}: error: {exc}", file=sys.stderr)
+    except (UserError, CalibrationFileError, CalibrationError, ConfigError) as exc:
+        command = args.command if args.command != "calibration" else f"calibration {args.action}"
+        print(f"stereocam {command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

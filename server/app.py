@@ -1,0 +1,364 @@
+"""The daemon: :func:`create_app` wires the stages into an aiohttp application, :func:`run` serves it.
+
+``create_app(config, overlay)`` takes an opened overlay (``.fabric``,
+``start()``, ``stop()``) and returns a ``web.Application`` whose state is
+in the ``web.AppKey``s of :mod:`.state`. Starting the app starts the
+overlay's streams and the pipeline thread and the background tasks
+(no-signal watch, slow-client sweeper, systemd watchdog); cleaning it up
+stops them in reverse order, with the mux back on live. The overlay itself
+(opening, closing) is the caller's.
+
+``run(config)`` is ``stereocam serve``: open the overlay, program the
+default calibration, serve until SIGTERM/SIGINT, then stop the streams, the
+VDMA channels and the mux (live) and exit, all within 2 s.
+
+Extensions (issue 4: calibration, issue 5: sensors) are callables
+``setup(app)`` passed in ``extensions``: they add routes and register
+providers in ``app[EXTENSIONS]`` (status sections, metrics lines, capture
+metadata); :func:`default_extensions` lists the ones ``run`` installs.
+"""
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import logging
+import signal
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, AsyncIterator, Awaitable, Callable, List, Optional, Sequence
+
+from aiohttp import web
+
+from .captures import CaptureStore
+from .config import Config
+from .encoders import Encoders, FrameFeed
+from .metrics import Metrics
+from .metrics import setup_routes as setup_ops_routes
+from .pipeline import Pipeline
+from .routes_api import VirtualCamera
+from .routes_api import setup_routes as setup_api_routes
+from .security import guard
+from .state import (
+    CALIBRATION,
+    CAPTURES,
+    CONFIG,
+    ENCODERS,
+    EXECUTORS,
+    EXTENSIONS,
+    FEED,
+    METRICS,
+    OVERLAY,
+    PIPELINE,
+    STREAMS,
+    VIRTUAL,
+    CalibrationState,
+    Executors,
+    Extensions,
+)
+from .streams import StreamClients, json_error
+from .streams import setup_routes as setup_stream_routes
+from .systemd import notify, watchdog_interval
+
+if TYPE_CHECKING:  # pragma: no cover
+    from aiohttp.typedefs import Middleware
+
+log = logging.getLogger(__name__)
+
+__all__ = ["create_app", "run", "serve", "program_default_calibration", "default_extensions", "ServeError",
+           "STATIC_DIR"]
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+Setup = Callable[[web.Application], None]
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+class ServeError(Exception):
+    """The daemon cannot start as configured (port taken, ...): one line for the user."""
+
+
+def default_extensions() -> List[Setup]:
+    """The extensions ``run`` installs (issues 4 and 5 add theirs here)."""
+    return []
+
+
+# -- errors as JSON ---------------------------------------------------------------------------
+
+def _message(exc: web.HTTPException, request: web.Request) -> str:
+    text = exc.text or ""
+    default = f"{exc.status}: {exc.reason}"
+    if text and text != default:
+        return text
+    if exc.status == 404:
+        return f"no such resource: {request.path}"
+    if exc.status == 405:
+        allowed = exc.headers.get("Allow", "")
+        return f"{request.method} is not allowed on {request.path}" + (f"; use {allowed}" if allowed else "")
+    if exc.status == 413:
+        return (f"the request body is too large: the limit is {request.app[CONFIG].max_upload_bytes} bytes "
+                "(max_upload_bytes)")
+    return exc.reason
+
+
+def _json_errors(metrics: Metrics) -> "Middleware":
+    @web.middleware
+    async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
+        try:
+            response = await handler(request)
+        except web.HTTPException as exc:
+            if exc.status < 400:
+                raise
+            metrics.request(exc.status)
+            keep = {k: v for k, v in exc.headers.items() if k in ("WWW-Authenticate", "Allow", "Retry-After")}
+            return json_error(exc.status, _message(exc, request), **keep)
+        except (asyncio.CancelledError, ConnectionError):
+            raise
+        except Exception as exc:
+            log.exception("%s %s failed", request.method, request.path)
+            metrics.error(f"{request.method} {request.path}: {type(exc).__name__}: {exc}", "http")
+            metrics.request(500)
+            return json_error(500, f"internal error ({type(exc).__name__}: {exc}); see the daemon's log")
+        metrics.request(response.status)
+        return response
+
+    return middleware
+
+
+# -- the page ---------------------------------------------------------------------------------
+
+async def _index(request: web.Request) -> web.StreamResponse:
+    page = STATIC_DIR / "index.html"
+    if not page.is_file():
+        raise web.HTTPNotFound(text="the web page is not installed (server/static/index.html is missing); "
+                                    "the API works: see /api/status")
+    return web.FileResponse(page, headers={"Cache-Control": "no-cache"})
+
+
+async def _static(request: web.Request) -> web.StreamResponse:
+    root = STATIC_DIR.resolve()
+    try:
+        target = (root / request.match_info["path"]).resolve()
+    except (OSError, ValueError):
+        raise web.HTTPNotFound() from None
+    if root not in target.parents or not target.is_file():
+        raise web.HTTPNotFound()
+    return web.FileResponse(target, headers={"Cache-Control": "no-cache"})
+
+
+# -- the app ----------------------------------------------------------------------------------
+
+def create_app(
+    config: Config,
+    overlay: Any,
+    *,
+    calibration: Optional[CalibrationState] = None,
+    captures: Optional[CaptureStore] = None,
+    extensions: Sequence[Setup] = (),
+) -> web.Application:
+    """The daemon's application for ``overlay`` (see the module doc); nothing runs until it starts."""
+    metrics = Metrics()
+    app = web.Application(
+        middlewares=[_json_errors(metrics),
+                     guard(access_token=config.access_token, max_body=config.max_upload_bytes)],
+        client_max_size=config.max_upload_bytes,
+    )
+    fabric = overlay.fabric
+    feed = FrameFeed(frame_size=tuple(fabric.frame_size), no_signal_s=config.no_signal_s)
+    pipeline = Pipeline(fabric, publish=feed.push)
+    executors = Executors.create(config.encode_threads)
+    app[CONFIG] = config
+    app[OVERLAY] = overlay
+    app[METRICS] = metrics
+    app[FEED] = feed
+    app[PIPELINE] = pipeline
+    app[EXECUTORS] = executors
+    app[ENCODERS] = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
+                             observe=metrics.observe_encode,
+                             on_error=lambda text: metrics.error(text, "encode"))
+    app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
+    app[CAPTURES] = captures if captures is not None else CaptureStore(
+        config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
+    app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed)
+    app[CALIBRATION] = calibration or CalibrationState(lb_rows=fabric.rectify.lb_rows)
+    app[EXTENSIONS] = Extensions()
+
+    app.router.add_get("/", _index)
+    app.router.add_get("/static/{path:.+}", _static)
+    setup_stream_routes(app)
+    setup_api_routes(app)
+    setup_ops_routes(app)
+    for setup in extensions:
+        setup(app)
+
+    app.cleanup_ctx.append(_executors_ctx)
+    app.cleanup_ctx.append(_fabric_ctx)
+    app.on_shutdown.append(_close_streams)
+    return app
+
+
+async def _executors_ctx(app: web.Application) -> AsyncIterator[None]:
+    yield
+    app[EXECUTORS].shutdown()
+
+
+async def _fabric_ctx(app: web.Application) -> AsyncIterator[None]:
+    """Start: overlay streams, pipeline thread, background tasks. Cleanup: the reverse, mux to live."""
+    loop = asyncio.get_running_loop()
+    overlay, pipeline, feed, streams = app[OVERLAY], app[PIPELINE], app[FEED], app[STREAMS]
+    feed.attach(loop)
+    await loop.run_in_executor(app[EXECUTORS].work, overlay.start)
+    pipeline.start()
+    tasks = [loop.create_task(feed.watch(), name="stereocam-no-signal"),
+             loop.create_task(streams.sweep(), name="stereocam-sweeper")]
+    interval = watchdog_interval()
+    if interval is not None:
+        tasks.append(loop.create_task(_watchdog(pipeline, interval), name="stereocam-watchdog"))
+    try:
+        yield
+    finally:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await app[ENCODERS].close()
+        feed.close()
+        await loop.run_in_executor(None, pipeline.stop)
+        await loop.run_in_executor(None, overlay.stop)  # clock, then streams: mux back to live, VDMA stopped
+
+
+async def _close_streams(app: web.Application) -> None:
+    """Shutdown, before aiohttp waits for handlers: wake every stream so it ends, abort the stuck ones."""
+    app[FEED].close()
+    await app[ENCODERS].close()
+    await app[STREAMS].close_all()
+
+
+async def _watchdog(pipeline: Pipeline, interval: float) -> None:
+    """Ping systemd's watchdog while the pipeline thread iterates (its heartbeat is recent)."""
+    while True:
+        await asyncio.sleep(interval / 3)
+        if time.monotonic() - pipeline.heartbeat_at < interval / 2:
+            notify("WATCHDOG=1")
+        else:
+            log.error("pipeline heartbeat is %.1f s old: not feeding the watchdog",
+                      time.monotonic() - pipeline.heartbeat_at)
+
+
+# -- calibration at start -------------------------------------------------------------------
+
+def _calibration_id(prefix: str, left: Any, right: Any) -> str:
+    digest = hashlib.sha256(repr((left.values(), right.values())).encode("utf-8")).hexdigest()[:12]
+    return f"{prefix}-{digest}"
+
+
+def program_default_calibration(overlay: Any, config: Config) -> CalibrationState:
+    """Program the core before the streams start and say what it runs with (blocks).
+
+    ``config.calibration`` (``intrinsics.yml,extrinsics.yml``) wins; else, on
+    the emulated fabric with the synthetic rig, the rig's known calibration
+    (the same as :func:`stereocam.bench.bench_calibration` at 752x480);
+    else nothing: the core passes frames through. Raises the calibration
+    loader's and the core's errors (``CalibrationFileError``, ``ConfigError``).
+    """
+    from ..stereo import core_cameras
+    from ..stereo import rectify as stereo_rectify
+
+    fabric = overlay.fabric
+    w, h = fabric.frame_size
+    rectify = fabric.rectify
+    if config.calibration:
+        from ..calibration_io import load_opencv_pair, parse_calibration_arg
+
+        intr, extr = parse_calibration_arg(config.calibration)
+        model, rect = load_opencv_pair(intr, extr, (w, h))
+        left, right = core_cameras(model, rect)
+        prefix, description = "opencv", f"OpenCV stereo_calib files {intr} and {extr}"
+    else:
+        source = getattr(getattr(overlay, "hw", None), "source", None)
+        rig_model = getattr(source, "model", None)
+        if rig_model is None:
+            log.warning("no calibration given: the rectify core passes frames through (give --calibration)")
+            return CalibrationState(lb_rows=rectify.lb_rows)
+        left, right = core_cameras(rig_model, stereo_rectify(rig_model, alpha=0.0))
+        prefix, description = "synthetic-rig", "the synthetic rig's known calibration (emulated fabric)"
+    core_config, fit = rectify.program(left, right, w, h)
+    state = CalibrationState(id=_calibration_id(prefix, left, right), description=description,
+                             rows_needed=fit.rows, lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay)
+    log.info("calibration %s: %s (line buffer %d of %d rows)", state.id, description, fit.rows,
+             rectify.lb_rows)
+    return state
+
+
+# -- serving --------------------------------------------------------------------------------
+
+def _camera_source(config: Config) -> Any:
+    if config.source == "synthetic":
+        return None  # the emulated fabric's default SyntheticRig
+    from ..overlays.emulated.cameras import ReplaySource
+
+    return ReplaySource(Path(config.source).expanduser())
+
+
+def open_configured_overlay(config: Config) -> Any:
+    from ..overlays.backend import open_overlay
+
+    bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
+    return open_overlay(config.backend, bitstream=bitstream, source=_camera_source(config), fps=config.fps,
+                        clock="realtime")
+
+
+async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.Event] = None,
+                on_ready: Optional[Callable[[str], None]] = None, handle_signals: bool = True) -> None:
+    """Serve ``app`` until ``stop`` is set (or SIGTERM/SIGINT, with ``handle_signals``), then clean up.
+
+    ``on_ready(url)`` is called once the socket listens (``config.port`` 0
+    picks a free port; the URL has the real one).
+    """
+    loop = asyncio.get_running_loop()
+    stop = stop or asyncio.Event()
+    runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=0.5)
+    await runner.setup()
+    try:
+        site = web.TCPSite(runner, config.host, config.port, reuse_address=True)
+        try:
+            await site.start()
+        except OSError as exc:
+            raise ServeError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}; "
+                             "is another stereocam running? choose another --port") from None
+        port = runner.addresses[0][1] if runner.addresses else config.port
+        host = f"[{config.host}]" if ":" in config.host else config.host
+        url = f"http://{host}:{port}/"
+        log.info("serving on %s (%s fabric)", url, app[OVERLAY].fabric.backend)
+        installed = []
+        for sig in (signal.SIGTERM, signal.SIGINT) if handle_signals else ():
+            try:
+                loop.add_signal_handler(sig, stop.set)
+                installed.append(sig)
+            except (NotImplementedError, RuntimeError):  # not the main thread
+                pass
+        notify("READY=1")
+        notify(f"STATUS=serving on {url}")
+        if on_ready is not None:
+            on_ready(url)
+        try:
+            await stop.wait()
+        finally:
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+        log.info("stopping")
+        notify("STOPPING=1")
+    finally:
+        await runner.cleanup()
+
+
+def run(config: Config, *, extensions: Optional[Sequence[Setup]] = None) -> int:
+    """``stereocam serve``: blocks until SIGTERM/SIGINT; returns the exit code."""
+    overlay = open_configured_overlay(config)
+    try:
+        reason = getattr(getattr(overlay, "choice", None), "reason", "")
+        log.info("fabric: %s (%s)", overlay.fabric.backend, reason)
+        calibration = program_default_calibration(overlay, config)
+        app = create_app(config, overlay, calibration=calibration,
+                         extensions=default_extensions() if extensions is None else extensions)
+        asyncio.run(serve(app, config))
+    finally:
+        overlay.close()
+    return 0

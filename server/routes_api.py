@@ -1,0 +1,590 @@
+"""The control API: status, source, virtual camera (flows 4 and 6), verify (flow 5) and captures (flow 1).
+
+Handlers stay on the event loop only to parse, check and answer; anything
+that blocks (register dumps, image decoding, the model, PNG encoding, disk)
+runs on the daemon's ``work`` threads. Every refusal is ``{"error": "..."}``
+with a 4xx/5xx status, and a refused request changes nothing.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import mimetypes
+import os
+import stat
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any, Callable, Dict, Optional, Tuple, TypeVar
+
+import numpy as np
+from aiohttp import BodyPartReader, web
+
+from ..overlays.model.fast import RectifyModel
+from ..overlays.model.result import CoreOptions
+from ..overlays.spec import pixel
+from ..overlays.spec.rectify import RECTIFY_MAP
+from .captures import CaptureError, CaptureStore
+from .encoders import BroadcastClosed, png_for
+from .pipeline import COUNT_MOD, FrameSet, SourceState
+from .state import (
+    CALIBRATION,
+    CAPTURES,
+    CONFIG,
+    ENCODERS,
+    EXECUTORS,
+    EXTENSIONS,
+    FEED,
+    METRICS,
+    OVERLAY,
+    PIPELINE,
+    STREAMS,
+    VIRTUAL,
+)
+from .streams import json_error
+from .uploads import PAIR_FIELDS, SBS_FIELD, UploadError, decode_pair, parse_json_capture_request
+from .verify import VerifyError, compare, difference_image
+
+log = logging.getLogger(__name__)
+
+__all__ = ["VirtualCamera", "setup_routes", "core_model_setup"]
+
+T = TypeVar("T")
+SOURCES = ("live", "virtual")
+ROUND_TRIP_FRAMES = 2  # frames after MM2S picks the store up until the core's output surely comes from it
+
+
+class ApiError(Exception):
+    """A refusal: ``status`` and one line for the user."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+async def _run(request: web.Request, fn: Callable[..., T], *args: Any) -> T:
+    return await asyncio.get_running_loop().run_in_executor(request.app[EXECUTORS].work, fn, *args)
+
+
+def _answer(exc: Exception) -> web.Response:
+    status = int(getattr(exc, "status", 500))
+    message = getattr(exc, "message", None) or str(exc)
+    return json_error(status, message)
+
+
+# -- the model, as the core's registers describe it -----------------------------------------------
+
+def core_model_setup(rectify: Any) -> Tuple[Any, CoreOptions]:
+    """``(CoreConfig, CoreOptions)`` the core runs with, read back from its registers (blocks)."""
+    config = rectify.read_config()
+    control = RECTIFY_MAP["CONTROL"].decode(rectify.regs.read("CONTROL"))
+    debug_row = rectify.regs.field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None
+    options = CoreOptions(lb_rows=rectify.lb_rows, lb_delay=config.lb_delay, gray=bool(control["GRAY"]),
+                          bypass=bool(control["BYPASS"]), debug_row=debug_row)
+    return config, options
+
+
+class _ModelCache:
+    """The last :class:`RectifyModel` built, reused while the registers say the same thing."""
+
+    def __init__(self) -> None:
+        self._key: Any = None
+        self._model: Optional[RectifyModel] = None
+
+    def run(self, rectify: Any, frame: np.ndarray) -> np.ndarray:
+        config, options = core_model_setup(rectify)
+        key = (config, options)
+        if self._model is None or self._key != key:
+            self._model = RectifyModel(config.left, config.right, config.width, config.height, options)
+            self._key = key
+        return self._model.process(frame).frame
+
+
+# -- the virtual camera -----------------------------------------------------------------------------
+
+@dataclass
+class VerifyResult:
+    report: Dict[str, Any]
+    difference_png: bytes
+
+
+class VirtualCamera:
+    """The mux and the virtual camera as the daemon drives them (loop thread; one change at a time).
+
+    ``input`` is the last frame sent down MM2S (read-only ``(H, W, 8)``),
+    ``result`` the processed frame set that came back for it.
+    """
+
+    def __init__(self, overlay: Any, pipeline: Any, feed: Any, *, round_trip_timeout: float = 2.0) -> None:
+        self.overlay = overlay
+        self.fabric = overlay.fabric
+        self.pipeline = pipeline
+        self.feed = feed
+        self.lock = asyncio.Lock()
+        self.source = "live"
+        self.input: Optional[np.ndarray] = None
+        self.origin: Optional[str] = None
+        self.result: Optional[FrameSet] = None
+        self.effective_count = 0
+        self.verify: Optional[VerifyResult] = None
+        self.models = _ModelCache()
+        self.round_trip_timeout = round_trip_timeout
+
+    def to_json(self) -> Dict[str, Any]:
+        w, h = self.fabric.frame_size
+        return {"source": self.source, "input": self.origin,
+                "frame": self.result.frame if self.result is not None else None,
+                "width": w, "height": h}
+
+    def _frames(self, n: float) -> float:
+        """Seconds for ``n`` frame periods at the rate the fabric runs (1/60 s before one is known)."""
+        return n * (self.pipeline.period or 1 / 60)
+
+    def _send_blocking(self, frame: np.ndarray) -> int:
+        """Mux to virtual, frame down MM2S, wait until the channel reads it; the FRAME_COUNT then."""
+        self.fabric.select("virtual")
+        self.fabric.send_virtual(frame)
+        self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3)))
+        return int(self.pipeline.frame_count())
+
+    def _live_blocking(self) -> None:
+        self.fabric.select("live")
+
+    async def send(self, loop_executor: Any, frame: np.ndarray, origin: str) -> FrameSet:
+        """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError 504 if none came)."""
+        frame.flags.writeable = False
+        loop = asyncio.get_running_loop()
+        async with self.lock:
+            try:
+                count = await loop.run_in_executor(loop_executor, self._send_blocking, frame)
+            except Exception as exc:
+                await self._back_to_live(loop_executor)
+                raise ApiError(504, f"the fabric did not take the virtual-camera frame: {exc}") from exc
+            effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
+            self.pipeline.set_source(SourceState("virtual", frame, effective))
+            self.source, self.input, self.origin, self.effective_count = "virtual", frame, origin, effective
+            self.result = self.verify = None
+            try:
+                result = await self._virtual_frame()
+            except asyncio.TimeoutError:
+                await self._back_to_live(loop_executor)
+                raise ApiError(504, f"the fabric returned no processed frame within "
+                                    f"{self._round_trip_s():g} s; is the rectify core enabled? "
+                                    "(GET /api/status); the source is live again") from None
+            self.result = result
+            return result
+
+    async def _virtual_frame(self) -> FrameSet:
+        effective = self.effective_count
+
+        def from_input(fs: FrameSet) -> bool:
+            return fs.source == "virtual" and (fs.fabric_count - effective) % COUNT_MOD < COUNT_MOD // 2
+
+        return await self.feed.next_frame(timeout=self._round_trip_s(), accept=from_input)
+
+    def _round_trip_s(self) -> float:
+        return max(self.round_trip_timeout, self._frames(ROUND_TRIP_FRAMES + 4))
+
+    async def _back_to_live(self, executor: Any) -> None:
+        try:
+            await asyncio.get_running_loop().run_in_executor(executor, self._live_blocking)
+        finally:
+            self.pipeline.set_source(SourceState())
+            self.source = "live"
+
+    async def select(self, executor: Any, source: str) -> None:
+        """Flow 6 (live) or back to the last virtual input (virtual; a black frame if there is none yet)."""
+        async with self.lock:
+            if source == "live":
+                await self._back_to_live(executor)
+                return
+            loop = asyncio.get_running_loop()
+            if self.input is None:
+                await loop.run_in_executor(executor, self.fabric.select, "virtual")
+                self.pipeline.set_source(SourceState("virtual", None, 0))
+                self.source = "virtual"
+                return
+            frame = self.input
+        await self.send(executor, frame, self.origin or "upload")
+
+    async def actual_frame(self) -> FrameSet:
+        """The fabric's output for the current input: a fresh frame while virtual, else the stored result."""
+        if self.source == "virtual" and self.input is not None:
+            return await self._virtual_frame()
+        assert self.result is not None
+        return self.result
+
+
+# -- status and source ------------------------------------------------------------------------------
+
+async def status_handler(request: web.Request) -> web.Response:
+    app = request.app
+    overlay, pipeline, feed, streams = app[OVERLAY], app[PIPELINE], app[FEED], app[STREAMS]
+    fabric = overlay.fabric
+    try:
+        hw = await _run(request, fabric.status)
+    except Exception as exc:  # registers unreadable: say so, keep the rest
+        hw = {"core": None, "vdma": None, "error": str(exc)}
+    choice = getattr(overlay, "choice", None)
+    fps: Dict[str, float] = {"camera": round(pipeline.fabric_fps(), 2),
+                             "pipeline": round(pipeline.meter.rate(), 2)}
+    encoders = app[ENCODERS]
+    if encoders.disparity.running:
+        fps["disparity"] = round(encoders.disparity.meter.rate(), 2)
+    fps.update(encoders.fps_by_view())
+    metrics = app[METRICS]
+    errors = metrics.recent()
+    if pipeline.last_error:
+        errors.append(f"pipeline: {pipeline.last_error}")
+    age = feed.frame_age()
+    body: Dict[str, Any] = {
+        "backend": getattr(overlay, "backend", fabric.backend),
+        "backend_reason": getattr(choice, "reason", None),
+        "source": app[VIRTUAL].source,
+        "mux": hw.get("source"),
+        "frame_size": list(fabric.frame_size),
+        "signal": feed.signal,
+        "last_frame": {"frame": pipeline.last_frame_number, "age_s": None if age is None else round(age, 3)},
+        "fps": fps,
+        "frames": pipeline.frames,
+        "drops": pipeline.drops,
+        "core": hw.get("core"),
+        "vdma": hw.get("vdma"),
+        "calibration": app[CALIBRATION].to_json(),
+        "virtual_camera": app[VIRTUAL].to_json(),
+        "clients": len(streams),
+        "max_streams": streams.max_streams,
+        "streams": [c.to_json() for c in streams.clients.values()],
+        "encoders": [{"view": k.view, "quality": k.quality, "gray": k.gray, "subscribers": e.subscribers}
+                     for k, e in encoders.active().items()],
+        "uptime_s": round(time.time() - metrics.started, 1),
+        "access_token": app[CONFIG].access_token is not None,
+        "errors": errors[-20:],
+    }
+    body.update(app[EXTENSIONS].status_sections())
+    return web.json_response(body, headers={"Cache-Control": "no-store"})
+
+
+async def _json_body(request: web.Request) -> Any:
+    if request.content_type != "application/json":
+        given = request.content_type or "nothing"
+        raise ApiError(415, f"send JSON (Content-Type: application/json), not {given}")
+    try:
+        return json.loads(await request.read())
+    except web.HTTPRequestEntityTooLarge:
+        raise
+    except (ValueError, UnicodeDecodeError):
+        raise ApiError(400, "the body is not valid JSON") from None
+
+
+async def get_source(request: web.Request) -> web.Response:
+    return web.json_response({"source": request.app[VIRTUAL].source})
+
+
+async def put_source(request: web.Request) -> web.Response:
+    try:
+        doc = await _json_body(request)
+        if not isinstance(doc, dict) or set(doc) != {"source"} or doc["source"] not in SOURCES:
+            raise ApiError(400, 'send {"source": "live"} or {"source": "virtual"}')
+        await request.app[VIRTUAL].select(request.app[EXECUTORS].work, doc["source"])
+    except ApiError as exc:
+        return _answer(exc)
+    return web.json_response({"source": request.app[VIRTUAL].source})
+
+
+# -- virtual camera ---------------------------------------------------------------------------------
+
+async def _read_fields(request: web.Request, limit: int) -> Dict[str, bytes]:
+    """The multipart fields of an upload, at most ``limit`` bytes in all (413 beyond)."""
+    fields: Dict[str, bytes] = {}
+    total = 0
+    try:
+        reader = await request.multipart()
+        while True:
+            part = await reader.next()
+            if part is None:
+                break
+            if not isinstance(part, BodyPartReader):
+                raise ApiError(400, "nested multipart bodies are not accepted: "
+                                    "send the fields left and right, or sbs")
+            name = part.name
+            if name not in PAIR_FIELDS and name != SBS_FIELD:
+                raise ApiError(400, f"unknown field {str(name)[:40]!r}: send the fields left and right "
+                                    "(a stereo pair) or one field sbs (a side-by-side image)")
+            if name in fields:
+                raise ApiError(400, f"field {name} was sent twice")
+            data = bytearray()
+            while True:
+                chunk = await part.read_chunk(1 << 16)
+                if not chunk:
+                    break
+                total += len(chunk)
+                if total > limit:
+                    raise ApiError(413, f"the upload is larger than {limit} bytes (max_upload_bytes)")
+                data.extend(chunk)
+            fields[name] = bytes(data)
+    except (ApiError, web.HTTPException):
+        raise
+    except (ValueError, AssertionError, KeyError, asyncio.IncompleteReadError) as exc:
+        raise ApiError(400, f"malformed multipart body ({type(exc).__name__}): send multipart/form-data "
+                            "with fields left and right, or sbs") from None
+    return fields
+
+
+async def post_virtual_camera(request: web.Request) -> web.Response:
+    app = request.app
+    fabric = app[OVERLAY].fabric
+    metrics = app[METRICS]
+    limit = app[CONFIG].max_upload_bytes
+    try:
+        ctype = request.content_type
+        if ctype == "application/json":
+            capture_id = parse_json_capture_request(await _json_body(request))
+            store: CaptureStore = app[CAPTURES]
+            left, right = await _run(request, store.raw_pair, capture_id)
+            if left.shape[:2] != (fabric.frame_size[1], fabric.frame_size[0]):
+                raise ApiError(422, f"capture {capture_id} is {left.shape[1]}x{left.shape[0]}, "
+                                    f"the fabric takes {fabric.frame_size[0]}x{fabric.frame_size[1]}")
+            frame = pixel.pack(left, right)
+            origin = f"capture {capture_id}"
+        elif ctype.startswith("multipart/"):
+            fields = await _read_fields(request, limit)
+            frame = await _run(request, _decode, fields, fabric.frame_size, limit)
+            origin = "upload (" + ", ".join(sorted(fields)) + ")"
+        else:
+            raise ApiError(415, "send multipart/form-data with fields left and right (or sbs), "
+                                'or JSON {"capture": "<id>"}')
+    except (ApiError, UploadError, CaptureError) as exc:
+        metrics.upload("rejected")
+        return _answer(exc)
+    metrics.upload("ok")
+    try:
+        result = await app[VIRTUAL].send(app[EXECUTORS].work, frame, origin)
+    except ApiError as exc:
+        metrics.error(exc.message, "virtual-camera")
+        return _answer(exc)
+    except BroadcastClosed:
+        return json_error(503, "the daemon is shutting down")
+    w, h = fabric.frame_size
+    return web.json_response({"frame": result.frame, "source": "virtual", "width": w, "height": h,
+                              "input": origin})
+
+
+def _decode(fields: Dict[str, bytes], size: Tuple[int, int], limit: int) -> np.ndarray:
+    return decode_pair(fields, size=size, max_bytes=limit)
+
+
+async def get_virtual_camera(request: web.Request) -> web.Response:
+    return web.json_response(request.app[VIRTUAL].to_json())
+
+
+async def virtual_result(request: web.Request) -> web.Response:
+    vc = request.app[VIRTUAL]
+    if vc.result is None:
+        return json_error(404, "no virtual-camera result yet: POST /api/virtual-camera first")
+    side = request.match_info["side"]
+    body = await _run(request, png_for, vc.result, f"rect_{side}", False)
+    return web.Response(body=body, content_type="image/png",
+                        headers={"X-Frame-Number": str(vc.result.frame), "Cache-Control": "no-store"})
+
+
+# -- verify -----------------------------------------------------------------------------------------
+
+def _verify_blocking(vc: VirtualCamera, frame_in: np.ndarray, actual: FrameSet) -> VerifyResult:
+    from .encoders import encode_image
+
+    expected = vc.models.run(vc.fabric.rectify, frame_in)
+    report = compare(expected, actual.processed)
+    diff = difference_image(expected, actual.processed)
+    png = encode_image(np.ascontiguousarray(diff[..., ::-1]), ".png")
+    body = _with_max_diff(report.to_json())
+    body.update({"frame": actual.frame, "source": actual.source, "input": vc.origin})
+    return VerifyResult(body, png)
+
+
+def _with_max_diff(stats: Dict[str, Any]) -> Dict[str, Any]:
+    """API.md names the largest difference ``max_diff``; verify.py says ``max_difference``: give both."""
+    if "max_difference" in stats:
+        stats["max_diff"] = stats["max_difference"]
+    for group in ("channels", "cameras"):
+        for entry in (stats.get(group) or {}).values():
+            _with_max_diff(entry)
+    return stats
+
+
+async def post_verify(request: web.Request) -> web.Response:
+    vc = request.app[VIRTUAL]
+    if vc.input is None or vc.result is None:
+        return json_error(409, "there is no virtual-camera input yet: POST /api/virtual-camera first")
+    try:
+        actual = await vc.actual_frame()
+    except asyncio.TimeoutError:
+        return json_error(504, "the fabric returned no processed frame of the virtual input in time")
+    except BroadcastClosed:
+        return json_error(503, "the daemon is shutting down")
+    try:
+        result = await _run(request, _verify_blocking, vc, vc.input, actual)
+    except VerifyError as exc:
+        return _answer(exc)
+    vc.verify = result
+    return web.json_response(result.report)
+
+
+async def verify_difference(request: web.Request) -> web.Response:
+    vc = request.app[VIRTUAL]
+    if vc.verify is None:
+        return json_error(404, "no verify has run for the current input: POST /api/verify first")
+    return web.Response(body=vc.verify.difference_png, content_type="image/png",
+                        headers={"Cache-Control": "no-store"})
+
+
+# -- captures ---------------------------------------------------------------------------------------
+
+async def post_capture(request: web.Request) -> web.Response:
+    app = request.app
+    feed, pipeline, metrics = app[FEED], app[PIPELINE], app[METRICS]
+    timeout = max(1.0, 2 * app[CONFIG].no_signal_s)
+    asked = time.time()
+
+    def wanted(f: FrameSet) -> bool:  # grabbed after the request came, with its raw pair
+        return f.timestamp >= asked and f.raw is not None
+
+    try:
+        with pipeline.raw_wanted():
+            fs = await feed.next_frame(timeout=timeout, accept=wanted)
+    except asyncio.TimeoutError:
+        return json_error(503, f"no signal: no frame came within {timeout:g} s, nothing was captured")
+    except BroadcastClosed:
+        return json_error(503, "the daemon is shutting down")
+    overlay = app[OVERLAY]
+    try:
+        registers = await _run(request, overlay.fabric.rectify.dump)
+    except Exception as exc:
+        registers = {"error": str(exc)}
+    calibration = app[CALIBRATION]
+    assert fs.raw is not None
+    meta: Dict[str, Any] = {
+        "frame": fs.frame,
+        "time": fs.timestamp,
+        "time_utc": datetime.fromtimestamp(fs.timestamp, timezone.utc).isoformat(timespec="milliseconds"),
+        "source": fs.source,
+        "calibration_id": calibration.id,
+        "calibration": calibration.to_json(),
+        "backend": getattr(overlay, "backend", overlay.fabric.backend),
+        "frame_size": list(fs.size),
+        "registers": registers,
+    }
+    if fs.source == "virtual":
+        meta["virtual_input"] = app[VIRTUAL].origin
+    meta.update(app[EXTENSIONS].capture_sections())
+    frames = {"raw_left": fs.raw[..., pixel.LEFT], "raw_right": fs.raw[..., pixel.RIGHT],
+              "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
+    store: CaptureStore = app[CAPTURES]
+    try:
+        info = await _run(request, store.save, frames, meta)
+    except CaptureError as exc:
+        metrics.error(exc.message, "captures")
+        return _answer(exc)
+    metrics.captures += 1
+    body = info.to_json()
+    return web.json_response(body, status=201, headers={"Location": f"/api/captures/{info.id}"})
+
+
+async def list_captures(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    infos = await _run(request, store.list)
+    return web.json_response({"captures": [i.to_json() for i in infos]},
+                             headers={"Cache-Control": "no-store"})
+
+
+async def get_capture(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    try:
+        info = await _run(request, store.get, request.match_info["id"])
+    except CaptureError as exc:
+        return _answer(exc)
+    return web.json_response(info.to_json(meta=True))
+
+
+async def capture_zip(request: web.Request) -> web.StreamResponse:
+    store: CaptureStore = request.app[CAPTURES]
+    cid = request.match_info["id"]
+    try:
+        chunks = await _run(request, store.zip_stream, cid)
+    except CaptureError as exc:
+        return _answer(exc)
+    resp = web.StreamResponse(headers={"Content-Type": "application/zip",
+                                       "Content-Disposition": f'attachment; filename="{cid}.zip"'})
+    try:
+        await resp.prepare(request)
+        while True:
+            chunk = await _run(request, next, chunks, b"")
+            if not chunk:
+                break
+            await resp.write(chunk)
+        await resp.write_eof()
+    finally:
+        close = getattr(chunks, "close", None)  # a generator: closing it closes the files
+        if close is not None:
+            close()
+    return resp
+
+
+class _NoSuchFile(CaptureError):
+    status = 404
+
+
+def _read_capture_file(store: CaptureStore, cid: str, name: str) -> bytes:
+    """One file of a capture, by a name its listing shows (never a path built from the request)."""
+    info = store.get(cid)
+    if name not in {f.name for f in info.files}:
+        names = ", ".join(f.name for f in info.files)
+        raise _NoSuchFile(f"capture {cid} has no file {name[:60]!r}; it has {names}")
+    fd = os.open(store.path(cid) / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            raise CaptureError(f"{name} is not a file")
+        return fh.read()
+
+
+async def capture_file(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    cid, name = request.match_info["id"], request.match_info["file"]
+    try:
+        body = await _run(request, _read_capture_file, store, cid, name)
+    except CaptureError as exc:
+        return _answer(exc)
+    except OSError as exc:
+        status = 404 if isinstance(exc, FileNotFoundError) else 500
+        return json_error(status, f"cannot read {name}: {exc.strerror}")
+    ctype = mimetypes.guess_type(name)[0] or "application/octet-stream"
+    return web.Response(body=body, content_type=ctype)
+
+
+async def delete_capture(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    try:
+        await _run(request, store.delete, request.match_info["id"])
+    except CaptureError as exc:
+        return _answer(exc)
+    return web.Response(status=204)
+
+
+def setup_routes(app: web.Application) -> None:
+    r = app.router
+    r.add_get("/api/status", status_handler)
+    r.add_get("/api/source", get_source)
+    r.add_put("/api/source", put_source)
+    r.add_get("/api/virtual-camera", get_virtual_camera)
+    r.add_post("/api/virtual-camera", post_virtual_camera)
+    r.add_get(r"/api/virtual-camera/result/{side:left|right}.png", virtual_result)
+    r.add_post("/api/verify", post_verify)
+    r.add_get("/api/verify/difference.png", verify_difference)
+    r.add_get("/api/captures", list_captures)
+    r.add_post("/api/captures", post_capture)
+    r.add_get(r"/api/captures/{id:[^/]+}.zip", capture_zip)
+    r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)
+    r.add_get(r"/api/captures/{id:[^/]+}", get_capture)
+    r.add_delete(r"/api/captures/{id:[^/]+}", delete_capture)

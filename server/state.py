@@ -1,0 +1,132 @@
+"""The daemon's application state: typed ``web.AppKey``s and the small holders they point at.
+
+``create_app`` (:mod:`.app`) fills every key before the app starts; route
+modules read them (``request.app[PIPELINE]``). Extensions (calibration,
+issue 4; sensors, issue 5) add their routes in their ``setup(app)`` and
+register providers in ``app[EXTENSIONS]``: what they add to ``/api/status``,
+``/metrics`` and capture metadata.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional
+
+from aiohttp import web
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .captures import CaptureStore
+    from .config import Config
+    from .encoders import Encoders, FrameFeed
+    from .metrics import Metrics
+    from .pipeline import Pipeline
+    from .routes_api import VirtualCamera
+    from .streams import StreamClients
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CONFIG", "OVERLAY", "PIPELINE", "FEED", "ENCODERS", "STREAMS", "METRICS", "CAPTURES", "VIRTUAL",
+    "CALIBRATION", "EXTENSIONS", "EXECUTORS", "Executors", "CalibrationState", "Extensions",
+]
+
+
+@dataclass
+class Executors:
+    """Worker threads: ``encode`` for views and JPEG/PNG (hot path), ``work`` for disk, uploads, verify."""
+
+    encode: concurrent.futures.ThreadPoolExecutor
+    work: concurrent.futures.ThreadPoolExecutor
+
+    @classmethod
+    def create(cls, encode_threads: int) -> "Executors":
+        return cls(
+            encode=concurrent.futures.ThreadPoolExecutor(encode_threads,
+                                                         thread_name_prefix="stereocam-encode"),
+            work=concurrent.futures.ThreadPoolExecutor(4, thread_name_prefix="stereocam-work"),
+        )
+
+    def shutdown(self) -> None:
+        self.encode.shutdown(wait=False, cancel_futures=True)
+        self.work.shutdown(wait=False, cancel_futures=True)
+
+
+@dataclass
+class CalibrationState:
+    """The calibration the core runs with, as status and captures report it.
+
+    ``id`` names it (captures record it), ``description`` says where it came
+    from, ``rows_needed``/``lb_rows`` are the line-buffer fit. Issue 4's
+    calibration routes replace these fields when they program a new one.
+    """
+
+    id: Optional[str] = None
+    description: str = "none: the core passes frames through unrectified"
+    rows_needed: Optional[int] = None
+    lb_rows: Optional[int] = None
+    lb_delay: Optional[int] = None
+
+    def to_json(self) -> Dict[str, Any]:
+        return {"id": self.id, "description": self.description, "rows_needed": self.rows_needed,
+                "lb_rows": self.lb_rows, "lb_delay": self.lb_delay}
+
+
+Provider = Callable[[], Dict[str, Any]]
+MetricsProvider = Callable[[], Iterable[str]]
+
+
+@dataclass
+class Extensions:
+    """Where other parts of the daemon plug in (loop thread; providers must not block).
+
+    - ``status``: name -> provider; ``/api/status`` gets ``{name: provider()}``
+      (e.g. ``"sensors"``).
+    - ``metrics``: providers of extra Prometheus text lines.
+    - ``capture_meta``: name -> provider; each capture's meta.json gets
+      ``{name: provider()}`` (e.g. ``"sensors"``: exposure and gain).
+    """
+
+    status: Dict[str, Provider] = field(default_factory=dict)
+    metrics: List[MetricsProvider] = field(default_factory=list)
+    capture_meta: Dict[str, Provider] = field(default_factory=dict)
+
+    @staticmethod
+    def _collect(providers: Dict[str, Provider], what: str) -> Dict[str, Any]:
+        out: Dict[str, Any] = {}
+        for name, provider in providers.items():
+            try:
+                out[name] = provider()
+            except Exception as exc:  # one broken extension must not break status or captures
+                log.warning("%s provider %r failed: %s", what, name, exc)
+                out[name] = {"error": str(exc)}
+        return out
+
+    def status_sections(self) -> Dict[str, Any]:
+        return self._collect(self.status, "status")
+
+    def capture_sections(self) -> Dict[str, Any]:
+        return self._collect(self.capture_meta, "capture meta")
+
+    def metrics_lines(self) -> List[str]:
+        lines: List[str] = []
+        for provider in self.metrics:
+            try:
+                lines.extend(provider())
+            except Exception as exc:
+                log.warning("metrics provider failed: %s", exc)
+        return lines
+
+
+CONFIG: "web.AppKey[Config]" = web.AppKey("stereocam.config")
+OVERLAY: "web.AppKey[Any]" = web.AppKey("stereocam.overlay")
+PIPELINE: "web.AppKey[Pipeline]" = web.AppKey("stereocam.pipeline")
+FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed")
+ENCODERS: "web.AppKey[Encoders]" = web.AppKey("stereocam.encoders")
+STREAMS: "web.AppKey[StreamClients]" = web.AppKey("stereocam.streams")
+METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics")
+CAPTURES: "web.AppKey[CaptureStore]" = web.AppKey("stereocam.captures")
+VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual")
+CALIBRATION: "web.AppKey[CalibrationState]" = web.AppKey("stereocam.calibration")
+EXTENSIONS: "web.AppKey[Extensions]" = web.AppKey("stereocam.extensions")
+EXECUTORS: "web.AppKey[Executors]" = web.AppKey("stereocam.executors")

@@ -1,0 +1,491 @@
+// stereocam page: plain JS, no framework, no outside assets (the board has no internet).
+//
+// Contract: server/API.md. All live views come over ONE WebSocket (/ws): browsers
+// allow about 6 connections per host, so seven MJPEG <img> streams would starve the
+// API calls. Each binary message is
+//   [4-byte big-endian header length][UTF-8 JSON {view, frame, timestamp}][JPEG bytes]
+// and becomes a blob URL on that view's <img>; the previous blob URL is revoked once
+// the new one has loaded. Each <img> carries data-frame / data-timestamp of the frame
+// it shows (tests read them).
+//
+// Access token: when the daemon has `access_token` set, open the page as
+// /?token=SECRET once. The token is stored in localStorage ("stereocam.token") and
+// sent as "Authorization: Bearer SECRET" on POST/PUT/DELETE; /?token= (empty) forgets it.
+//
+// Errors: every failed API call shows the daemon's {"error": ...} text in #messages;
+// nothing is swallowed.
+"use strict";
+
+(function () {
+  const VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"];
+  const TOKEN_KEY = "stereocam.token";
+  const params = new URLSearchParams(window.location.search);
+  const WS_FPS = clampNumber(params.get("fps"), 1, 60, 15);
+  const STATUS_PERIOD_MS = 1000;
+  const BACKOFF_MIN_MS = 500;
+  const BACKOFF_MAX_MS = 10000;
+
+  const $ = (id) => document.getElementById(id);
+
+  function clampNumber(text, lo, hi, fallback) {
+    const n = Number(text);
+    if (text === null || text === "" || !Number.isFinite(n)) return fallback;
+    return Math.min(hi, Math.max(lo, n));
+  }
+
+  // ---- access token ---------------------------------------------------------------
+  function readToken() {
+    if (params.has("token")) {
+      const t = params.get("token");
+      try {
+        if (t) localStorage.setItem(TOKEN_KEY, t); else localStorage.removeItem(TOKEN_KEY);
+      } catch (e) { /* storage disabled: the query parameter still works for this page */ }
+      return t || "";
+    }
+    try { return localStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
+  }
+  const TOKEN = readToken();
+
+  // ---- messages -------------------------------------------------------------------
+  let messageSeq = 0;
+  function showMessage(text, kind) {
+    const box = $("messages");
+    const item = document.createElement("div");
+    item.className = "msg msg-" + (kind || "error");
+    item.setAttribute("data-testid", kind === "info" ? "message-info" : "message-error");
+    item.id = "message-" + (++messageSeq);
+    const span = document.createElement("span");
+    span.textContent = text;
+    const close = document.createElement("button");
+    close.type = "button";
+    close.className = "msg-close";
+    close.setAttribute("aria-label", "dismiss");
+    close.textContent = "×";
+    close.addEventListener("click", () => item.remove());
+    item.append(span, close);
+    box.append(item);
+    while (box.children.length > 5) box.firstElementChild.remove();
+    if (kind === "info") setTimeout(() => item.remove(), 4000);
+  }
+  function showError(text) { showMessage(text, "error"); }
+
+  // ---- HTTP API -------------------------------------------------------------------
+  class ApiError extends Error {}
+
+  // fetch + JSON; any non-2xx becomes ApiError with the daemon's "error" text.
+  async function api(method, path, body) {
+    const init = { method: method, headers: {} };
+    if (method !== "GET" && TOKEN) init.headers["Authorization"] = "Bearer " + TOKEN;
+    if (body instanceof FormData) {
+      init.body = body;
+    } else if (body !== undefined) {
+      init.headers["Content-Type"] = "application/json";
+      init.body = JSON.stringify(body);
+    }
+    let resp;
+    try {
+      resp = await fetch(path, init);
+    } catch (e) {
+      throw new ApiError(method + " " + path + ": the daemon is unreachable (" + e.message + ")");
+    }
+    const text = await resp.text();
+    let data = null;
+    if (text) {
+      try { data = JSON.parse(text); } catch (e) { data = null; }
+    }
+    if (!resp.ok) {
+      const why = data && typeof data.error === "string" ? data.error : (text.trim().slice(0, 200) || resp.statusText);
+      throw new ApiError(method + " " + path + " → " + resp.status + ": " + why);
+    }
+    return data;
+  }
+
+  // Run an async UI action with its button disabled; errors go to #messages.
+  async function action(button, fn) {
+    if (button) button.disabled = true;
+    try {
+      return await fn();
+    } catch (e) {
+      showError(e instanceof ApiError ? e.message : "unexpected error: " + e);
+      return undefined;
+    } finally {
+      if (button) button.disabled = false;
+    }
+  }
+
+  function bust(url) { return url + (url.includes("?") ? "&" : "?") + "t=" + Date.now(); }
+
+  // ---- live views over one WebSocket ----------------------------------------------
+  const decoder = new TextDecoder("utf-8");
+  const live = {};  // view -> {img, url (current blob URL), frames, caption}
+  for (const v of VIEWS) live[v] = { img: $("view-" + v), url: null, caption: $("frame-" + v), frames: 0 };
+
+  let ws = null;
+  let backoff = BACKOFF_MIN_MS;
+  let reconnectTimer = null;
+  let everConnected = false;
+
+  function setConn(text, cls) {
+    const el = $("conn");
+    el.textContent = text;
+    el.className = "badge " + cls;
+  }
+
+  function showFallback(text) {
+    const el = $("ws-fallback");
+    if (text) { el.textContent = text; el.hidden = false; } else { el.textContent = ""; el.hidden = true; }
+  }
+
+  function onFrame(buf) {
+    if (!(buf instanceof ArrayBuffer) || buf.byteLength < 4) return;
+    const hlen = new DataView(buf).getUint32(0, false);
+    if (4 + hlen > buf.byteLength) return;
+    let header;
+    try { header = JSON.parse(decoder.decode(new Uint8Array(buf, 4, hlen))); } catch (e) { return; }
+    const slot = live[header.view];
+    if (!slot) return;
+    const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + hlen)], { type: "image/jpeg" }));
+    const previous = slot.url;
+    slot.url = url;
+    const img = slot.img;
+    img.onload = img.onerror = () => {
+      if (previous) URL.revokeObjectURL(previous);
+      img.onload = img.onerror = null;
+    };
+    img.src = url;
+    slot.frames += 1;
+    img.dataset.frame = String(header.frame);
+    img.dataset.timestamp = String(header.timestamp);
+    img.dataset.received = String(slot.frames);
+    if (slot.caption) slot.caption.textContent = "#" + header.frame;
+  }
+
+  function connect() {
+    reconnectTimer = null;
+    const proto = window.location.protocol === "https:" ? "wss:" : "ws:";
+    const sock = new WebSocket(proto + "//" + window.location.host + "/ws");
+    sock.binaryType = "arraybuffer";
+    ws = sock;
+    setConn(everConnected ? "reconnecting…" : "connecting…", "badge-warn");
+    sock.onopen = () => {
+      everConnected = true;
+      backoff = BACKOFF_MIN_MS;
+      setConn("live", "badge-ok");
+      showFallback("");
+      sock.send(JSON.stringify({ views: VIEWS, fps: WS_FPS }));
+    };
+    sock.onmessage = (ev) => {
+      if (typeof ev.data === "string") {
+        // The daemon may send a JSON text message (e.g. {"error": ...}).
+        try {
+          const msg = JSON.parse(ev.data);
+          if (msg && msg.error) showError("live view: " + msg.error);
+        } catch (e) { /* not JSON: ignore */ }
+        return;
+      }
+      onFrame(ev.data);
+    };
+    sock.onclose = (ev) => {
+      if (ws !== sock) return;
+      ws = null;
+      const wait = backoff;
+      backoff = Math.min(BACKOFF_MAX_MS, backoff * 2);
+      setConn("disconnected", "badge-bad");
+      showFallback("Live view disconnected" + (ev.reason ? " (" + ev.reason + ")" : "") +
+                   ": reconnecting in " + (wait / 1000).toFixed(1) + " s. The last frames stay on screen.");
+      reconnectTimer = setTimeout(connect, wait);
+    };
+    sock.onerror = () => { /* onclose follows and schedules the reconnect */ };
+  }
+
+  // ---- status ---------------------------------------------------------------------
+  function fmt(v) {
+    if (v === null || v === undefined) return "—";
+    if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toFixed(2);
+    if (typeof v === "boolean") return v ? "yes" : "no";
+    if (Array.isArray(v)) return v.map(fmt).join(" × ");
+    if (typeof v === "object") {
+      return Object.entries(v).map(([k, x]) => k + ": " + fmt(x)).join(", ") || "—";
+    }
+    return String(v);
+  }
+
+  function flagsText(v) {
+    // Flags may arrive as a number (bit mask), a list of names, or an object of booleans.
+    if (v === null || v === undefined) return "—";
+    if (Array.isArray(v)) return v.length ? v.join(", ") : "none";
+    if (typeof v === "number") return v === 0 ? "none" : "0x" + v.toString(16);
+    if (typeof v === "object") {
+      const parts = [];
+      for (const [k, x] of Object.entries(v)) {
+        if (x === true || (typeof x === "number" && x !== 0)) parts.push(typeof x === "number" ? k + "=" + fmt(x) : k);
+        else if (Array.isArray(x) && x.length) parts.push(k + ": " + x.join(", "));
+        else if (typeof x === "string" && x) parts.push(k + ": " + x);
+        else if (x && typeof x === "object" && !Array.isArray(x)) {
+          const inner = flagsText(x);
+          if (inner !== "none") parts.push(k + ": " + inner);
+        }
+      }
+      return parts.length ? parts.join("; ") : "none";
+    }
+    return String(v);
+  }
+
+  let tokenHintShown = false;
+  let currentSource = null;
+  let sourceBusy = false;
+
+  function setSourceRadios(source) {
+    currentSource = source;
+    if (sourceBusy) return;
+    for (const s of ["live", "virtual"]) $("source-" + s).checked = source === s;
+  }
+
+  function renderStatus(st) {
+    const dl = $("status");
+    const rows = [];
+    const add = (key, label, value, cls) => rows.push([key, label, value, cls]);
+    add("backend", "backend", fmt(st.backend) + (st.backend_reason ? " (" + st.backend_reason + ")" : ""));
+    add("source", "source", fmt(st.source) + (st.mux && st.mux !== st.source ? " (mux: " + fmt(st.mux) + ")" : ""));
+    if (st.signal !== undefined) add("signal", "signal", st.signal ? "yes" : "NO SIGNAL", st.signal ? "" : "bad");
+    if (st.last_frame && typeof st.last_frame === "object") {
+      add("last_frame", "last frame", "#" + fmt(st.last_frame.frame) +
+          (st.last_frame.age_s === null || st.last_frame.age_s === undefined ? "" : ", " + fmt(st.last_frame.age_s) + " s ago"));
+    }
+    add("frame_size", "frame size", fmt(st.frame_size));
+    add("frames", "frames", fmt(st.frames));
+    add("drops", "drops", fmt(st.drops));
+    if (st.fps && typeof st.fps === "object") {
+      for (const [stage, v] of Object.entries(st.fps)) {
+        if (v && typeof v === "object") {
+          for (const [sub, x] of Object.entries(v)) add("fps-" + stage + "-" + sub, "fps " + stage + " " + sub, fmt(x));
+        } else {
+          add("fps-" + stage, "fps " + stage, fmt(v));
+        }
+      }
+    }
+    if (st.core) {
+      add("core-frame_count", "core frames", fmt(st.core.frame_count));
+      add("core-flags", "core flags", flagsText(st.core.flags), hasFlags(st.core.flags) ? "bad" : "");
+      add("core-control", "core control", flagsText(st.core.control));
+      add("core-lb_rows", "line buffer rows", fmt(st.core.lb_rows));
+    }
+    if (st.vdma) add("vdma", "VDMA errors", flagsText(st.vdma), hasFlags(st.vdma) ? "bad" : "");
+    if (st.calibration) {
+      const c = st.calibration;
+      add("calibration", "calibration", fmt(c.id) + " (rows " + fmt(c.rows_needed) + " of " + fmt(c.lb_rows) + ")");
+    }
+    if (st.virtual_camera && st.virtual_camera.input) add("virtual_input", "virtual input", fmt(st.virtual_camera.input));
+    add("clients", "clients", fmt(st.clients) + (st.max_streams ? " of " + fmt(st.max_streams) : ""));
+    add("uptime", "uptime", st.uptime_s === undefined ? "—" : fmt(st.uptime_s) + " s");
+    if (st.sensors) add("sensors", "sensors", fmt(st.sensors));
+    if (Array.isArray(st.errors) && st.errors.length) add("errors", "recent errors", st.errors.slice(-3).join(" | "), "bad");
+
+    const frag = document.createDocumentFragment();
+    for (const [key, label, value, cls] of rows) {
+      const dt = document.createElement("dt");
+      dt.textContent = label;
+      const dd = document.createElement("dd");
+      dd.textContent = value;
+      dd.setAttribute("data-testid", "status-" + key);
+      if (cls) dd.className = cls;
+      frag.append(dt, dd);
+    }
+    dl.replaceChildren(frag);
+    dl.dataset.updated = String(Date.now());
+    $("backend").textContent = st.backend ? "backend: " + st.backend : "";
+    if (st.access_token === true && !TOKEN && !tokenHintShown) {
+      tokenHintShown = true;
+      showError("this daemon needs an access token for changes (capture, source, upload, verify): " +
+                "open the page as /?token=YOUR_TOKEN");
+    }
+    if (st.source) setSourceRadios(st.source);
+  }
+
+  function hasFlags(v) {
+    const t = flagsText(v);
+    return t !== "none" && t !== "—";
+  }
+
+  let statusFailing = false;
+  async function refreshStatus() {
+    try {
+      const st = await api("GET", "/api/status");
+      statusFailing = false;
+      renderStatus(st);
+    } catch (e) {
+      // Report once per outage, not every second.
+      if (!statusFailing) showError(e.message);
+      statusFailing = true;
+    } finally {
+      setTimeout(refreshStatus, STATUS_PERIOD_MS);
+    }
+  }
+
+  // ---- source switch --------------------------------------------------------------
+  async function putSource(source) {
+    sourceBusy = true;
+    try {
+      const r = await api("PUT", "/api/source", { source: source });
+      sourceBusy = false;
+      setSourceRadios(r && r.source ? r.source : source);
+      return true;
+    } catch (e) {
+      sourceBusy = false;
+      showError(e.message);
+      setSourceRadios(currentSource);
+      return false;
+    }
+  }
+
+  // ---- captures -------------------------------------------------------------------
+  function humanBytes(n) {
+    if (typeof n !== "number") return "";
+    if (n < 1024) return n + " B";
+    if (n < 1048576) return (n / 1024).toFixed(0) + " KiB";
+    return (n / 1048576).toFixed(1) + " MiB";
+  }
+
+  async function refreshCaptures() {
+    const data = await api("GET", "/api/captures");
+    const list = $("captures-list");
+    const frag = document.createDocumentFragment();
+    const caps = (data && data.captures) || [];
+    for (const c of caps) {
+      const li = document.createElement("li");
+      li.setAttribute("data-testid", "capture");
+      li.dataset.id = c.id;
+      const info = document.createElement("div");
+      info.className = "cap-info";
+      const idEl = document.createElement("code");
+      idEl.textContent = c.id;
+      const meta = document.createElement("small");
+      meta.textContent = [c.created, c.source, c.frame !== undefined ? "frame " + c.frame : "",
+                          humanBytes(c.bytes)].filter(Boolean).join(" · ");
+      info.append(idEl, meta);
+      const dl = document.createElement("a");
+      dl.href = "/api/captures/" + encodeURIComponent(c.id) + ".zip";
+      dl.textContent = "zip";
+      dl.className = "btn";
+      dl.setAttribute("download", c.id + ".zip");
+      dl.setAttribute("data-testid", "capture-download");
+      const del = document.createElement("button");
+      del.type = "button";
+      del.textContent = "delete";
+      del.className = "danger";
+      del.setAttribute("data-testid", "capture-delete");
+      del.addEventListener("click", () => action(del, async () => {
+        await api("DELETE", "/api/captures/" + encodeURIComponent(c.id));
+        await refreshCaptures();
+      }));
+      li.append(info, dl, del);
+      frag.append(li);
+    }
+    if (!caps.length) {
+      const li = document.createElement("li");
+      li.className = "empty";
+      li.textContent = "no captures yet";
+      frag.append(li);
+    }
+    list.replaceChildren(frag);
+    list.dataset.count = String(caps.length);
+  }
+
+  // ---- virtual camera and verify --------------------------------------------------
+  async function upload(ev) {
+    ev.preventDefault();
+    const btn = $("btn-upload");
+    await action(btn, async () => {
+      const l = $("upload-left").files[0], r = $("upload-right").files[0], s = $("upload-sbs").files[0];
+      const form = new FormData();
+      if (l && r) {
+        form.append("left", l, l.name);
+        form.append("right", r, r.name);
+      } else if (s && !l && !r) {
+        form.append("sbs", s, s.name);
+      } else {
+        throw new ApiError("choose a left and a right image, or one side-by-side image");
+      }
+      const res = await api("POST", "/api/virtual-camera", form);
+      setSourceRadios(res && res.source ? res.source : "virtual");
+      $("upload-info").textContent = "frame " + fmt(res.frame) + ", " + fmt(res.width) + "×" + fmt(res.height) +
+                                     ", source " + fmt(res.source);
+      const box = $("upload-result");
+      box.dataset.frame = String(res.frame);
+      await Promise.all(["left", "right"].map((side) => loadImage($("vc-result-" + side),
+        bust("/api/virtual-camera/result/" + side + ".png"))));
+      box.hidden = false;
+    });
+  }
+
+  // Set an <img> src and wait until it has loaded; a failed load is an error.
+  function loadImage(img, url) {
+    return new Promise((resolve, reject) => {
+      img.onload = () => { img.onload = img.onerror = null; img.dataset.loaded = url; resolve(); };
+      img.onerror = () => {
+        img.onload = img.onerror = null;
+        reject(new ApiError("GET " + url.split("?")[0] + " failed to load"));
+      };
+      img.src = url;
+    });
+  }
+
+  function renderVerify(res) {
+    const box = $("verify-result");
+    const yes = !!res.identical;
+    const strong = $("verify-identical");
+    strong.textContent = yes ? "yes — identical" : "no — differs";
+    strong.className = yes ? "ok" : "bad";
+    box.dataset.identical = String(yes);
+    const tbody = $("verify-table").tBodies[0];
+    const frag = document.createDocumentFragment();
+    const row = (name, c, cls) => {
+      const tr = document.createElement("tr");
+      if (cls) tr.className = cls;
+      tr.setAttribute("data-testid", "verify-row-" + name);
+      const psnr = c.psnr_db === null || c.psnr_db === undefined ? "∞" : fmt(c.psnr_db);
+      const share = typeof c.share === "number" ? (c.share * 100).toFixed(3) + " %" : fmt(c.share);
+      for (const cell of [name, fmt(c.differing), share, fmt(c.max_diff), psnr]) {
+        const td = document.createElement("td");
+        td.textContent = cell;
+        tr.append(td);
+      }
+      frag.append(tr);
+    };
+    for (const [name, c] of Object.entries(res.channels || {})) row(name, c, c.differing ? "bad" : "");
+    row("all", res, "total");
+    tbody.replaceChildren(frag);
+    box.hidden = false;
+    return loadImage($("verify-difference"), bust("/api/verify/difference.png"));
+  }
+
+  async function verify() {
+    const btn = $("btn-verify");
+    await action(btn, async () => {
+      const res = await api("POST", "/api/verify");
+      await renderVerify(res);
+    });
+  }
+
+  // ---- wiring ---------------------------------------------------------------------
+  function init() {
+    $("btn-capture").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
+      const res = await api("POST", "/api/captures");
+      showMessage("captured " + (res && res.id ? res.id : ""), "info");
+      await refreshCaptures();
+    }));
+    for (const s of ["live", "virtual"]) {
+      $("source-" + s).addEventListener("change", (ev) => { if (ev.target.checked) putSource(s); });
+    }
+    $("upload-form").addEventListener("submit", upload);
+    $("btn-verify").addEventListener("click", verify);
+    window.addEventListener("beforeunload", () => { if (ws) ws.close(); });
+
+    connect();
+    refreshStatus();
+    action(null, refreshCaptures);
+    document.body.dataset.ready = "1";
+  }
+
+  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", init); else init();
+})();

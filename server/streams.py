@@ -1,0 +1,385 @@
+"""Stream outputs: MJPEG over HTTP, snapshots, and the page's WebSocket.
+
+Every client is one task that loops "wait for a newer encoded frame of my
+key, write it": it shares the bytes the encoder produced (no per-client
+encode, no per-client queue), skips whatever it missed while its write was
+blocked, and paces itself to the ``fps`` it asked for. A client whose write
+does not complete within ``stream_timeout_s`` is aborted by the sweeper
+(:meth:`StreamClients.sweep`); beyond ``max_streams`` clients (MJPEG and
+WebSocket together) the answer is 503.
+
+Routes (see API.md): ``GET /stream/{view}``, ``GET /snapshot/{view}.jpg|png``,
+``GET /ws``.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Dict, Iterator, Optional, Tuple
+
+from aiohttp import WSCloseCode, WSMsgType, web
+
+from .config import MAX_FPS
+from .encoders import BOUNDARY, BroadcastClosed, Encoded, EncoderKey, encoded_for, png_for
+from .pipeline import FrameSet
+from .state import CONFIG, ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, STREAMS
+from .views import GRAY_VIEWS, RAW_VIEWS, VIEWS
+
+log = logging.getLogger(__name__)
+
+__all__ = ["StreamClients", "StreamClient", "StreamParams", "parse_params", "setup_routes", "json_error"]
+
+
+def json_error(status: int, message: str, **headers: str) -> web.Response:
+    """The daemon's error answer: ``{"error": message}`` with ``status``."""
+    return web.json_response({"error": " ".join(message.split())}, status=status, headers=headers or None)
+
+
+# -- clients -------------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class StreamClient:
+    kind: str  # "mjpeg" | "ws"
+    view: str
+    peer: str
+    transport: Optional[asyncio.BaseTransport]  # aborted when the client is dropped
+    started: float = field(default_factory=time.monotonic)
+    writing_since: Optional[float] = None  # monotonic start of the write in progress
+    frames: int = 0
+    ws: Optional[web.WebSocketResponse] = None
+
+    def to_json(self) -> Dict[str, Any]:
+        return {"kind": self.kind, "view": self.view, "peer": self.peer, "frames": self.frames,
+                "seconds": round(time.monotonic() - self.started, 1)}
+
+
+class StreamClients:
+    """Who is streaming: the ``max_streams`` limit, the write timeout, closing on shutdown (loop thread)."""
+
+    def __init__(self, *, max_streams: int, timeout: float) -> None:
+        self.max_streams = max_streams
+        self.timeout = timeout
+        self.clients: Dict[int, StreamClient] = {}
+        self.total = 0
+        self.refused = 0
+        self.dropped = 0
+        self.closing = False
+
+    def __len__(self) -> int:
+        return len(self.clients)
+
+    def full(self) -> bool:
+        return len(self.clients) >= self.max_streams
+
+    def refuse(self) -> web.Response:
+        self.refused += 1
+        return json_error(503, f"too many streams: {self.max_streams} clients are watching already "
+                               "(max_streams); close one or try again later", **{"Retry-After": "5"})
+
+    @contextlib.contextmanager
+    def client(self, request: web.Request, kind: str, view: str) -> Iterator[StreamClient]:
+        c = StreamClient(kind=kind, view=view, peer=str(request.remote or "?"), transport=request.transport)
+        self.clients[id(c)] = c
+        self.total += 1
+        try:
+            yield c
+        finally:
+            self.clients.pop(id(c), None)
+
+    def by_kind(self) -> Dict[str, int]:
+        out = {"mjpeg": 0, "ws": 0}
+        for c in self.clients.values():
+            out[c.kind] = out.get(c.kind, 0) + 1
+        return out
+
+    def _drop(self, c: StreamClient) -> None:
+        """Abort the client's connection: what it buffered is discarded and its next write fails."""
+        self.dropped += 1
+        transport = c.transport
+        if isinstance(transport, asyncio.Transport) and not transport.is_closing():
+            transport.abort()
+
+    async def sweep(self) -> None:
+        """Drop clients whose write has been blocked for ``timeout`` s (run as a task; cancel to stop)."""
+        period = max(0.05, min(1.0, self.timeout / 4))
+        while True:
+            await asyncio.sleep(period)
+            now = time.monotonic()
+            for c in list(self.clients.values()):
+                if c.writing_since is not None and now - c.writing_since > self.timeout:
+                    log.info("dropping %s client %s of %s: a frame write took over %.1f s",
+                             c.kind, c.peer, c.view, self.timeout)
+                    self._drop(c)
+
+    async def close_all(self, grace: float = 0.3) -> None:
+        """Shutdown: clients end by themselves when the broadcasts close; abort whoever is still there."""
+        self.closing = True
+        sockets = [c.ws for c in self.clients.values() if c.ws is not None and not c.ws.closed]
+        if sockets:
+            closing = [asyncio.ensure_future(ws.close(code=WSCloseCode.GOING_AWAY, message=b"shutting down"))
+                       for ws in sockets]
+            await asyncio.wait(closing, timeout=grace)
+        deadline = time.monotonic() + grace
+        while self.clients and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        for c in list(self.clients.values()):
+            self._drop(c)
+
+
+# -- parameters ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class StreamParams:
+    view: str
+    fps: float
+    quality: int
+    gray: bool
+
+    @property
+    def key(self) -> EncoderKey:
+        return EncoderKey(self.view, self.quality, self.gray)
+
+
+class BadParams(Exception):
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def _flag(name: str, value: Optional[str]) -> bool:
+    if value is None:
+        return False
+    if value.lower() in ("1", "true", "yes", "on"):
+        return True
+    if value.lower() in ("0", "false", "no", "off", ""):
+        return False
+    raise BadParams(400, f"{name} must be 1 or 0, got {value[:20]!r}")
+
+
+def parse_params(view: str, query: Any, *, default_fps: float, default_quality: int) -> StreamParams:
+    """Validate a view name and the ``fps``, ``quality`` and ``gray`` query parameters (404 / 400)."""
+    if view not in VIEWS:
+        raise BadParams(404, f"unknown view {view[:40]!r}: the views are {', '.join(VIEWS)}")
+    unknown = [k for k in query if k not in ("fps", "quality", "gray")]
+    if unknown:
+        raise BadParams(400, f"unknown query parameter {unknown[0][:40]!r}: use fps, quality and gray")
+    fps: float = default_fps
+    if "fps" in query:
+        try:
+            fps = float(query["fps"])
+        except ValueError:
+            fps = float("nan")
+        if not (0 < fps <= MAX_FPS):
+            raise BadParams(400, f"fps must be a number in (0, {MAX_FPS:g}], got {query['fps'][:20]!r}")
+    quality = default_quality
+    if "quality" in query:
+        try:
+            quality = int(query["quality"])
+        except ValueError:
+            quality = -1
+        if not 1 <= quality <= 100:
+            raise BadParams(400, f"quality must be a whole number in 1..100, got {query['quality'][:20]!r}")
+    gray = _flag("gray", query.get("gray")) and view in GRAY_VIEWS
+    return StreamParams(view, fps, quality, gray)
+
+
+def _params(request: web.Request, view: str) -> StreamParams:
+    config = request.app[CONFIG]
+    return parse_params(view, request.query, default_fps=config.default_fps,
+                        default_quality=config.default_quality)
+
+
+# -- pacing -----------------------------------------------------------------------------------
+
+class Pacer:
+    """At most ``fps`` frames a second, on a steady schedule that does not burst after a stall."""
+
+    def __init__(self, fps: float) -> None:
+        self.interval = 1.0 / fps
+        self.due = 0.0
+
+    def wait(self, now: float) -> float:
+        """Seconds to wait before sending (0: send now)."""
+        early = self.due - now
+        return early if early > 0.25 * self.interval else 0.0
+
+    def sent(self, now: float) -> None:
+        self.due = max(self.due + self.interval, now + 0.5 * self.interval)
+
+
+async def _next(encoder_output: Any, seq: int, pacer: Pacer) -> Tuple[int, Encoded]:
+    seq, encoded = await encoder_output.wait_newer(seq)
+    loop = asyncio.get_running_loop()
+    delay = pacer.wait(loop.time())
+    if delay > 0:
+        await asyncio.sleep(delay)
+        seq, encoded = encoder_output.current()  # the newest after the pause
+    return seq, encoded
+
+
+# -- handlers ---------------------------------------------------------------------------------
+
+async def stream_handler(request: web.Request) -> web.StreamResponse:
+    try:
+        params = _params(request, request.match_info["view"])
+    except BadParams as exc:
+        return json_error(exc.status, exc.message)
+    streams = request.app[STREAMS]
+    if streams.closing:
+        return json_error(503, "the daemon is shutting down")
+    if streams.full():
+        return streams.refuse()
+    resp = web.StreamResponse(headers={
+        "Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}",
+        "Cache-Control": "no-cache, no-store, must-revalidate",
+        "Pragma": "no-cache",
+        "X-Content-Type-Options": "nosniff",
+    })
+    loop = asyncio.get_running_loop()
+    with streams.client(request, "mjpeg", params.view) as client, \
+            request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
+        try:
+            await resp.prepare(request)
+            pacer = Pacer(params.fps)
+            seq = 0
+            while True:
+                seq, encoded = await _next(encoder.output, seq, pacer)
+                client.writing_since = time.monotonic()
+                await resp.write(encoded.part)
+                client.writing_since = None
+                client.frames += 1
+                pacer.sent(loop.time())
+        except (BroadcastClosed, ConnectionError):
+            pass  # shutdown, the client went away, or the sweeper aborted the transport
+    return resp
+
+
+async def snapshot_handler(request: web.Request) -> web.StreamResponse:
+    fmt = request.match_info["fmt"]
+    try:
+        params = _params(request, request.match_info["view"])
+    except BadParams as exc:
+        return json_error(exc.status, exc.message)
+    app = request.app
+    feed, config = app[FEED], app[CONFIG]
+    timeout = max(1.0, 2 * config.no_signal_s)
+    need_raw = params.view in RAW_VIEWS
+    pipeline = app[PIPELINE]
+    asked = time.time()
+
+    def wanted(fs: FrameSet) -> bool:  # grabbed after the request came, with what the view needs
+        return fs.timestamp >= asked and (not need_raw or fs.raw is not None)
+
+    try:
+        with pipeline.raw_wanted() if need_raw else contextlib.nullcontext():
+            frame_set = await feed.next_frame(timeout=timeout, accept=wanted)
+    except asyncio.TimeoutError:
+        return json_error(503, f"no signal: the fabric sent no frame within {timeout:g} s; "
+                               "check the cameras (GET /api/status)")
+    except BroadcastClosed:
+        return json_error(503, "the daemon is shutting down")
+    loop = asyncio.get_running_loop()
+    executor = app[EXECUTORS].encode
+    if fmt == "jpg":
+        encoded = await loop.run_in_executor(executor, encoded_for, params.key, frame_set,
+                                             app[METRICS].observe_encode)
+        body, headers, ctype = bytes(encoded.jpeg), encoded.headers(), "image/jpeg"
+    else:
+        body = await loop.run_in_executor(executor, png_for, frame_set, params.view, params.gray)
+        headers = {"X-Frame-Number": str(frame_set.frame), "X-Timestamp": f"{frame_set.timestamp:.6f}"}
+        ctype = "image/png"
+    headers["Cache-Control"] = "no-store"
+    headers["Content-Disposition"] = f'inline; filename="{params.view}-{frame_set.frame}.{fmt}"'
+    return web.Response(body=body, content_type=ctype, headers=headers)
+
+
+async def ws_handler(request: web.Request) -> web.StreamResponse:
+    """The page's socket: ``{"views": [...], "fps": N, "quality": Q, "gray": bool}`` in, frames out."""
+    streams = request.app[STREAMS]
+    if streams.closing:
+        return json_error(503, "the daemon is shutting down")
+    if streams.full():
+        return streams.refuse()
+    # No permessage-deflate: JPEG does not compress, and deflating every frame per client costs CPU.
+    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=64 * 1024, compress=False)
+    await ws.prepare(request)
+    senders: Dict[str, "asyncio.Task[None]"] = {}
+
+    def stop_senders() -> None:
+        for task in senders.values():
+            task.cancel()
+        senders.clear()
+
+    with streams.client(request, "ws", "-") as client:
+        client.ws = ws
+        try:
+            async for msg in ws:
+                if msg.type != WSMsgType.TEXT:
+                    await ws.send_json({"error": "send JSON text: {\"views\": [...], \"fps\": N}"})
+                    continue
+                try:
+                    wanted = _ws_request(request, msg.data)
+                except BadParams as exc:
+                    await ws.send_json({"error": exc.message})
+                    continue
+                stop_senders()
+                client.view = ",".join(p.view for p in wanted) or "-"
+                for p in wanted:
+                    sender = _ws_sender(request, ws, client, p)
+                    senders[p.view] = asyncio.get_running_loop().create_task(sender)
+        except ConnectionError:
+            pass
+        finally:
+            stop_senders()
+    return ws
+
+
+def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
+    try:
+        doc = json.loads(text)
+    except ValueError:
+        raise BadParams(400, 'not JSON: send {"views": ["rect_left", ...], "fps": N}') from None
+    if not isinstance(doc, dict):
+        raise BadParams(400, 'send a JSON object {"views": [...], "fps": N}')
+    unknown = [k for k in doc if k not in ("views", "fps", "quality", "gray")]
+    if unknown:
+        raise BadParams(400, f"unknown key {str(unknown[0])[:40]!r}: use views, fps, quality and gray")
+    views = doc.get("views", [])
+    if not isinstance(views, list) or not all(isinstance(v, str) for v in views) or len(views) > len(VIEWS):
+        raise BadParams(400, f"views must be a list of view names ({', '.join(VIEWS)})")
+    query = {k: str(int(v) if isinstance(v, bool) else v) for k, v in doc.items() if k != "views"}
+    return [_params_from(request, v, query) for v in dict.fromkeys(views)]
+
+
+def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> StreamParams:
+    config = request.app[CONFIG]
+    return parse_params(view, query, default_fps=config.default_fps, default_quality=config.default_quality)
+
+
+async def _ws_sender(request: web.Request, ws: web.WebSocketResponse, client: StreamClient,
+                     params: StreamParams) -> None:
+    loop = asyncio.get_running_loop()
+    with request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
+        pacer = Pacer(params.fps)
+        seq = 0
+        try:
+            while not ws.closed:
+                seq, encoded = await _next(encoder.output, seq, pacer)
+                client.writing_since = time.monotonic()
+                await ws.send_bytes(encoded.ws)
+                client.writing_since = None
+                client.frames += 1
+                pacer.sent(loop.time())
+        except (BroadcastClosed, ConnectionError):
+            pass
+
+
+def setup_routes(app: web.Application) -> None:
+    app.router.add_get("/stream/{view}", stream_handler)
+    app.router.add_get(r"/snapshot/{view}.{fmt:jpg|png}", snapshot_handler)
+    app.router.add_get("/ws", ws_handler)

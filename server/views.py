@@ -1,0 +1,267 @@
+"""Views: the images the daemon shows, derived from a :class:`~.pipeline.FrameSet`.
+
+``raw_left``/``raw_right`` (the cameras, or the virtual-camera input while
+the source is virtual), ``rect_left``/``rect_right`` (the rectify core's
+output), ``sbs`` (rectified left | right), ``anaglyph`` (red = rectified
+left gray, green and blue = rectified right gray) and ``disparity``
+(OpenCV StereoBM on the rectified gray pair with the paper's parameters:
+disparities 0 to 128, block 19, uniqueness 15; JET colour map, black
+where no disparity was found). ``gray`` selects the gray (Y) channel of the
+raw, rect and sbs views; the other views are always colour.
+
+:func:`render` returns an image ready for ``cv2.imencode``: a contiguous
+``(H, W, 3)`` BGR or ``(H, W)`` gray uint8 array, computed once per frame
+set and view (cached in the set, shared by every thread) and read-only.
+It blocks (numpy/OpenCV work): call it from a worker thread.
+
+:class:`DisparityWorker` computes the disparity view off the hot path, at
+most ``fps`` times a second and only while somebody holds it.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import threading
+import time
+from typing import Any, Optional, Protocol, Tuple
+
+import cv2
+import numpy as np
+
+from .pipeline import FrameSet, RateMeter
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "VIEWS", "GRAY_VIEWS", "RAW_VIEWS", "ViewUnavailable", "render", "view_size", "disparity_map",
+    "no_signal_image", "DisparityWorker", "STEREO_BM",
+]
+
+VIEWS = ("raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity")
+GRAY_VIEWS = frozenset({"raw_left", "raw_right", "rect_left", "rect_right", "sbs"})
+RAW_VIEWS = frozenset({"raw_left", "raw_right"})
+
+# The paper's block-matching parameters.
+STEREO_BM = {"min_disparity": 0, "num_disparities": 128, "block_size": 19, "uniqueness_ratio": 15}
+
+_BGR = {"left": [2, 1, 0], "right": [6, 5, 4]}
+_Y = {"left": 3, "right": 7}
+
+
+class ViewUnavailable(LookupError):
+    """The frame set lacks what the view needs (the raw pair was not copied for it)."""
+
+
+def view_size(view: str, frame_size: Tuple[int, int]) -> Tuple[int, int]:
+    """``(width, height)`` of ``view`` for frames of ``frame_size``."""
+    w, h = frame_size
+    return (2 * w, h) if view == "sbs" else (w, h)
+
+
+def render(fs: FrameSet, view: str, gray: bool = False) -> np.ndarray:
+    """The image of ``view`` for ``fs`` (module doc); ViewUnavailable, or KeyError for a bad view."""
+    if view not in VIEWS:
+        raise KeyError(f"unknown view {view!r}")
+    gray = bool(gray) and view in GRAY_VIEWS
+    return fs.cache.get(("view", view, gray), lambda: _render(fs, view, gray))
+
+
+def _camera(frame: np.ndarray, side: str, gray: bool) -> np.ndarray:
+    if gray:
+        out = np.ascontiguousarray(frame[..., _Y[side]])
+    else:  # three plane copies: C-contiguous (fancy indexing is not, and OpenCV would copy it again)
+        out = np.empty(frame.shape[:2] + (3,), dtype=np.uint8)
+        for i, channel in enumerate(_BGR[side]):
+            out[..., i] = frame[..., channel]
+    out.flags.writeable = False
+    return out
+
+
+def _render(fs: FrameSet, view: str, gray: bool) -> np.ndarray:
+    if view in RAW_VIEWS:
+        if fs.raw is None:
+            raise ViewUnavailable(f"frame {fs.frame} was read without its raw pair")
+        return _camera(fs.raw, "left" if view == "raw_left" else "right", gray)
+    if view in ("rect_left", "rect_right"):
+        return _camera(fs.processed, "left" if view == "rect_left" else "right", gray)
+    if view == "sbs":
+        out = cv2.hconcat([render(fs, "rect_left", gray), render(fs, "rect_right", gray)])
+    elif view == "anaglyph":
+        p = fs.processed
+        out = np.empty(p.shape[:2] + (3,), dtype=np.uint8)
+        out[..., 0] = p[..., _Y["right"]]
+        out[..., 1] = p[..., _Y["right"]]
+        out[..., 2] = p[..., _Y["left"]]
+    else:
+        out = disparity_view(fs)
+    out.flags.writeable = False
+    return out
+
+
+# -- disparity --------------------------------------------------------------------------------
+
+_local = threading.local()
+
+
+def _matcher() -> Any:
+    bm = getattr(_local, "bm", None)
+    if bm is None:  # StereoBM objects are not thread-safe: one per thread
+        bm = cv2.StereoBM.create(numDisparities=STEREO_BM["num_disparities"],
+                                 blockSize=STEREO_BM["block_size"])
+        bm.setMinDisparity(STEREO_BM["min_disparity"])
+        bm.setUniquenessRatio(STEREO_BM["uniqueness_ratio"])
+        _local.bm = bm
+    return bm
+
+
+def disparity_map(left_gray: np.ndarray, right_gray: np.ndarray) -> np.ndarray:
+    """StereoBM disparities (int16, 1/16 pixel; negative where none was found) of a rectified gray pair."""
+    return _matcher().compute(np.ascontiguousarray(left_gray), np.ascontiguousarray(right_gray))
+
+
+def colour_disparity(disp16: np.ndarray) -> np.ndarray:
+    """JET colour map of 0..128 pixels of disparity; black where none was found."""
+    scale = 255.0 / (16 * (STEREO_BM["min_disparity"] + STEREO_BM["num_disparities"]))
+    level = cv2.convertScaleAbs(disp16, alpha=scale)
+    out = cv2.applyColorMap(level, cv2.COLORMAP_JET)
+    out[disp16 < 16 * STEREO_BM["min_disparity"]] = 0
+    return out
+
+
+def disparity_view(fs: FrameSet) -> np.ndarray:
+    """The colour-mapped disparity of ``fs`` (cached in the set; blocks for tens of milliseconds)."""
+    def compute() -> np.ndarray:
+        p = fs.processed
+        out = colour_disparity(disparity_map(p[..., _Y["left"]], p[..., _Y["right"]]))
+        out.flags.writeable = False
+        return out
+
+    return fs.cache.get(("disparity",), compute)
+
+
+# -- no signal --------------------------------------------------------------------------------
+
+def no_signal_image(size: Tuple[int, int], detail: str) -> np.ndarray:
+    """A ``(H, W, 3)`` BGR frame saying NO SIGNAL, with one line of ``detail`` under it."""
+    w, h = size
+    out = np.full((h, w, 3), 40, dtype=np.uint8)
+    out[:, :, 2] = 60
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    lines = (("NO SIGNAL", max(0.8, w / 300.0), 3, -0.05), (detail, max(0.4, w / 1500.0), 1, 0.12))
+    for text, scale, thick, dy in lines:
+        scale = min(scale, 3.0) if text == "NO SIGNAL" else scale
+        (tw, th), _ = cv2.getTextSize(text, font, scale, thick)
+        while tw > w - 8 and scale > 0.3:
+            scale *= 0.9
+            (tw, th), _ = cv2.getTextSize(text, font, scale, thick)
+        org = (max(4, (w - tw) // 2), int(h * (0.5 + dy)) + th // 2)
+        cv2.putText(out, text, org, font, scale, (235, 235, 235), thick, cv2.LINE_AA)
+    return out
+
+
+def no_signal_detail(since: float, last_frame: Optional[int]) -> str:
+    stamp = time.strftime("%H:%M:%S", time.localtime(since))
+    last = f" (last frame {last_frame})" if last_frame is not None else ""
+    return f"no frame from the fabric since {stamp}{last}"
+
+
+# -- the disparity worker ---------------------------------------------------------------------
+
+class _Broadcast(Protocol):
+    @property
+    def closed(self) -> bool: ...
+
+    def close(self) -> None: ...
+
+    def publish(self, value: Any) -> None: ...
+
+    def current(self) -> Tuple[int, Any]: ...
+
+    async def wait_newer(self, seq: int) -> Tuple[int, Any]: ...
+
+
+class DisparityWorker:
+    """Publishes frame sets whose disparity view is ready, at most ``fps`` per second, while held.
+
+    ``source`` and ``output`` are :class:`~.encoders.Latest` broadcasts of
+    feed items (frame sets and no-signal markers; markers pass straight
+    through). The matching runs on a thread of its own, so it never delays
+    the encoders. :meth:`acquire`/:meth:`release` count holders; the task
+    runs only while there is one. Event-loop thread only.
+    """
+
+    def __init__(self, source: _Broadcast, output: _Broadcast, *, fps: float,
+                 executor: Optional[concurrent.futures.Executor] = None) -> None:
+        self.source = source
+        self.output = output
+        self.fps = fps
+        self._executor = executor or concurrent.futures.ThreadPoolExecutor(
+            1, thread_name_prefix="stereocam-disparity")
+        self._own_executor = executor is None
+        self._holders = 0
+        self._task: Optional[asyncio.Task[None]] = None
+        self.meter = RateMeter()
+        self.seconds = 0.0
+        self.count = 0
+
+    @property
+    def running(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    def acquire(self) -> None:
+        self._holders += 1
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._run(), name="stereocam-disparity")
+
+    def release(self) -> None:
+        self._holders = max(0, self._holders - 1)
+        if self._holders == 0 and self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+    async def close(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+        if self._own_executor:
+            self._executor.shutdown(wait=False)
+
+    async def _run(self) -> None:
+        try:
+            await self._loop()
+        except Exception:
+            if not self.source.closed:
+                raise
+            self.output.close()  # the feed closed (BroadcastClosed): shutdown
+
+    async def _loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        seq = 0
+        next_at = 0.0
+        while True:
+            seq, item = await self.source.wait_newer(seq)
+            if not item.signal:
+                self.output.publish(item)
+                continue
+            wait = next_at - loop.time()
+            if wait > 0:
+                await asyncio.sleep(wait)
+                seq, item = self.source.current()  # the newest, not the one that woke us
+                if not item.signal:
+                    continue
+            started = loop.time()
+            next_at = started + 1.0 / self.fps
+            try:
+                await loop.run_in_executor(self._executor, disparity_view, item)
+            except Exception as exc:  # a bad frame must not stop the view
+                log.warning("disparity of frame %s failed: %s", getattr(item, "frame", "?"), exc)
+                continue
+            self.seconds += loop.time() - started
+            self.count += 1
+            self.meter.mark()
+            self.output.publish(item)

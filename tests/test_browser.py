@@ -1,0 +1,237 @@
+"""The page, in headless Chromium, against the real daemon: flows 1 and 4-6 by clicking.
+
+The test starts ``stereocam serve`` itself (a subprocess on a free port, at a
+modest frame rate: the machine has two shared cores), loads ``/`` in Debian's
+``/usr/bin/chromium`` driven by the ``playwright`` package (never
+``playwright install``), and checks that
+
+- every view's <img> shows at least two different frames (``data-frame``, set by app.js
+  from the WebSocket header);
+- an API error (verify before any upload: 409) shows up in the message area;
+- Capture adds a capture to the list; its zip link points at the daemon;
+- the virtual camera: switching to it, uploading a generated pair of the daemon's frame
+  size, the fabric's output shown, and Verify saying "identical" with its difference image;
+- switching back to live, the views move again;
+- with an access token configured, the page says how to give it (``/?token=``), a change
+  without it shows the daemon's 401, and with it (remembered in localStorage) changes work.
+
+A screenshot of the page goes to the artifacts folder, also when the test fails. Every wait
+is bounded (Playwright's timeout is 20 s).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import urllib.request
+from pathlib import Path
+from typing import Dict, Iterator, List, Optional, Set, Tuple
+
+import numpy as np
+import pytest
+from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
+
+from stereocam.bench_serve import running_daemon
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"]
+TIMEOUT_MS = 20_000
+DAEMON_FPS = 15.0
+# Chromium logs every non-2xx fetch; the one the test provokes on purpose (verify before upload) is fine.
+EXPECTED_409 = "status of 409"
+
+
+def _get_json(url: str) -> Dict[str, object]:
+    with urllib.request.urlopen(url, timeout=10) as resp:
+        result: Dict[str, object] = json.loads(resp.read())
+        return result
+
+
+@pytest.fixture
+def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
+    """The real daemon on a free port (emulated fabric); yields its base URL."""
+    with running_daemon(fps=DAEMON_FPS, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
+                        health_timeout=60.0) as (_proc, base):
+        yield base
+
+
+def _pattern_pair(width: int, height: int) -> Tuple[np.ndarray, np.ndarray]:
+    """A recognisable BGR pair: coloured checkerboard over gradients; right = left shifted 24 px."""
+    y, x = np.mgrid[0:height, 0:width + 24]
+    checker = ((x // 32 + y // 32) % 2).astype(np.uint8)
+    img = np.stack([x * 255 // (width + 24), y * 255 // height, 60 + 150 * checker], axis=-1).astype(np.uint8)
+    img[(y % 96 < 4) | (x % 96 < 4)] = (255, 255, 255)
+    left = np.ascontiguousarray(img[:, 24:])
+    right = np.ascontiguousarray(img[:, :width])
+    return left, right
+
+
+def _write_png(path: Path, image: np.ndarray) -> Path:
+    import cv2
+
+    assert cv2.imwrite(str(path), image), path
+    return path
+
+
+def test_page_end_to_end(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
+    status = _get_json(daemon + "/api/status")
+    frame_size = status["frame_size"]
+    assert isinstance(frame_size, list) and len(frame_size) == 2, frame_size
+    width, height = int(frame_size[0]), int(frame_size[1])
+    left, right = _pattern_pair(width, height)
+    left_png = _write_png(tmp_path / "left.png", left)
+    right_png = _write_png(tmp_path / "right.png", right)
+
+    problems: List[str] = []
+    with _chromium(tmp_path / "chromium-profile") as context:
+        page = context.new_page()
+        page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
+        page.on("console", lambda msg: problems.append(f"console {msg.type}: {msg.text}")
+                if msg.type == "error" and EXPECTED_409 not in msg.text else None)
+        try:
+            _drive_page(page, daemon, width, height, left_png, right_png)
+        finally:
+            page.screenshot(path=str(artifacts_dir / "page.png"), full_page=True)
+    assert not problems, problems
+
+
+@contextlib.contextmanager
+def _chromium(profile: Path) -> Iterator[BrowserContext]:
+    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to 20 s."""
+    with sync_playwright() as pw:
+        context = pw.chromium.launch_persistent_context(
+            str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS,
+            viewport={"width": 1400, "height": 1000})
+        try:
+            context.set_default_timeout(TIMEOUT_MS)
+            context.set_default_navigation_timeout(TIMEOUT_MS)
+            yield context
+        finally:
+            context.close()
+
+
+def _frame(page: Page, view: str) -> int:
+    value = page.get_attribute(f"#view-{view}", "data-frame")
+    return int(value) if value else -1
+
+
+def _wait_new_frames(page: Page, views: List[str], count: int = 2) -> None:
+    """Wait until each view's <img> has shown ``count`` different frames from now on."""
+    for view in views:
+        seen: Set[Optional[str]] = set()
+        for _ in range(count):
+            page.wait_for_function(
+                "([id, seen]) => { const f = document.getElementById(id).dataset.frame;"
+                " return f !== '' && f !== undefined && !seen.includes(f); }",
+                arg=[f"view-{view}", sorted(f for f in seen if f)])
+            seen.add(page.get_attribute(f"#view-{view}", "data-frame"))
+        # The <img> really decoded a JPEG of a sensible size.
+        size = page.evaluate(
+            "id => { const i = document.getElementById(id); return [i.naturalWidth, i.naturalHeight]; }",
+            f"view-{view}")
+        assert size[0] > 0 and size[1] > 0, (view, size)
+
+
+def _errors(page: Page) -> List[str]:
+    return page.locator("[data-testid=message-error]").all_inner_texts()
+
+
+def _wait_status_source(page: Page, source: str) -> None:
+    page.wait_for_function(
+        "s => { const el = document.querySelector('[data-testid=status-source]');"
+        " return el !== null && el.textContent === s; }",
+        arg=source)
+
+
+def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, right_png: Path) -> None:
+    page.goto(base + "/")
+    expect(page.get_by_test_id("conn")).to_have_text("live")
+
+    # 1. Every view moves: two different frames each.
+    _wait_new_frames(page, VIEWS)
+    # The status panel fills in from /api/status.
+    expect(page.get_by_test_id("status-backend")).to_contain_text("emulated")
+    expect(page.get_by_test_id("status-frame_size")).to_have_text(f"{width} × {height}")
+    _wait_status_source(page, "live")
+    expect(page.get_by_test_id("source-live")).to_be_checked()
+
+    # 2. An API error is shown, not swallowed: verify before any virtual input is 409.
+    assert _errors(page) == []
+    page.get_by_test_id("btn-verify").click()
+    expect(page.get_by_test_id("message-error").first).to_contain_text("409")
+    for button in page.locator("[data-testid=message-error] button").all():
+        button.click()
+    assert _errors(page) == []
+
+    # 3. Capture (flow 1): the new capture is listed, with a download link and a delete button.
+    captures = page.get_by_test_id("captures-list").locator("[data-testid=capture]")
+    before = captures.count()
+    page.get_by_test_id("btn-capture").click()
+    expect(captures).to_have_count(before + 1)
+    new_id = captures.first.get_attribute("data-id")
+    assert new_id
+    href = captures.first.get_by_test_id("capture-download").get_attribute("href")
+    assert href == f"/api/captures/{new_id}.zip"
+    with urllib.request.urlopen(base + href, timeout=10) as resp:
+        assert resp.status == 200 and resp.read(2) == b"PK"
+
+    # 4. Virtual camera (flow 4): switch, upload the pair, see the fabric's output.
+    page.get_by_test_id("source-virtual").check()
+    _wait_status_source(page, "virtual")
+    rect_before = int(page.get_attribute("#view-rect_left", "data-received") or 0)
+    page.get_by_test_id("upload-left").set_input_files(str(left_png))
+    page.get_by_test_id("upload-right").set_input_files(str(right_png))
+    page.get_by_test_id("btn-upload").click()
+    expect(page.get_by_test_id("upload-result")).to_be_visible()
+    for side in ("left", "right"):
+        size = page.evaluate(
+            "id => { const i = document.getElementById(id); return [i.naturalWidth, i.naturalHeight]; }",
+            f"vc-result-{side}")
+        assert size == [width, height], (side, size)
+    expect(page.get_by_test_id("source-virtual")).to_be_checked()
+    # The rect views now show the fabric's output of the upload: they received a new frame.
+    page.wait_for_function(
+        "n => Number(document.getElementById('view-rect_left').dataset.received) > n", arg=rect_before)
+
+    # 5. Verify (flow 5): identical, with a per-channel table and a difference image.
+    page.get_by_test_id("btn-verify").click()
+    expect(page.get_by_test_id("verify-result")).to_be_visible()
+    expect(page.get_by_test_id("verify-identical")).to_contain_text("identical")
+    expect(page.get_by_test_id("verify-result")).to_have_attribute("data-identical", "true")
+    assert page.locator("#verify-table tbody tr").count() >= 2
+    page.wait_for_function(
+        "() => document.getElementById('verify-difference').naturalWidth > 0")
+
+    # 6. Back to live (flow 6): the views move again.
+    page.get_by_test_id("source-live").check()
+    _wait_status_source(page, "live")
+    _wait_new_frames(page, ["raw_left", "rect_left", "rect_right"])
+    assert _errors(page) == [], _errors(page)
+
+
+def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
+    """With ``access_token`` set, the page says how to give it, and ``?token=`` makes changes work."""
+    token = "browser-test-token"
+    config = tmp_path / "stereocam.yaml"
+    config.write_text(f"access_token: {token}\n")
+    with running_daemon(fps=5.0, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
+                        extra_args=["--config", str(config)]) as (_proc, base):
+        with _chromium(tmp_path / "chromium-profile") as context:
+            page = context.new_page()
+            try:
+                page.goto(base + "/")
+                errors = page.get_by_test_id("message-error")
+                expect(errors.first).to_contain_text("/?token=")
+                page.get_by_test_id("btn-capture").click()
+                expect(errors.last).to_contain_text("401")
+                page.goto(base + f"/?token={token}")
+                page.get_by_test_id("btn-capture").click()
+                expect(page.locator("[data-testid=capture]")).to_have_count(1)
+                # Remembered (localStorage) when the page is opened again without it.
+                page.goto(base + "/")
+                page.get_by_test_id("btn-capture").click()
+                expect(page.locator("[data-testid=capture]")).to_have_count(2)
+                assert _errors(page) == []
+            finally:
+                page.screenshot(path=str(artifacts_dir / "page.png"))

@@ -1,0 +1,95 @@
+"""The daemon's settings: strict files, exact messages, command-line overrides."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from stereocam.server.config import Config, ConfigError
+
+
+def write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_defaults() -> None:
+    c = Config()
+    assert (c.host, c.port, c.backend) == ("127.0.0.1", 8080, "auto")
+    assert c.calibration is None and c.access_token is None
+    assert c.max_streams >= 20 and c.default_fps == 60 and 1 <= c.default_quality <= 100
+    assert c.captures_path == Path("~/.local/share/stereocam/captures").expanduser()
+
+
+def test_yaml_and_json_files(tmp_path) -> None:
+    y = write(tmp_path, "c.yaml",
+              "host: 0.0.0.0\nport: 9000\nmax_streams: 4\naccess_token: abcdefgh123\nfps: 30\n")
+    c = Config.from_file(y)
+    assert (c.host, c.port, c.max_streams, c.access_token, c.fps) == ("0.0.0.0", 9000, 4, "abcdefgh123", 30.0)
+    assert isinstance(c.fps, float)
+    j = write(tmp_path, "c.json", json.dumps({"backend": "emulated", "stream_timeout_s": 2}))
+    assert Config.from_file(j).backend == "emulated"
+    assert Config.from_file(write(tmp_path, "empty.yaml", "")) == Config()
+    assert Config.from_file(y).public()["access_token"] == "set" and "abcdefgh123" not in str(c.public())
+
+
+def test_unknown_keys_are_named_with_a_suggestion(tmp_path) -> None:
+    path = write(tmp_path, "c.yaml", "max_stream: 4\n")
+    with pytest.raises(ConfigError) as info:
+        Config.from_file(path)
+    message = str(info.value)
+    assert message.startswith(
+        f"{path}: unknown key 'max_stream' (did you mean 'max_streams'?); known keys: host, port")
+    with pytest.raises(ConfigError, match=r"unknown key 'colour'; known keys"):
+        Config.from_mapping({"colour": 1})
+
+
+@pytest.mark.parametrize("text,message", [
+    ("port: 70000", "port must be >= 0 and <= 65535, got 70000"),
+    ("port: '80'", "port must be a whole number, got '80'"),
+    ("port: true", "port must be a whole number, got True"),
+    ("backend: fpga", "backend must be one of auto, pynq, emulated, got 'fpga'"),
+    ("default_quality: 0", "default_quality must be >= 1 and <= 100, got 0"),
+    ("default_fps: 0", "default_fps must be > 0 and <= 120, got 0"),
+    ("stream_timeout_s: .nan", "stream_timeout_s must be > 0 and <= 3600, got nan"),
+    ("host: ''", "host must be a non-empty string, got ''"),
+    ("access_token: short", "access_token must be at least 8 characters without spaces"),
+    ("calibration: 3", "calibration must be a non-empty string or null, got 3"),
+    ("- a\n- b", "the configuration must be a mapping of settings, got list"),
+])
+def test_bad_values_are_named(tmp_path, text, message) -> None:
+    path = write(tmp_path, "c.yaml", text + "\n")
+    with pytest.raises(ConfigError) as info:
+        Config.from_file(path)
+    assert str(info.value) == f"{path}: {message}"
+
+
+def test_unreadable_files(tmp_path) -> None:
+    with pytest.raises(ConfigError, match=r"nope.yaml: no such file"):
+        Config.from_file(tmp_path / "nope.yaml")
+    with pytest.raises(ConfigError, match=r"not valid YAML \(.* at line 2\)"):
+        Config.from_file(write(tmp_path, "bad.yaml", "host: a\n  port: [\n"))
+    with pytest.raises(ConfigError, match=r"not valid JSON"):
+        Config.from_file(write(tmp_path, "bad.json", "{host"))
+
+
+def test_command_line_overrides_the_file(tmp_path) -> None:
+    path = write(tmp_path, "c.yaml", "host: 0.0.0.0\nport: 9000\n")
+    c = Config.load(path, port=9100, host=None, captures="/tmp/x")
+    assert (c.host, c.port, c.captures) == ("0.0.0.0", 9100, "/tmp/x")
+    with pytest.raises(ConfigError, match="port must be"):
+        Config.load(None, port=-1)
+    with pytest.raises(ConfigError, match="unknown setting 'colour'"):
+        Config().replace(colour=1)
+
+
+def test_config_is_keyword_only_and_frozen() -> None:
+    c = Config(port=1234)
+    with pytest.raises(TypeError):
+        Config("0.0.0.0")  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        c.port = 1  # type: ignore[misc]
+    with pytest.raises(ConfigError, match="max_streams must be"):
+        Config(max_streams=0)

@@ -1,0 +1,345 @@
+"""Streams over HTTP: MJPEG, snapshots, the WebSocket; real clients (ffmpeg, OpenCV) read them."""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import shutil
+import socket
+import struct
+import subprocess
+import time
+
+import cv2
+import numpy as np
+import pytest
+from aiohttp import WSMsgType
+
+from stereocam.server.encoders import EncoderKey
+from stereocam.server.state import ENCODERS, FEED, METRICS, PIPELINE, STREAMS
+
+from .server_fixtures import (
+    SMALL,
+    read_parts,
+    start_daemon_fixture,  # noqa: F401
+    wait_for_frames,
+)
+
+W, H = SMALL
+
+
+def jpeg_size(data: bytes) -> tuple:
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img is not None, "not a decodable JPEG"
+    return img.shape
+
+
+async def test_mjpeg_stream_parts_carry_frame_number_and_timestamp(start_daemon) -> None:
+    d = await start_daemon()
+    t0 = time.time()
+    async with d.http.get("/stream/rect_left") as resp:
+        assert resp.status == 200
+        assert resp.headers["Content-Type"] == "multipart/x-mixed-replace; boundary=frame"
+        assert "no-store" in resp.headers["Cache-Control"]
+        parts = await read_parts(resp, 4)
+    numbers = [int(h["x-frame-number"]) for h, _ in parts]
+    assert numbers == sorted(numbers) and len(set(numbers)) == 4, f"frames repeat or go back: {numbers}"
+    for headers, body in parts:
+        assert headers["content-type"] == "image/jpeg"
+        assert int(headers["content-length"]) == len(body)
+        assert t0 - 1 < float(headers["x-timestamp"]) < time.time() + 0.1
+        assert jpeg_size(body) == (H, W, 3)
+
+
+@pytest.mark.parametrize("view,shape", [
+    ("raw_left", (H, W, 3)), ("raw_right", (H, W, 3)), ("rect_right", (H, W, 3)), ("sbs", (H, 2 * W, 3)),
+    ("anaglyph", (H, W, 3)), ("disparity", (H, W, 3)),
+])
+async def test_every_view_streams(start_daemon, view, shape) -> None:
+    d = await start_daemon()
+    async with d.http.get(f"/stream/{view}") as resp:
+        assert resp.status == 200
+        parts = await read_parts(resp, 2)
+    assert jpeg_size(parts[-1][1]) == shape
+
+
+async def test_gray_and_quality_parameters(start_daemon) -> None:
+    d = await start_daemon()
+    async with d.http.get("/stream/rect_left", params={"gray": "1", "quality": "30"}) as resp:
+        _, low = (await read_parts(resp, 1))[0]
+    async with d.http.get("/stream/rect_left", params={"gray": "1", "quality": "95"}) as resp:
+        _, high = (await read_parts(resp, 1))[0]
+    assert jpeg_size(low) == (H, W) and jpeg_size(high) == (H, W)
+    assert len(low) < len(high)
+
+
+@pytest.mark.parametrize("query,status,words", [
+    ({"fps": "0"}, 400, "fps must be"), ({"fps": "121"}, 400, "fps must be"),
+    ({"fps": "abc"}, 400, "fps must be"),
+    ({"quality": "0"}, 400, "quality must be"), ({"quality": "101"}, 400, "quality must be"),
+    ({"quality": "5.5"}, 400, "quality must be"), ({"gray": "maybe"}, 400, "gray must be"),
+    ({"colour": "1"}, 400, "unknown query parameter"),
+])
+async def test_bad_stream_parameters_are_400(start_daemon, query, status, words) -> None:
+    d = await start_daemon()
+    for path in ("/stream/rect_left", "/snapshot/rect_left.jpg"):
+        async with d.http.get(path, params=query) as resp:
+            assert resp.status == status
+            body = await resp.json()
+            assert words in body["error"] and "\n" not in body["error"]
+
+
+async def test_unknown_view_is_404(start_daemon) -> None:
+    d = await start_daemon()
+    for path in ("/stream/depth", "/snapshot/depth.jpg", "/snapshot/rect_left.gif"):
+        async with d.http.get(path) as resp:
+            assert resp.status == 404
+            assert "error" in await resp.json()
+
+
+async def test_snapshots_are_newer_than_the_request(start_daemon) -> None:
+    d = await start_daemon()
+    await wait_for_frames(d, 3)
+    pipeline = d.app[PIPELINE]
+    for fmt in ("jpg", "png"):
+        before = pipeline.last_frame_number
+        t0 = time.time()
+        async with d.http.get(f"/snapshot/rect_left.{fmt}") as resp:
+            assert resp.status == 200
+            assert resp.content_type == ("image/jpeg" if fmt == "jpg" else "image/png")
+            body = await resp.read()
+            frame = int(resp.headers["X-Frame-Number"])
+            stamp = float(resp.headers["X-Timestamp"])
+        assert frame > before and stamp >= t0
+        assert jpeg_size(body) == (H, W, 3)
+
+
+async def test_png_snapshot_is_lossless(start_daemon) -> None:
+    d = await start_daemon()
+    async with d.http.get("/snapshot/rect_left.png") as resp:
+        png = cv2.imdecode(np.frombuffer(await resp.read(), np.uint8), cv2.IMREAD_UNCHANGED)
+    _, processed = d.overlay.fabric.latest_processed()
+    np.testing.assert_array_equal(png, processed[..., [2, 1, 0]])  # a still scene: every frame is the same
+    async with d.http.get("/snapshot/raw_right.png", params={"gray": "1"}) as resp:
+        gray = cv2.imdecode(np.frombuffer(await resp.read(), np.uint8), cv2.IMREAD_UNCHANGED)
+    _, raw = d.overlay.fabric.latest_raw()
+    np.testing.assert_array_equal(gray, raw[..., 7])
+
+
+async def test_each_view_is_encoded_once_per_frame_whatever_the_clients(start_daemon) -> None:
+    d = await start_daemon()
+    metrics = d.app[METRICS]
+    sessions = [d.session() for _ in range(6)]
+    responses = [await s.get("/stream/rect_left") for s in sessions]
+    try:
+        await asyncio.gather(*(read_parts(r, 2) for r in responses))
+        frames0 = d.app[PIPELINE].frames
+        enc0 = metrics.encode["rect_left"][0]
+        await asyncio.gather(*(read_parts(r, 8) for r in responses))
+        frames = d.app[PIPELINE].frames - frames0
+        encodes = metrics.encode["rect_left"][0] - enc0
+        assert encodes <= frames + 1, f"{encodes} encodes for {frames} frames with 6 clients"
+        assert list(d.app[ENCODERS].active()) == [EncoderKey("rect_left", 80, False)]
+    finally:
+        for r in responses:
+            r.close()
+
+
+async def test_nothing_is_encoded_while_nobody_watches(start_daemon) -> None:
+    d = await start_daemon()
+    async with d.http.get("/stream/anaglyph") as resp:
+        await read_parts(resp, 2)
+    for _ in range(100):  # the server notices the disconnect at its next write
+        if not d.app[ENCODERS].active():
+            break
+        await asyncio.sleep(0.02)
+    assert not d.app[ENCODERS].active()
+    count = d.app[METRICS].encode["anaglyph"][0]
+    await wait_for_frames(d, d.app[PIPELINE].frames + 5)
+    assert d.app[METRICS].encode["anaglyph"][0] == count
+    assert not d.app[PIPELINE].wants_raw
+
+
+async def test_fps_parameter_limits_the_rate(start_daemon) -> None:
+    d = await start_daemon(fps=25)
+    async with d.http.get("/stream/rect_left", params={"fps": "5"}) as resp:
+        await read_parts(resp, 1)
+        t0 = time.monotonic()
+        await read_parts(resp, 6)
+        rate = 5 / (time.monotonic() - t0)
+    assert 3.5 < rate < 6.5, rate
+
+
+async def test_more_streams_than_max_streams_get_503(start_daemon) -> None:
+    d = await start_daemon(max_streams=2)
+    responses = [await d.session().get("/stream/rect_left") for _ in range(2)]
+    for r in responses:
+        await read_parts(r, 1)
+    async with d.http.get("/stream/raw_left") as resp:
+        assert resp.status == 503
+        assert "max_streams" in (await resp.json())["error"]
+    async with d.http.get("/ws") as resp:
+        assert resp.status == 503
+    assert len(d.app[STREAMS]) == 2
+    responses[0].close()
+    for _ in range(100):
+        if len(d.app[STREAMS]) < 2:
+            break
+        await asyncio.sleep(0.02)
+    async with d.http.get("/stream/raw_left") as resp:
+        assert resp.status == 200
+    responses[1].close()
+
+
+async def test_a_client_that_stops_reading_is_dropped_and_others_go_on(start_daemon) -> None:
+    d = await start_daemon(stream_timeout_s=0.5, fps=25)
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", d.port))
+    sock.sendall(b"GET /stream/rect_left?quality=100 HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    try:
+        async with d.http.get("/stream/rect_left") as good:
+            await read_parts(good, 2)
+            streams = d.app[STREAMS]
+            deadline = time.monotonic() + 20
+            while streams.dropped == 0:
+                assert time.monotonic() < deadline, "the stuck client was never dropped"
+                await read_parts(good, 1)  # the reading client keeps getting frames meanwhile
+            parts = await read_parts(good, 3)
+            assert len({h["x-frame-number"] for h, _ in parts}) == 3
+            assert len(streams) == 1
+    finally:
+        sock.close()
+
+
+async def test_no_signal_frame_within_a_second_and_recovery(start_daemon) -> None:
+    d = await start_daemon()  # the default no_signal_s
+    async with d.http.get("/stream/rect_left") as resp:
+        await read_parts(resp, 2)
+        async with d.http.get("/healthz") as health:
+            assert health.status == 200 and (await health.text()).strip() == "ok"
+        d.overlay.hw.cameras_running = False
+        t0 = time.monotonic()
+        while True:
+            headers, body = (await read_parts(resp, 1, timeout=2.0))[0]
+            if headers.get("x-signal") == "none":
+                break
+        assert time.monotonic() - t0 < 1.0
+        assert jpeg_size(body) == (H, W, 3)
+        await asyncio.sleep(0.7)
+        async with d.http.get("/healthz") as health:
+            assert health.status == 503
+        async with d.http.get("/snapshot/rect_left.jpg") as snap:
+            assert snap.status == 503 and "no signal" in (await snap.json())["error"]
+        assert d.app[FEED].signal is False
+        d.overlay.hw.cameras_running = True
+        deadline = time.monotonic() + 5
+        while True:
+            headers, _ = (await read_parts(resp, 1))[0]
+            if "x-signal" not in headers:
+                break
+            assert time.monotonic() < deadline
+    async with d.http.get("/healthz") as health:
+        assert health.status == 200
+
+
+async def test_websocket_sends_header_and_jpeg_per_view(start_daemon) -> None:
+    d = await start_daemon()
+    async with d.http.ws_connect("/ws") as ws:
+        assert ws.compress == 0, "JPEG frames are not deflated"
+        await ws.send_str(json.dumps({"views": ["rect_left", "raw_right"], "fps": 10}))
+        seen: dict = {}
+        deadline = time.monotonic() + 10
+        while len(seen) < 2 or min(len(v) for v in seen.values()) < 2:
+            assert time.monotonic() < deadline
+            msg = await ws.receive(timeout=5)
+            assert msg.type == WSMsgType.BINARY
+            (n,) = struct.unpack(">I", msg.data[:4])
+            header = json.loads(msg.data[4:4 + n])
+            assert jpeg_size(msg.data[4 + n:]) == (H, W, 3)
+            seen.setdefault(header["view"], []).append(header["frame"])
+            assert isinstance(header["timestamp"], float)
+        assert set(seen) == {"rect_left", "raw_right"}
+        for frames in seen.values():
+            assert frames == sorted(set(frames))
+        await ws.send_str(json.dumps({"views": ["nope"]}))
+        while True:
+            msg = await ws.receive(timeout=5)
+            if msg.type == WSMsgType.TEXT:
+                assert "unknown view" in json.loads(msg.data)["error"]
+                break
+        await ws.send_str(json.dumps({"views": []}))
+    for _ in range(100):
+        if not d.app[ENCODERS].active() and not len(d.app[STREAMS]):
+            break
+        await asyncio.sleep(0.02)
+    assert not d.app[ENCODERS].active()
+
+
+async def test_websocket_from_another_origin_is_refused(start_daemon) -> None:
+    d = await start_daemon()
+    async with d.http.get("/ws", headers={"Origin": "http://evil.example", "Upgrade": "websocket",
+                                          "Connection": "Upgrade"}) as resp:
+        assert resp.status == 403
+
+
+def _ffmpeg() -> str:
+    path = shutil.which("ffmpeg") or "/usr/bin/ffmpeg"
+    if not os.path.exists(path):
+        pytest.skip("ffmpeg is not installed (./scripts/test installs it)")
+    return path
+
+
+async def test_ffmpeg_reads_n_frames_from_a_stream(start_daemon, tmp_path) -> None:
+    d = await start_daemon()
+    out = tmp_path / "f%02d.jpg"
+    proc = await asyncio.create_subprocess_exec(
+        _ffmpeg(), "-hide_banner", "-loglevel", "error",
+        "-f", "mpjpeg", "-i", f"{d.url}stream/rect_left?fps=10",
+        "-frames:v", "5", "-c", "copy", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    _, err = await asyncio.wait_for(proc.communicate(), 60)
+    assert proc.returncode == 0, err.decode()
+    files = sorted(tmp_path.glob("f*.jpg"))
+    assert len(files) == 5
+    for f in files:
+        assert jpeg_size(f.read_bytes()) == (H, W, 3)
+
+
+def _videocapture_frames(url: str, n: int) -> list:
+    cap = cv2.VideoCapture(url, cv2.CAP_FFMPEG)
+    try:
+        assert cap.isOpened(), f"OpenCV could not open {url}"
+        shapes = []
+        for _ in range(n):
+            ok, img = cap.read()
+            assert ok, "VideoCapture.read failed"
+            shapes.append(img.shape)
+        return shapes
+    finally:
+        cap.release()
+
+
+async def test_opencv_videocapture_reads_a_stream(start_daemon) -> None:
+    d = await start_daemon()
+    shapes = await asyncio.get_running_loop().run_in_executor(
+        None, _videocapture_frames, f"{d.url}stream/sbs?fps=10", 3)
+    assert shapes == [(H, 2 * W, 3)] * 3
+
+
+async def test_streams_end_and_the_daemon_stops_within_two_seconds(start_daemon) -> None:
+    d = await start_daemon()
+    resp = await d.http.get("/stream/rect_left")
+    await read_parts(resp, 2)
+    ws = await d.session().ws_connect("/ws")
+    await ws.send_str(json.dumps({"views": ["rect_right"]}))
+    await ws.receive(timeout=5)
+    d.overlay.fabric.select("virtual")
+    took = await d.stop(close_sessions=False, close_overlay=False)
+    assert took < 2.0
+    rest = await asyncio.wait_for(resp.content.read(), 2)  # the stream ended
+    assert isinstance(rest, bytes)
+    msg = await ws.receive(timeout=2)
+    assert msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.CLOSING)
+    assert d.overlay.fabric.source == "live"
+    assert not d.overlay.fabric.streaming
+    resp.close()
