@@ -33,7 +33,7 @@ setup(
         "numpy>=1.21",
         # The PYNQ image (armv7l) ships OpenCV outside pip; building the wheel there takes hours.
         "opencv-python-headless>=4.5.4; platform_machine != 'armv7l'",
-        "aiohttp>=3.8",
+        "aiohttp>=3.9",  # web.AppKey
         "pillow>=9.0",
         "pyyaml>=5.4",
         # MATLAB .mat calibration import (scipy.io.loadmat). The PYNQ image ships scipy outside pip.
