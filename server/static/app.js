@@ -148,16 +148,22 @@
     const previous = slot.url;
     slot.url = url;
     const img = slot.img;
-    img.onload = img.onerror = () => {
+    slot.frames += 1;
+    const received = slot.frames;
+    img.onload = () => {
+      // data-frame names the frame actually on screen: set once the JPEG has decoded.
+      if (previous) URL.revokeObjectURL(previous);
+      img.onload = img.onerror = null;
+      img.dataset.frame = String(header.frame);
+      img.dataset.timestamp = String(header.timestamp);
+      img.dataset.received = String(received);
+      if (slot.caption) slot.caption.textContent = "#" + header.frame;
+    };
+    img.onerror = () => {
       if (previous) URL.revokeObjectURL(previous);
       img.onload = img.onerror = null;
     };
     img.src = url;
-    slot.frames += 1;
-    img.dataset.frame = String(header.frame);
-    img.dataset.timestamp = String(header.timestamp);
-    img.dataset.received = String(slot.frames);
-    if (slot.caption) slot.caption.textContent = "#" + header.frame;
   }
 
   function connect() {
