@@ -78,7 +78,9 @@ class ServeError(Exception):
 
 def default_extensions() -> List[Setup]:
     """The extensions ``run`` installs (issues 4 and 5 add theirs here)."""
-    return []
+    from . import routes_calibration
+
+    return [routes_calibration.setup]
 
 
 # -- errors as JSON ---------------------------------------------------------------------------
@@ -252,7 +254,8 @@ def _calibration_id(prefix: str, left: Any, right: Any) -> str:
 def program_default_calibration(overlay: Any, config: Config) -> CalibrationState:
     """Program the core before the streams start and say what it runs with (blocks).
 
-    ``config.calibration`` (``intrinsics.yml,extrinsics.yml``) wins; else, on
+    ``config.calibration`` (a stereocam calibration.yaml or anything
+    :func:`stereocam.calibration_file.load_calibration` reads) wins; else, on
     the emulated fabric with the synthetic rig, the rig's known calibration
     (the same as :func:`stereocam.bench.bench_calibration` at 752x480);
     else nothing: the core passes frames through. Raises the calibration
@@ -265,12 +268,15 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
     w, h = fabric.frame_size
     rectify = fabric.rectify
     if config.calibration:
-        from ..calibration_io import load_opencv_pair, parse_calibration_arg
+        from .routes_calibration import load_configured
 
-        intr, extr = parse_calibration_arg(config.calibration)
-        model, rect = load_opencv_pair(intr, extr, (w, h))
-        left, right = core_cameras(model, rect)
-        prefix, description = "opencv", f"OpenCV stereo_calib files {intr} and {extr}"
+        cal, state_id, description = load_configured(config.calibration, rectify, (w, h))
+        core_config, fit = rectify.program(cal.left, cal.right, w, h)
+        state = CalibrationState(id=state_id, description=description, rows_needed=fit.rows,
+                                 lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay)
+        log.info("calibration %s: %s (line buffer %d of %d rows)", state.id, description, fit.rows,
+                 rectify.lb_rows)
+        return state
     else:
         source = getattr(getattr(overlay, "hw", None), "source", None)
         rig_model = getattr(source, "model", None)

@@ -270,8 +270,8 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/config.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
     s.add_argument("--calibration", metavar="CAL",
-                   help="OpenCV stereo_calib files intrinsics.yml,extrinsics.yml (default on the emulated "
-                        "fabric: the synthetic rig's known calibration)")
+                   help="a stereocam calibration.yaml or any format 'calibration import' reads "
+                        "(default on the emulated fabric: the synthetic rig's known calibration)")
     s.add_argument("--bitstream", metavar="FILE", help="the overlay's .bit (pynq backend)")
     s.add_argument("--source", metavar="SRC",
                    help="emulated cameras: synthetic (default) or a folder of recorded pairs to replay")

@@ -1,0 +1,256 @@
+"""The calibration API (issue 4): ``GET /api/calibration`` and ``PUT /api/calibration``.
+
+``setup(app)`` adds the routes (an extension, see :func:`.app.default_extensions`).
+
+- ``GET`` answers what the core runs with: the id status and captures record,
+  where it came from, the line-buffer figures, the model and rectification
+  matrices and the stereocam calibration file's text.
+- ``PUT`` takes the text of a stereocam calibration file and checks it
+  completely in the work executor (schema, finite values, register ranges,
+  frame size = the fabric's, line-buffer fit against the core's ``LB_ROWS``)
+  before touching anything; a refused one leaves the core, the file and
+  ``app[CALIBRATION]`` as they were. An accepted one is programmed into the
+  core, then written atomically to the calibration file (:func:`calibration_path`),
+  then becomes ``app[CALIBRATION]``.
+
+:func:`load_configured` is how ``serve --calibration`` reads its argument
+(:func:`.app.program_default_calibration`).
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Optional, Tuple
+
+from aiohttp import web
+
+from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
+from ..calibration_io import CalibrationFileError
+from ..overlays.model.config import ConfigError
+from ..stereo import rectify as stereo_rectify
+from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
+
+log = logging.getLogger(__name__)
+
+__all__ = ["setup", "load_configured", "calibration_path", "ACTIVE", "ActiveCalibration", "CALIBRATION_FILE"]
+
+CALIBRATION_FILE = "calibration.yaml"
+YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml", "text/x-yaml", "text/plain",
+              "application/octet-stream")
+KINDS = {"stereocam": "calibration file", "matlab": "MATLAB stereoParameters",
+         "opencv": "OpenCV stereo_calib files", "ros": "ROS camera_info files"}
+
+
+class CalibrationRefused(ValueError):
+    """A calibration that parses but that this core cannot run (HTTP 422)."""
+
+
+@dataclass
+class ActiveCalibration:
+    """The :class:`Calibration` behind ``app[CALIBRATION]`` (None: none or not read yet); where PUT writes."""
+
+    path: Path
+    calibration: Optional[Calibration] = None
+    resolved: bool = False
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+
+ACTIVE: "web.AppKey[ActiveCalibration]" = web.AppKey("stereocam.calibration.active")
+
+
+# -- loading ------------------------------------------------------------------------------------
+
+def _limits(rectify: Any) -> Dict[str, int]:
+    out = {}
+    for name in ("max_width", "max_height"):
+        value = getattr(rectify, name, None)
+        if isinstance(value, int) and value > 0:
+            out[name] = value
+    return out
+
+
+def load_configured(arg: str, rectify: Any, frame_size: Tuple[int, int]) -> Tuple[Calibration, str, str]:
+    """Read ``--calibration`` (any format :func:`load_calibration` reads): ``(calibration, id, description)``.
+
+    The id is the file's id for a stereocam calibration file, ``<kind>-<id>``
+    for an imported one (``opencv-``, ``ros-``, ``matlab-``). Checks the frame
+    size and the line-buffer fit against ``rectify``; raises the loader's
+    errors (``ValueError`` subclasses with a message for the user).
+    """
+    paths = [Path(p).expanduser() for p in arg.split(",") if p]
+    for p in paths:
+        if not p.is_file():
+            raise CalibrationFileError(f"{p}: no such file")
+    cal = load_calibration(paths, image_size=tuple(frame_size), lb_rows=rectify.lb_rows, **_limits(rectify))
+    kind = _sniff(paths[0]) if paths else "unknown"
+    where = " and ".join(str(p) for p in paths)
+    description = f"{KINDS.get(kind, kind)} {where}" + (f" ({cal.source})" if cal.source else "")
+    return cal, (cal.id if kind == "stereocam" else f"{kind}-{cal.id}"), description
+
+
+def calibration_path(config: Any) -> Path:
+    """Where PUT writes: the ``--calibration`` file if it is a stereocam calibration file,
+    else ``calibration.yaml`` next to the captures folder (``<captures>/../calibration.yaml``)."""
+    arg = config.calibration
+    if arg and "," not in arg:
+        p = Path(arg).expanduser()
+        try:
+            if not p.is_file() or _sniff(p) == "stereocam":
+                return p
+        except OSError:
+            pass
+    return config.captures_path.parent / CALIBRATION_FILE
+
+
+def _resolve(app: web.Application) -> Optional[Calibration]:
+    """The Calibration the core was programmed with at start (blocking), None if there is none."""
+    state, config, overlay = app[CALIBRATION], app[CONFIG], app[OVERLAY]
+    if state.id is None:
+        return None
+    fabric = overlay.fabric
+    if config.calibration:
+        try:
+            return load_configured(config.calibration, fabric.rectify, tuple(fabric.frame_size))[0]
+        except (ValueError, OSError) as exc:
+            log.warning("cannot read back --calibration %s: %s", config.calibration, exc)
+            return None
+    source = getattr(getattr(overlay, "hw", None), "source", None)
+    model = getattr(source, "model", None)
+    if model is None or not state.id.startswith("synthetic-rig-"):
+        return None
+    return Calibration.derive(model, stereo_rectify(model, alpha=0.0), alpha=0.0,
+                              source="the synthetic rig's known calibration (emulated fabric)")
+
+
+async def _active(app: web.Application) -> ActiveCalibration:
+    active = app[ACTIVE]
+    if not active.resolved:
+        loop = asyncio.get_running_loop()
+        cal = await loop.run_in_executor(app[EXECUTORS].work, _resolve, app)
+        if not active.resolved:
+            active.calibration, active.resolved = cal, True
+    return active
+
+
+# -- the routes ---------------------------------------------------------------------------------
+
+def _lists(obj: Any, names: Tuple[str, ...]) -> Dict[str, Any]:
+    import numpy as np
+
+    return {n: np.asarray(getattr(obj, n), dtype=np.float64).tolist() for n in names}
+
+
+async def get_calibration(request: web.Request) -> web.Response:
+    app = request.app
+    active = await _active(app)
+    state, cal = app[CALIBRATION], active.calibration
+    body: Dict[str, Any] = {
+        **state.to_json(),
+        "source": cal.source if cal is not None else None,
+        "file_id": cal.id if cal is not None else None,
+        "file": str(active.path),
+        "image_size": list(cal.image_size) if cal is not None else None,
+        "alpha": cal.alpha if cal is not None else None,
+        "units": cal.units if cal is not None else None,
+        "model": _lists(cal.model, ("K1", "D1", "K2", "D2", "R", "T")) if cal is not None else None,
+        "rectification": _lists(cal.rect, ("R1", "R2", "P1", "P2", "Q")) if cal is not None else None,
+        "yaml": cal.to_yaml() if cal is not None else None,
+    }
+    return web.json_response(body)
+
+
+async def _body_text(request: web.Request) -> str:
+    ctype = request.content_type.lower()
+    raw = await request.read()
+    if ctype == "application/json":
+        try:
+            doc = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            raise web.HTTPBadRequest(text=f"the body is not valid JSON ({exc})") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("yaml"), str) or set(doc) != {"yaml"}:
+            raise web.HTTPBadRequest(text='a JSON body must be {"yaml": "<the calibration file text>"}')
+        text = doc["yaml"]
+    elif ctype in YAML_TYPES:
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise web.HTTPBadRequest(text="the calibration file is not UTF-8 text") from None
+    else:
+        raise web.HTTPUnsupportedMediaType(
+            text=f"PUT /api/calibration takes the calibration file as application/yaml or text/plain, "
+                 f'or JSON {{"yaml": "..."}}; got {ctype}')
+    if not text.strip():
+        raise web.HTTPBadRequest(text="the body is empty: send the text of a stereocam calibration.yaml")
+    return text
+
+
+def _check(text: str, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
+    """Parse and validate completely (blocking): CalibrationFileError (400) or CalibrationRefused (422)."""
+    cal = parse_yaml(text, where="the calibration", derive_missing=True, **_limits(rectify))
+    w, h = frame_size
+    cw, ch = cal.image_size
+    try:
+        if (cw, ch) != (w, h):
+            raise CalibrationRefused(f"the calibration is for {cw}x{ch} images but the fabric's frames are "
+                                     f"{w}x{h}: calibrate these cameras at this size")
+        cal.check_fits(rectify.lb_rows)
+        rectify.plan(cal.left, cal.right, w, h)
+    except ConfigError as exc:
+        raise CalibrationRefused(str(exc)) from None
+    return cal
+
+
+def _apply(rectify: Any, cal: Calibration, path: Path) -> Any:
+    """Program the core, then write the file; a failed write puts the previous registers back (blocking)."""
+    w, h = cal.image_size
+    previous = rectify.read_config()
+    config, _ = rectify.program(cal.left, cal.right, w, h)
+    try:
+        cal.save(path)
+    except OSError as exc:
+        rectify.load(previous)
+        raise OSError(f"cannot write {path} ({exc.strerror or exc}); the previous calibration stays active") \
+            from None
+    return config
+
+
+async def put_calibration(request: web.Request) -> web.Response:
+    app = request.app
+    text = await _body_text(request)
+    fabric = app[OVERLAY].fabric
+    rectify, frame_size = fabric.rectify, tuple(fabric.frame_size)
+    loop = asyncio.get_running_loop()
+    work = app[EXECUTORS].work
+    active = app[ACTIVE]
+    async with active.lock:
+        try:
+            cal = await loop.run_in_executor(work, _check, text, rectify, frame_size)
+        except CalibrationRefused as exc:
+            raise web.HTTPUnprocessableEntity(text=f"refused, the previous calibration stays active: {exc}") \
+                from None
+        except ValueError as exc:
+            raise web.HTTPBadRequest(text=f"refused, the previous calibration stays active: {exc}") from None
+        try:
+            core_config = await loop.run_in_executor(work, _apply, rectify, cal, active.path)
+        except (OSError, ConfigError) as exc:
+            raise web.HTTPInternalServerError(text=str(exc)) from None
+        state = app[CALIBRATION]
+        state.id = cal.id
+        state.description = f"calibration file {active.path} (PUT /api/calibration" + \
+            (f"; {cal.source})" if cal.source else ")")
+        state.rows_needed = cal.rows_needed
+        state.lb_rows = rectify.lb_rows
+        state.lb_delay = core_config.lb_delay
+        active.calibration, active.resolved = cal, True
+    log.info("calibration %s programmed (PUT /api/calibration) and written to %s (line buffer %d of %d rows)",
+             cal.id, active.path, cal.rows_needed, rectify.lb_rows)
+    return web.json_response({**state.to_json(), "file": str(active.path), "summary": cal.summary()})
+
+
+def setup(app: web.Application) -> None:
+    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]))
+    app.router.add_get("/api/calibration", get_calibration)
+    app.router.add_put("/api/calibration", put_calibration)

@@ -1,0 +1,215 @@
+"""The calibration API: GET and PUT /api/calibration, serve --calibration with a stereocam YAML."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from stereocam.bench import bench_calibration
+from stereocam.calibration_file import Calibration, load_calibration
+from stereocam.server import routes_calibration
+from stereocam.server.app import default_extensions, program_default_calibration
+from stereocam.server.config import Config
+from stereocam.stereo import rectify
+
+from .server_fixtures import SMALL, make_overlay, start_daemon_fixture  # noqa: F401
+
+EXT = (routes_calibration.setup,)
+YAML = {"Content-Type": "application/yaml"}
+
+
+def rig_calibration(daemon, *, alpha: float = 0.0, **model_changes) -> Calibration:
+    model = daemon.overlay.hw.source.model
+    if model_changes:
+        model = dataclasses.replace(model, **model_changes)
+    return Calibration.derive(model, rectify(model, alpha=alpha), alpha=alpha, source="test rig")
+
+
+def registers(daemon):
+    return daemon.overlay.fabric.rectify.read_config()
+
+
+async def status_calibration(daemon) -> dict:
+    async with daemon.http.get("/api/status") as r:
+        assert r.status == 200
+        return (await r.json())["calibration"]
+
+
+def test_default_extensions_include_the_calibration_routes() -> None:
+    assert routes_calibration.setup in default_extensions()
+
+
+async def test_get_shows_the_synthetic_rig_calibration(start_daemon) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    async with daemon.http.get("/api/calibration") as r:
+        assert r.status == 200
+        body = await r.json()
+    status = await status_calibration(daemon)
+    assert body["id"] == status["id"] and body["id"].startswith("synthetic-rig-")
+    assert body["image_size"] == list(SMALL) and body["lb_rows"] == 80
+    assert body["rows_needed"] == status["rows_needed"] and body["lb_delay"] == status["lb_delay"]
+    assert set(body["model"]) == {"K1", "D1", "K2", "D2", "R", "T"}
+    assert np.asarray(body["model"]["K1"]).shape == (3, 3)
+    assert set(body["rectification"]) >= {"R1", "R2", "P1", "P2"}
+    assert np.asarray(body["rectification"]["P2"]).shape == (3, 4)
+    expected = rig_calibration(daemon)
+    assert body["file_id"] == expected.id and body["source"].startswith("the synthetic rig")
+    assert body["yaml"] == dataclasses.replace(expected, source=body["source"]).to_yaml()
+    cfg = registers(daemon)
+    assert (cfg.left, cfg.right) == (expected.left, expected.right)  # the yaml is what the core runs
+
+
+async def test_put_programs_saves_and_reports_a_new_calibration(start_daemon, tmp_path) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    old_id = (await status_calibration(daemon))["id"]
+    before = registers(daemon)
+    path = tmp_path / "calibration.yaml"  # <captures>/../calibration.yaml without --calibration
+    cal = rig_calibration(daemon, alpha=0.6)
+    async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+        assert r.status == 200, await r.text()
+        body = await r.json()
+    assert body["id"] == cal.id != old_id and body["file"] == str(path)
+    status = await status_calibration(daemon)
+    assert status["id"] == cal.id and status["rows_needed"] == cal.rows_needed
+    assert status["lb_delay"] == cal.lb_delay
+    assert load_calibration(path) == cal
+    after = registers(daemon)
+    assert after != before and (after.left, after.right) == (cal.left, cal.right)
+    async with daemon.http.get("/api/calibration") as r:
+        got = await r.json()
+    assert got["id"] == cal.id and got["yaml"] == cal.to_yaml() and got["alpha"] == 0.6
+
+    # JSON {"yaml": ...} too, and text/plain
+    cal2 = rig_calibration(daemon, alpha=0.3)
+    async with daemon.http.put("/api/calibration", json={"yaml": cal2.to_yaml()}) as r:
+        assert r.status == 200, await r.text()
+    cal3 = rig_calibration(daemon, alpha=0.1)
+    async with daemon.http.put("/api/calibration", data=cal3.to_yaml(),
+                               headers={"Content-Type": "text/plain"}) as r:
+        assert r.status == 200, await r.text()
+    assert (await status_calibration(daemon))["id"] == cal3.id
+
+
+async def test_put_replaces_the_given_calibration_file(start_daemon, tmp_path) -> None:
+    overlay = make_overlay(calibrate=False)
+    path = tmp_path / "mine.yaml"
+    model = overlay.hw.source.model
+    first = Calibration.derive(model, rectify(model, alpha=0.0), alpha=0.0)
+    first.save(path)
+    daemon = await start_daemon(overlay=overlay, extensions=EXT, calibration=str(path))
+    status = await status_calibration(daemon)
+    assert status["id"] == first.id and str(path) in status["description"]
+    async with daemon.http.get("/api/calibration") as r:
+        assert (await r.json())["yaml"] == first.to_yaml()
+    cal = rig_calibration(daemon, alpha=0.5)
+    async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+        assert r.status == 200, await r.text()
+        assert (await r.json())["file"] == str(path)
+    assert path.read_text() == cal.to_yaml()
+    assert not (tmp_path / "calibration.yaml").exists()
+
+
+def _nan(text: str) -> str:
+    lines = text.splitlines(keepends=True)
+    for i, line in enumerate(lines):
+        if line.strip().startswith("D1:"):
+            indent = line[:len(line) - len(line.lstrip())]
+            lines[i] = f"{indent}D1: [.nan, 0.0, 0.0, 0.0]\n"
+            return "".join(lines)
+    raise AssertionError("no D1 line")
+
+
+@pytest.mark.parametrize("case", ["broken", "nan", "frame_size", "line_buffer", "not_calibration", "empty"])
+async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_path, case) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    path = tmp_path / "calibration.yaml"
+    good = rig_calibration(daemon, alpha=0.4)
+    async with daemon.http.put("/api/calibration", data=good.to_yaml(), headers=YAML) as r:
+        assert r.status == 200, await r.text()
+    file_before = path.read_bytes()
+    regs_before = registers(daemon)
+
+    if case == "broken":
+        text, status_code, words = "schema_version: 1\nmodel: [oops\n", 400, "not valid YAML"
+    elif case == "nan":
+        text, status_code, words = _nan(good.to_yaml()), 400, "finite"
+    elif case == "frame_size":
+        model, rect, _, _ = bench_calibration()  # 752x480: the daemon runs 376x240
+        text, status_code, words = Calibration.derive(model, rect).to_yaml(), 422, "376x240"
+    elif case == "line_buffer":
+        barrel = np.array([-0.8, 0.0, 0.0, 0.0])  # strong distortion
+        strong = rig_calibration(daemon, D1=barrel, D2=barrel)
+        assert strong.rows_needed > 80, strong.rows_needed
+        text, status_code, words = strong.to_yaml(), 422, "line-buffer rows"
+    elif case == "not_calibration":
+        text, status_code, words = "hello: world\n", 400, "schema_version"
+    else:
+        text, status_code, words = "  \n", 400, "empty"
+    async with daemon.http.put("/api/calibration", data=text, headers=YAML) as r:
+        assert r.status == status_code, await r.text()
+        error = (await r.json())["error"]
+    assert "\n" not in error and words.lower() in error.lower(), error
+    assert "previous calibration stays active" in error or case == "empty"
+    assert (await status_calibration(daemon))["id"] == good.id
+    assert registers(daemon) == regs_before
+    assert path.read_bytes() == file_before
+    async with daemon.http.get("/api/calibration") as r:
+        assert (await r.json())["id"] == good.id
+
+
+async def test_put_refuses_bad_bodies(start_daemon) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    old = await status_calibration(daemon)
+    async with daemon.http.put("/api/calibration", json={"yml": "x"}) as r:
+        assert r.status == 400 and "yaml" in (await r.json())["error"]
+    async with daemon.http.put("/api/calibration", data=b"x", headers={"Content-Type": "image/png"}) as r:
+        assert r.status == 415
+    async with daemon.http.put("/api/calibration", data=b"\xff\xfe", headers=YAML) as r:
+        assert r.status == 400
+    assert await status_calibration(daemon) == old
+
+
+async def test_put_from_another_origin_is_forbidden(start_daemon, tmp_path) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    old = await status_calibration(daemon)
+    before = registers(daemon)
+    cal = rig_calibration(daemon, alpha=0.7)
+    headers = {**YAML, "Origin": "http://evil.example"}
+    async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=headers) as r:
+        assert r.status == 403
+        assert "error" in await r.json()
+    assert await status_calibration(daemon) == old and registers(daemon) == before
+    assert not (tmp_path / "calibration.yaml").exists()
+
+
+async def test_capture_records_the_new_calibration_id(start_daemon) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    cal = rig_calibration(daemon, alpha=0.2)
+    async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+        assert r.status == 200
+    from .server_fixtures import wait_for_frames
+
+    await wait_for_frames(daemon)
+    async with daemon.http.post("/api/captures") as r:
+        assert r.status in (200, 201), await r.text()
+        entry = await r.json()
+    assert entry["calibration_id"] == cal.id
+
+
+def test_program_default_calibration_reads_a_stereocam_yaml(tmp_path) -> None:
+    overlay = make_overlay(calibrate=False)
+    try:
+        model = overlay.hw.source.model
+        cal = Calibration.derive(model, rectify(model, alpha=0.2), alpha=0.2, source="bench")
+        path = cal.save(tmp_path / "cal.yaml")
+        state = program_default_calibration(overlay, Config(calibration=str(path)))
+        assert state.id == cal.id and state.rows_needed == cal.rows_needed and "bench" in state.description
+        cfg = overlay.fabric.rectify.read_config()
+        assert (cfg.left, cfg.right) == (cal.left, cal.right)
+        with pytest.raises(ValueError, match="376x240"):
+            model2, rect2, _, _ = bench_calibration()
+            big = Calibration.derive(model2, rect2).save(tmp_path / "big.yaml")
+            program_default_calibration(overlay, Config(calibration=str(big)))
+    finally:
+        overlay.close()
