@@ -78,9 +78,9 @@ class ServeError(Exception):
 
 def default_extensions() -> List[Setup]:
     """The extensions ``run`` installs (issues 4 and 5 add theirs here)."""
-    from . import routes_calibration
+    from . import routes_calibration, routes_cameras
 
-    return [routes_calibration.setup]
+    return [routes_calibration.setup, routes_cameras.setup]
 
 
 # -- errors as JSON ---------------------------------------------------------------------------

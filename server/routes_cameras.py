@@ -1,0 +1,247 @@
+"""The camera sensors over HTTP (issue 5): ``GET/PUT /api/cameras``; their status, metrics, capture data.
+
+At startup (before the fabric's streams start) the extension brings up the
+board's two MT9V034s through :class:`stereocam.drivers.mt9v034.StereoSensors`:
+on the emulated backend over an :class:`EmulatedSensorPair` attached to the
+overlay's fabric (it drives the camera source's exposure, gain, flips and
+test patterns), on the pynq backend over ``/dev/i2c-<n>`` of the board
+profile. Bring-up never stops the daemon: a sensor that does not answer or
+is not an MT9V034 is logged and reported (``/api/status`` ``sensors``,
+``/metrics`` ``stereocam_sensor_ok``) and the streams keep running.
+
+Every I2C call runs on the daemon's ``work`` threads. The providers
+(status, metrics, capture metadata) read a snapshot refreshed after every
+call and every :data:`REFRESH_S` seconds, so they never block the loop.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+from dataclasses import dataclass, field
+from typing import Any, AsyncIterator, Callable, Dict, Iterable, List, Optional
+
+from aiohttp import web
+
+from ..drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
+from .state import EXECUTORS, EXTENSIONS, OVERLAY
+from .streams import json_error
+
+log = logging.getLogger(__name__)
+
+__all__ = ["setup", "extension", "CameraService", "CAMERA_SERVICE", "REFRESH_S"]
+
+REFRESH_S = 2.0
+TARGETS = ("both", "left", "right")
+
+
+@dataclass
+class CameraService:
+    """The sensors the daemon controls (None when they could not be set up: ``error`` says why)."""
+
+    sensors: Optional[StereoSensors] = None
+    pair: Any = None  # the EmulatedSensorPair on the emulated backend
+    bus: Any = None
+    error: Optional[str] = "not started"
+    health: Dict[str, Any] = field(default_factory=dict)
+    values: Dict[str, Optional[Dict[str, Any]]] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    # -- blocking (work threads) -----------------------------------------------------------
+
+    def refresh(self) -> Dict[str, Any]:
+        """Read the values in use and the health (blocks for I2C); returns the GET body."""
+        if self.sensors is None:
+            return self.snapshot()
+        values = self.sensors.read()
+        health = self.sensors.health()
+        with self._lock:
+            self.values, self.health = values, health
+        return self.snapshot()
+
+    def apply(self, body: Dict[str, Any], camera: str) -> Dict[str, Any]:
+        assert self.sensors is not None
+        try:
+            self.sensors.apply(body, camera=camera)
+        finally:
+            self.refresh()
+        return self.snapshot()
+
+    # -- snapshot (any thread, never blocks on I2C) -------------------------------------------
+
+    def snapshot(self) -> Dict[str, Any]:
+        with self._lock:
+            out: Dict[str, Any] = {c: self.values.get(c) for c in CAMERAS}
+            health: Dict[str, Any] = dict(self.health) if self.health else {"ok": False}
+        if self.error is not None and self.sensors is None:
+            health["error"] = self.error
+        out["health"] = health
+        return out
+
+    def status(self) -> Dict[str, Any]:
+        snap = self.snapshot()
+        return {"ok": bool(snap["health"].get("ok")), "health": snap["health"],
+                "values": {c: snap[c] for c in CAMERAS}}
+
+    def capture_meta(self) -> Dict[str, Any]:
+        snap = self.snapshot()
+        return {c: snap[c] for c in CAMERAS}
+
+    def metrics(self) -> Iterable[str]:
+        snap = self.snapshot()
+        health = snap["health"]
+        lines: List[str] = [
+            "# HELP stereocam_sensor_ok 1 if the camera sensor answers and is set up",
+            "# TYPE stereocam_sensor_ok gauge",
+        ]
+        for c in CAMERAS:
+            ok = bool((health.get(c) or {}).get("ok"))
+            lines.append(f'stereocam_sensor_ok{{camera="{c}"}} {int(ok)}')
+        gauges = (("exposure_us", "stereocam_sensor_exposure_us", "exposure in use (microseconds)"),
+                  ("gain", "stereocam_sensor_gain", "analog gain in use"),
+                  ("aec", "stereocam_sensor_aec", "1 if auto exposure is on"),
+                  ("agc", "stereocam_sensor_agc", "1 if auto gain is on"))
+        for key, name, text in gauges:
+            rows = [(c, snap[c][key]) for c in CAMERAS
+                    if snap[c] is not None and snap[c].get(key) is not None]
+            if not rows:
+                continue
+            lines += [f"# HELP {name} The camera sensor's {text}", f"# TYPE {name} gauge"]
+            lines += [f'{name}{{camera="{c}"}} {float(v):g}' for c, v in rows]
+        return lines
+
+
+CAMERA_SERVICE: "web.AppKey[CameraService]" = web.AppKey("stereocam.cameras", CameraService)
+
+
+# -- bring-up ------------------------------------------------------------------------------------
+
+def _open_sensors(service: CameraService, overlay: Any, profile: Any, pair_options: Dict[str, Any]) -> None:
+    """Build the bus and the pair for the overlay's backend and start them (blocks; never raises)."""
+    try:
+        if profile is None:
+            from ..board.profile import load_profile
+
+            profile = load_profile()
+        backend = getattr(overlay.fabric, "backend", None)
+        hw = getattr(overlay, "hw", None)
+        if backend == "emulated" and hw is not None:
+            from ..overlays.emulated.sensors import EmulatedSensorPair
+
+            pair = EmulatedSensorPair.for_profile(profile, hw.source, **pair_options)
+            hw.sensors = pair
+            service.pair, service.bus = pair, pair.bus
+        elif backend == "pynq":
+            from ..drivers.i2c import LinuxI2CBus
+
+            service.bus = LinuxI2CBus(profile.i2c_bus, timeout=profile.i2c_timeout)
+        else:
+            raise RuntimeError(f"no camera sensors on the {backend!r} backend")
+        service.sensors = StereoSensors.from_profile(profile, service.bus)
+        service.error = None
+        health = service.sensors.start()
+        service.refresh()
+        if not health.get("ok"):
+            log.error("camera sensors: not all are up (%s); the daemon keeps serving",
+                      "; ".join(f"{c}: {health[c]['error']}" for c in CAMERAS if health[c].get("error")))
+    except Exception as exc:  # the daemon serves without sensor control rather than not at all
+        log.error("camera sensors cannot be controlled: %s", exc)
+        service.sensors = None
+        service.error = str(exc)
+
+
+async def _refresh_loop(app: web.Application, service: CameraService) -> None:
+    loop = asyncio.get_running_loop()
+    while True:
+        await asyncio.sleep(REFRESH_S)
+        try:
+            await loop.run_in_executor(app[EXECUTORS].work, service.refresh)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # pragma: no cover - read() does not raise for a sensor that stops
+            log.warning("camera sensors: refresh failed: %s", exc)
+
+
+def _sensors_ctx(profile: Any, pair_options: Dict[str, Any]
+                 ) -> Callable[[web.Application], AsyncIterator[None]]:
+    async def ctx(app: web.Application) -> AsyncIterator[None]:
+        service = app[CAMERA_SERVICE]
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(app[EXECUTORS].work, _open_sensors, service, app[OVERLAY], profile,
+                                   pair_options)
+        task = loop.create_task(_refresh_loop(app, service), name="stereocam-sensors")
+        try:
+            yield
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            close = getattr(service.bus, "close", None)
+            if service.pair is None and callable(close):
+                try:
+                    close()
+                except Exception as exc:  # pragma: no cover
+                    log.warning("closing the I2C bus: %s", exc)
+
+    return ctx
+
+
+# -- routes ----------------------------------------------------------------------------------------
+
+def _unavailable(service: CameraService) -> web.Response:
+    return json_error(503, f"the camera sensors cannot be controlled: {service.error}")
+
+
+async def get_cameras(request: web.Request) -> web.Response:
+    service = request.app[CAMERA_SERVICE]
+    body = await asyncio.get_running_loop().run_in_executor(request.app[EXECUTORS].work, service.refresh)
+    return web.json_response(body)
+
+
+async def put_cameras(request: web.Request) -> web.Response:
+    service = request.app[CAMERA_SERVICE]
+    if request.content_type != "application/json":
+        given = request.content_type or "nothing"
+        return json_error(415, f"send JSON (Content-Type: application/json), not {given}")
+    try:
+        body = json.loads(await request.read())
+    except (ValueError, UnicodeDecodeError):
+        return json_error(400, "the body is not valid JSON: send an object such as "
+                               '{"exposure_us": 5000, "gain": 2.0, "camera": "both"}')
+    if not isinstance(body, dict):
+        return json_error(400, "send a JSON object of camera settings, not " + type(body).__name__)
+    camera = body.pop("camera", "both")
+    if camera not in TARGETS:
+        return json_error(400, f"camera {camera!r} is not one of: both, left, right")
+    if service.sensors is None:
+        return _unavailable(service)
+    try:
+        answer = await asyncio.get_running_loop().run_in_executor(
+            request.app[EXECUTORS].work, service.apply, body, camera)
+    except SensorUnavailable as exc:
+        return json_error(503, str(exc))
+    except ValueError as exc:
+        return json_error(400, str(exc))
+    return web.json_response(answer)
+
+
+def extension(*, profile: Any = None, **pair_options: Any) -> Callable[[web.Application], None]:
+    """A ``setup`` with another board profile (default: the installed one) or emulated-pair options."""
+
+    def setup_(app: web.Application) -> None:
+        service = CameraService()
+        app[CAMERA_SERVICE] = service
+        ext = app[EXTENSIONS]
+        ext.status["sensors"] = service.status
+        ext.metrics.append(service.metrics)
+        ext.capture_meta["cameras"] = service.capture_meta
+        app.cleanup_ctx.append(_sensors_ctx(profile, pair_options))
+        app.router.add_get("/api/cameras", get_cameras)
+        app.router.add_put("/api/cameras", put_cameras)
+
+    return setup_
+
+
+def setup(app: web.Application) -> None:
+    """The extension ``stereocam serve`` installs (see the module doc)."""
+    extension()(app)
