@@ -66,6 +66,7 @@ import cv2
 import numpy as np
 
 from ..overlays.spec import pixel
+from .errors import ApiError
 
 __all__ = [
     "CaptureStore",
@@ -117,17 +118,8 @@ def _utcnow() -> datetime:
 # Errors
 # --------------------------------------------------------------------------
 
-class CaptureError(Exception):
+class CaptureError(ApiError):
     """Base of every error the store raises on purpose: ``status`` is the HTTP status to answer with."""
-
-    status = 500
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message)
-        self.message = message
-
-    def to_json(self) -> Dict[str, str]:
-        return {"error": self.message}
 
 
 class InvalidCaptureId(CaptureError):

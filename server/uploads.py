@@ -38,6 +38,7 @@ from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImag
 
 from ..overlays.spec import pixel
 from .captures import ID_EXAMPLE, CaptureStore
+from .errors import ApiError
 
 __all__ = [
     "UploadError",
@@ -107,17 +108,11 @@ _HIGH_DEPTH_ADVICE = (
 _DECODE_LOCK = threading.Lock()
 
 
-class UploadError(Exception):
+class UploadError(ApiError):
     """An upload that is refused: ``status`` is the HTTP status, ``message`` one line for the user."""
 
     def __init__(self, status: int, message: str) -> None:
-        message = " ".join(str(message).split())
-        super().__init__(message)
-        self.status = int(status)
-        self.message = message
-
-    def to_json(self) -> Dict[str, str]:
-        return {"error": self.message}
+        super().__init__(" ".join(str(message).split()), status=status)
 
 
 def _sniff(data: bytes, field: str) -> str:

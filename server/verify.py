@@ -28,23 +28,15 @@ import cv2
 import numpy as np
 
 from ..overlays.spec import pixel
+from .errors import ApiError
 
 __all__ = ["VerifyError", "VerifyReport", "ChannelStats", "compare", "difference_image"]
 
 _CAMERAS = (("left", pixel.LEFT), ("right", pixel.RIGHT))
 
 
-class VerifyError(ValueError):
+class VerifyError(ApiError, ValueError):
     """The two frames cannot be compared (shape or type mismatch); ``status`` 500."""
-
-    status = 500
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message)
-        self.message = message
-
-    def to_json(self) -> Dict[str, str]:
-        return {"error": self.message}
 
 
 @dataclass(frozen=True)
