@@ -286,7 +286,7 @@ async def test_websocket_from_another_origin_is_refused(start_daemon) -> None:
 def _ffmpeg() -> str:
     path = shutil.which("ffmpeg") or "/usr/bin/ffmpeg"
     if not os.path.exists(path):
-        pytest.skip("ffmpeg is not installed (./scripts/test installs it)")
+        pytest.fail("ffmpeg is not installed (./scripts/test installs it)")
     return path
 
 
