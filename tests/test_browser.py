@@ -126,11 +126,11 @@ def _wait_new_frames(page: Page, views: List[str], count: int = 2) -> None:
                 " return f !== '' && f !== undefined && !seen.includes(f); }",
                 arg=[f"view-{view}", sorted(f for f in seen if f)])
             seen.add(page.get_attribute(f"#view-{view}", "data-frame"))
-        # The <img> really decoded a JPEG of a sensible size.
-        size = page.evaluate(
-            "id => { const i = document.getElementById(id); return [i.naturalWidth, i.naturalHeight]; }",
-            f"view-{view}")
-        assert size[0] > 0 and size[1] > 0, (view, size)
+        # The <img> really decoded a JPEG of a sensible size (recorded by its onload: reading
+        # naturalWidth here would race the next frame's src change, which resets it to 0).
+        size = page.get_attribute(f"#view-{view}", "data-size") or ""
+        width, _, height = size.partition("x")
+        assert width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0, (view, size)
 
 
 def _errors(page: Page) -> List[str]:

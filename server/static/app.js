@@ -155,6 +155,8 @@
       if (previous) URL.revokeObjectURL(previous);
       img.onload = img.onerror = null;
       img.dataset.frame = String(header.frame);
+      // The decoded size, read here because naturalWidth is 0 again while the next src loads.
+      img.dataset.size = img.naturalWidth + "x" + img.naturalHeight;
       img.dataset.timestamp = String(header.timestamp);
       img.dataset.received = String(received);
       if (slot.caption) slot.caption.textContent = "#" + header.frame;
