@@ -78,9 +78,9 @@ class ServeError(Exception):
 
 def default_extensions() -> List[Setup]:
     """The extensions ``run`` installs (issues 4 and 5 add theirs here)."""
-    from . import routes_calibration, routes_cameras
+    from . import routes_calibration, routes_calibration_panel, routes_cameras
 
-    return [routes_calibration.setup, routes_cameras.setup]
+    return [routes_calibration.setup, routes_calibration_panel.setup, routes_cameras.setup]
 
 
 # -- errors as JSON ---------------------------------------------------------------------------
@@ -254,40 +254,49 @@ def _calibration_id(prefix: str, left: Any, right: Any) -> str:
 def program_default_calibration(overlay: Any, config: Config) -> CalibrationState:
     """Program the core before the streams start and say what it runs with (blocks).
 
-    ``config.calibration`` (a stereocam calibration.yaml or anything
-    :func:`stereocam.calibration_file.load_calibration` reads) wins; else, on
-    the emulated fabric with the synthetic rig, the rig's known calibration
-    (the same as :func:`stereocam.bench.bench_calibration` at 752x480);
-    else nothing: the core passes frames through. Raises the calibration
-    loader's and the core's errors (``CalibrationFileError``, ``ConfigError``).
+    In order: ``config.calibration`` (a stereocam calibration.yaml or
+    anything :func:`stereocam.calibration_file.load_calibration` reads; an
+    error stops the start); else the file the page and ``PUT
+    /api/calibration`` write (:func:`.routes_calibration.calibration_path`),
+    if there is one (an unusable one is logged and skipped: the daemon still
+    starts); else, on the emulated fabric with the synthetic rig, the rig's
+    known calibration (the same as :func:`stereocam.bench.bench_calibration`
+    at 752x480); else nothing: the core passes frames through. Raises the
+    calibration loader's and the core's errors (``CalibrationFileError``,
+    ``ConfigError``).
     """
-    from ..stereo import core_cameras
+    from ..calibration_file import Calibration
     from ..stereo import rectify as stereo_rectify
+    from .routes_calibration import calibration_path, load_configured
 
     fabric = overlay.fabric
     w, h = fabric.frame_size
     rectify = fabric.rectify
+    cal: Any = None
     if config.calibration:
-        from .routes_calibration import load_configured
-
         cal, state_id, description = load_configured(config.calibration, rectify, (w, h))
-        core_config, fit = rectify.program(cal.left, cal.right, w, h)
-        state = CalibrationState(id=state_id, description=description, rows_needed=fit.rows,
-                                 lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay)
-        log.info("calibration %s: %s (line buffer %d of %d rows)", state.id, description, fit.rows,
-                 rectify.lb_rows)
-        return state
     else:
+        saved = calibration_path(config)
+        if saved.is_file():
+            try:
+                cal, state_id, description = load_configured(str(saved), rectify, (w, h))
+            except (ValueError, OSError) as exc:
+                log.error("the saved calibration %s cannot be used (%s): starting without it; fix or remove "
+                          "the file, or apply a new calibration from the page", saved, exc)
+                cal = None
+    if cal is None:
         source = getattr(getattr(overlay, "hw", None), "source", None)
         rig_model = getattr(source, "model", None)
         if rig_model is None:
             log.warning("no calibration given: the rectify core passes frames through (give --calibration)")
             return CalibrationState(lb_rows=rectify.lb_rows)
-        left, right = core_cameras(rig_model, stereo_rectify(rig_model, alpha=0.0))
-        prefix, description = "synthetic-rig", "the synthetic rig's known calibration (emulated fabric)"
-    core_config, fit = rectify.program(left, right, w, h)
-    state = CalibrationState(id=_calibration_id(prefix, left, right), description=description,
-                             rows_needed=fit.rows, lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay)
+        cal = Calibration.derive(rig_model, stereo_rectify(rig_model, alpha=0.0), alpha=0.0,
+                                 source="the synthetic rig's known calibration (emulated fabric)")
+        state_id = _calibration_id("synthetic-rig", cal.left, cal.right)
+        description = "the synthetic rig's known calibration (emulated fabric)"
+    core_config, fit = rectify.program(cal.left, cal.right, w, h)
+    state = CalibrationState(id=state_id, description=description, rows_needed=fit.rows,
+                             lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay, calibration=cal)
     log.info("calibration %s: %s (line buffer %d of %d rows)", state.id, description, fit.rows,
              rectify.lb_rows)
     return state

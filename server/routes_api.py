@@ -48,7 +48,7 @@ from .verify import VerifyError, compare, difference_image
 
 log = logging.getLogger(__name__)
 
-__all__ = ["VirtualCamera", "setup_routes", "core_model_setup"]
+__all__ = ["VirtualCamera", "setup_routes", "core_model_setup", "fresh_raw_frame", "store_capture", "ApiError"]
 
 T = TypeVar("T")
 SOURCES = ("live", "virtual")
@@ -442,9 +442,12 @@ async def verify_difference(request: web.Request) -> web.Response:
 
 # -- captures ---------------------------------------------------------------------------------------
 
-async def post_capture(request: web.Request) -> web.Response:
-    app = request.app
-    feed, pipeline, metrics = app[FEED], app[PIPELINE], app[METRICS]
+async def fresh_raw_frame(app: web.Application) -> FrameSet:
+    """The first frame set grabbed after now that carries its raw pair.
+
+    Raises :class:`ApiError` 503 when no frame comes in time (no signal) or the daemon is stopping.
+    """
+    feed, pipeline = app[FEED], app[PIPELINE]
     timeout = max(1.0, 2 * app[CONFIG].no_signal_s)
     asked = time.time()
 
@@ -453,14 +456,24 @@ async def post_capture(request: web.Request) -> web.Response:
 
     try:
         with pipeline.raw_wanted():
-            fs = await feed.next_frame(timeout=timeout, accept=wanted)
+            return await feed.next_frame(timeout=timeout, accept=wanted)
     except asyncio.TimeoutError:
-        return json_error(503, f"no signal: no frame came within {timeout:g} s, nothing was captured")
+        raise ApiError(503, f"no signal: no frame came within {timeout:g} s, nothing was captured") from None
     except BroadcastClosed:
-        return json_error(503, "the daemon is shutting down")
+        raise ApiError(503, "the daemon is shutting down") from None
+
+
+async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
+                        extra: Optional[Dict[str, Any]] = None) -> Any:
+    """Save ``fs`` (raw and rectified pairs, metadata: registers, calibration, extensions) in ``store``.
+
+    Returns the :class:`CaptureInfo`; raises :class:`CaptureError` (disk full, I/O) with nothing stored.
+    """
+    loop = asyncio.get_running_loop()
+    work = app[EXECUTORS].work
     overlay = app[OVERLAY]
     try:
-        registers = await _run(request, overlay.fabric.rectify.dump)
+        registers = await loop.run_in_executor(work, overlay.fabric.rectify.dump)
     except Exception as exc:
         registers = {"error": str(exc)}
     calibration = app[CALIBRATION]
@@ -479,11 +492,22 @@ async def post_capture(request: web.Request) -> web.Response:
     if fs.source == "virtual":
         meta["virtual_input"] = app[VIRTUAL].origin
     meta.update(app[EXTENSIONS].capture_sections())
+    meta.update(extra or {})
     frames = {"raw_left": fs.raw[..., pixel.LEFT], "raw_right": fs.raw[..., pixel.RIGHT],
               "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
+    return await loop.run_in_executor(work, store.save, frames, meta)
+
+
+async def post_capture(request: web.Request) -> web.Response:
+    app = request.app
+    metrics = app[METRICS]
+    try:
+        fs = await fresh_raw_frame(app)
+    except ApiError as exc:
+        return _answer(exc)
     store: CaptureStore = app[CAPTURES]
     try:
-        info = await _run(request, store.save, frames, meta)
+        info = await store_capture(app, store, fs)
     except CaptureError as exc:
         metrics.error(exc.message, "captures")
         return _answer(exc)

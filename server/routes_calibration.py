@@ -23,19 +23,19 @@ import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 from aiohttp import web
 
 from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
 from ..calibration_io import CalibrationFileError
 from ..overlays.model.config import ConfigError
-from ..stereo import rectify as stereo_rectify
 from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
 
 log = logging.getLogger(__name__)
 
-__all__ = ["setup", "load_configured", "calibration_path", "ACTIVE", "ActiveCalibration", "CALIBRATION_FILE"]
+__all__ = ["setup", "load_configured", "calibration_path", "activate", "check_runnable", "CalibrationRefused",
+           "ACTIVE", "ActiveCalibration", "CALIBRATION_FILE"]
 
 CALIBRATION_FILE = "calibration.yaml"
 YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml", "text/x-yaml", "text/plain",
@@ -50,11 +50,10 @@ class CalibrationRefused(ValueError):
 
 @dataclass
 class ActiveCalibration:
-    """The :class:`Calibration` behind ``app[CALIBRATION]`` (None: none or not read yet); where PUT writes."""
+    """The :class:`Calibration` behind ``app[CALIBRATION]`` (None: none, or not a file's); where PUT writes."""
 
     path: Path
     calibration: Optional[Calibration] = None
-    resolved: bool = False
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
 
@@ -105,36 +104,6 @@ def calibration_path(config: Any) -> Path:
     return config.captures_path.parent / CALIBRATION_FILE
 
 
-def _resolve(app: web.Application) -> Optional[Calibration]:
-    """The Calibration the core was programmed with at start (blocking), None if there is none."""
-    state, config, overlay = app[CALIBRATION], app[CONFIG], app[OVERLAY]
-    if state.id is None:
-        return None
-    fabric = overlay.fabric
-    if config.calibration:
-        try:
-            return load_configured(config.calibration, fabric.rectify, tuple(fabric.frame_size))[0]
-        except (ValueError, OSError) as exc:
-            log.warning("cannot read back --calibration %s: %s", config.calibration, exc)
-            return None
-    source = getattr(getattr(overlay, "hw", None), "source", None)
-    model = getattr(source, "model", None)
-    if model is None or not state.id.startswith("synthetic-rig-"):
-        return None
-    return Calibration.derive(model, stereo_rectify(model, alpha=0.0), alpha=0.0,
-                              source="the synthetic rig's known calibration (emulated fabric)")
-
-
-async def _active(app: web.Application) -> ActiveCalibration:
-    active = app[ACTIVE]
-    if not active.resolved:
-        loop = asyncio.get_running_loop()
-        cal = await loop.run_in_executor(app[EXECUTORS].work, _resolve, app)
-        if not active.resolved:
-            active.calibration, active.resolved = cal, True
-    return active
-
-
 # -- the routes ---------------------------------------------------------------------------------
 
 def _lists(obj: Any, names: Tuple[str, ...]) -> Dict[str, Any]:
@@ -145,7 +114,7 @@ def _lists(obj: Any, names: Tuple[str, ...]) -> Dict[str, Any]:
 
 async def get_calibration(request: web.Request) -> web.Response:
     app = request.app
-    active = await _active(app)
+    active = app[ACTIVE]
     state, cal = app[CALIBRATION], active.calibration
     body: Dict[str, Any] = {
         **state.to_json(),
@@ -187,9 +156,8 @@ async def _body_text(request: web.Request) -> str:
     return text
 
 
-def _check(text: str, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
-    """Parse and validate completely (blocking): CalibrationFileError (400) or CalibrationRefused (422)."""
-    cal = parse_yaml(text, where="the calibration", derive_missing=True, **_limits(rectify))
+def check_runnable(cal: Calibration, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
+    """``cal`` if this core can run it at ``frame_size`` (blocking), else :class:`CalibrationRefused`."""
     w, h = frame_size
     cw, ch = cal.image_size
     try:
@@ -201,6 +169,12 @@ def _check(text: str, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
     except ConfigError as exc:
         raise CalibrationRefused(str(exc)) from None
     return cal
+
+
+def _check(text: str, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
+    """Parse and validate completely (blocking): CalibrationFileError (400) or CalibrationRefused (422)."""
+    cal = parse_yaml(text, where="the calibration", derive_missing=True, **_limits(rectify))
+    return check_runnable(cal, rectify, frame_size)
 
 
 def _apply(rectify: Any, cal: Calibration, path: Path) -> Any:
@@ -217,17 +191,23 @@ def _apply(rectify: Any, cal: Calibration, path: Path) -> Any:
     return config
 
 
-async def put_calibration(request: web.Request) -> web.Response:
-    app = request.app
-    text = await _body_text(request)
+async def activate(app: web.Application, check: Callable[[], Calibration], how: str) -> Dict[str, Any]:
+    """Validate with ``check`` (blocking, in a worker), then program the core and write the file.
+
+    ``how`` says where the calibration came from (the log and ``/api/status``
+    show it). Raises ``HTTPException``: 400 for a file that does not parse,
+    422 for one this core cannot run, 500 when the file cannot be written;
+    in every case the previous calibration, registers and file stay.
+    Returns the reply's body.
+    """
     fabric = app[OVERLAY].fabric
-    rectify, frame_size = fabric.rectify, tuple(fabric.frame_size)
+    rectify = fabric.rectify
     loop = asyncio.get_running_loop()
     work = app[EXECUTORS].work
     active = app[ACTIVE]
     async with active.lock:
         try:
-            cal = await loop.run_in_executor(work, _check, text, rectify, frame_size)
+            cal = await loop.run_in_executor(work, check)
         except CalibrationRefused as exc:
             raise web.HTTPUnprocessableEntity(text=f"refused, the previous calibration stays active: {exc}") \
                 from None
@@ -239,18 +219,27 @@ async def put_calibration(request: web.Request) -> web.Response:
             raise web.HTTPInternalServerError(text=str(exc)) from None
         state = app[CALIBRATION]
         state.id = cal.id
-        state.description = f"calibration file {active.path} (PUT /api/calibration" + \
-            (f"; {cal.source})" if cal.source else ")")
+        state.description = f"calibration file {active.path} ({how}" + (f"; {cal.source})" if cal.source else ")")
         state.rows_needed = cal.rows_needed
         state.lb_rows = rectify.lb_rows
         state.lb_delay = core_config.lb_delay
-        active.calibration, active.resolved = cal, True
-    log.info("calibration %s programmed (PUT /api/calibration) and written to %s (line buffer %d of %d rows)",
-             cal.id, active.path, cal.rows_needed, rectify.lb_rows)
-    return web.json_response({**state.to_json(), "file": str(active.path), "summary": cal.summary()})
+        state.calibration = cal
+        active.calibration = cal
+    log.info("calibration %s programmed (%s) and written to %s (line buffer %d of %d rows)",
+             cal.id, how, active.path, cal.rows_needed, rectify.lb_rows)
+    return {**state.to_json(), "file": str(active.path), "summary": cal.summary()}
+
+
+async def put_calibration(request: web.Request) -> web.Response:
+    app = request.app
+    text = await _body_text(request)
+    fabric = app[OVERLAY].fabric
+    rectify, frame_size = fabric.rectify, tuple(fabric.frame_size)
+    body = await activate(app, lambda: _check(text, rectify, frame_size), "PUT /api/calibration")
+    return web.json_response(body)
 
 
 def setup(app: web.Application) -> None:
-    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]))
+    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]), calibration=app[CALIBRATION].calibration)
     app.router.add_get("/api/calibration", get_calibration)
     app.router.add_put("/api/calibration", put_calibration)

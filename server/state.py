@@ -66,6 +66,7 @@ class CalibrationState:
     rows_needed: Optional[int] = None
     lb_rows: Optional[int] = None
     lb_delay: Optional[int] = None
+    calibration: Any = field(default=None, repr=False, compare=False)  # the Calibration, when one is known
 
     def to_json(self) -> Dict[str, Any]:
         return {"id": self.id, "description": self.description, "rows_needed": self.rows_needed,

@@ -298,10 +298,12 @@ SUBPIX_WINDOW_FRACTION = 0.35
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
 
 
-def detect_corners(gray: np.ndarray, pattern: Pattern) -> Optional[np.ndarray]:
+def detect_corners(gray: np.ndarray, pattern: Pattern, *, thorough: bool = True) -> Optional[np.ndarray]:
     """Sub-pixel inner corners ((cols*rows, 2) float64, row by row) of the pattern in a gray image, or None.
 
-    ``findChessboardCorners``, or ``findChessboardCornersSB`` where it finds nothing.
+    ``findChessboardCorners``, or ``findChessboardCornersSB`` where it finds
+    nothing and ``thorough`` (the slower detector: leave it out for a live
+    preview, where a miss costs nothing but a frame).
 
     ``cornerSubPix``'s half window is 0.35 of the shortest distance between
     neighbouring corners (along rows, columns and diagonals), at most 11 (OpenCV's
@@ -311,6 +313,8 @@ def detect_corners(gray: np.ndarray, pattern: Pattern) -> Optional[np.ndarray]:
     """
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     found, corners = cv2.findChessboardCorners(gray, pattern.size, flags=flags)
+    if (not found or corners is None) and not thorough:
+        return None
     if not found or corners is None:
         # The sector-based detector finds small, oblique boards the classic one misses (OpenCV 4.5).
         found, corners = cv2.findChessboardCornersSB(gray, pattern.size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)

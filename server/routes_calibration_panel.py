@@ -1,0 +1,364 @@
+"""The page's calibration panel over HTTP (issue 4): live corners, pairs, coverage, compute, apply.
+
+- ``GET/PUT /api/calibration/session``: the board (``pattern`` "9x6",
+  ``square_mm``), ``alpha``, the stored pairs with their corners, coverage
+  per camera, the compute's progress and the candidate's figures.
+- ``GET /api/calibration/corners``: corners on a frame newer than the
+  request (fast detector). Detection runs at most every
+  :data:`LIVE_MIN_INTERVAL_S` whatever the number of clients: polling
+  clients share the latest result.
+- ``POST /api/calibration/pairs``: capture the next frame as a pair, only
+  when the pattern is in both images (else 422) and the view differs from
+  every stored pair (else 409). ``DELETE /api/calibration/pairs[/{id}]``.
+- ``POST /api/calibration/compute``: calibrate from the stored pairs in a
+  worker (one at a time: 409 while one runs; ``GET`` gives its progress).
+  The result is the candidate: ``GET /api/calibration/candidate`` (report
+  and file text), ``.../candidate.yaml``, ``.../candidate/rectified.png``.
+- ``POST /api/calibration/apply`` with ``{"id": candidate id}``: program
+  the core and write the calibration file, exactly as ``PUT
+  /api/calibration`` does (refused: the previous calibration stays).
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, TypeVar
+
+from aiohttp import web
+
+from ..calibrate import CalibrationReport
+from .calibration_pairs import (
+    PAIRS_FOLDER,
+    PURPOSE,
+    PanelError,
+    PanelSettings,
+    compute,
+    coverage,
+    detect_frame,
+    load_settings,
+    missing_in,
+    pair_entries,
+    rectified_figure,
+    same_view,
+    save_settings,
+)
+from .captures import CaptureError, CaptureStore
+from .errors import ApiError
+from .routes_api import ApiError as RouteError
+from .routes_api import fresh_raw_frame, store_capture
+from .routes_calibration import activate, check_runnable
+from .state import CONFIG, EXECUTORS, METRICS, OVERLAY
+from .streams import json_error
+
+log = logging.getLogger(__name__)
+
+__all__ = ["setup", "PANEL", "Panel", "LIVE_MIN_INTERVAL_S", "pairs_folder"]
+
+T = TypeVar("T")
+LIVE_MIN_INTERVAL_S = 0.2
+
+
+@dataclass
+class Candidate:
+    """A computed calibration awaiting review: the report and the pairs it came from."""
+
+    report: CalibrationReport
+    pair_ids: List[str]
+    computed_at: float
+
+    @property
+    def id(self) -> str:
+        return self.report.calibration.id
+
+    def to_json(self) -> Dict[str, Any]:
+        body = self.report.to_dict()
+        for entry, pid in zip(body["pairs"], self.pair_ids):
+            entry["id"] = pid
+        worst = max((p for p in body["pairs"] if p["used"]), key=lambda p: p["row_error_max"] or 0.0,
+                    default=None)
+        return {"id": self.id, "computed_at": self.computed_at, "report": body, "lines": self.report.lines(),
+                "worst_pair": worst["id"] if worst else None, "fits": self.report.fits,
+                "yaml": self.report.calibration.to_yaml()}
+
+
+@dataclass
+class Panel:
+    """The panel's state: settings, the pair store, the latest live corners, the compute and its result."""
+
+    folder: Path
+    store: CaptureStore
+    settings: PanelSettings
+    live: Optional[Dict[str, Any]] = None
+    live_at: float = 0.0
+    live_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    pairs_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    progress: Dict[str, Any] = field(default_factory=lambda: {"state": "idle"})
+    candidate: Optional[Candidate] = None
+
+
+PANEL: "web.AppKey[Panel]" = web.AppKey("stereocam.calibration.panel")
+
+
+def pairs_folder(config: Any) -> Path:
+    """Where the panel keeps its pairs: ``<captures>/../calibration-pairs``, beside ``calibration.yaml``."""
+    return config.captures_path.parent / PAIRS_FOLDER
+
+
+async def _work(app: web.Application, fn: Callable[..., T], *args: Any) -> T:
+    return await asyncio.get_running_loop().run_in_executor(app[EXECUTORS].work, fn, *args)
+
+
+def _refusal(exc: Exception) -> web.Response:
+    status = int(getattr(exc, "status", 500))
+    return json_error(status, getattr(exc, "message", None) or str(exc))
+
+
+async def _json(request: web.Request, *, empty_ok: bool = False) -> Any:
+    raw = await request.read()
+    if not raw.strip():
+        if empty_ok:
+            return {}
+        raise PanelError("send a JSON object as the body", status=400)
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise PanelError(f"the body is not valid JSON ({exc})", status=400) from None
+
+
+def _frame_size(app: web.Application) -> Any:
+    w, h = app[OVERLAY].fabric.frame_size
+    return int(w), int(h)
+
+
+async def _session_body(app: web.Application) -> Dict[str, Any]:
+    panel = app[PANEL]
+    entries = await _work(app, pair_entries, panel.store)
+    size = _frame_size(app)
+    cover = await _work(app, coverage, entries, size)
+    cand = panel.candidate
+    return {"settings": panel.settings.to_json(), "folder": str(panel.folder), "image_size": list(size),
+            "pairs": entries, "count": len(entries), "coverage": cover, "progress": dict(panel.progress),
+            "candidate": None if cand is None else {"id": cand.id, "fits": cand.report.fits,
+                                                    "rms": cand.report.rms}}
+
+
+# -- routes -----------------------------------------------------------------------------------------
+
+async def get_session(request: web.Request) -> web.Response:
+    return web.json_response(await _session_body(request.app), headers={"Cache-Control": "no-store"})
+
+
+async def put_session(request: web.Request) -> web.Response:
+    app = request.app
+    panel = app[PANEL]
+    try:
+        settings = panel.settings.updated(await _json(request))
+        await _work(app, save_settings, panel.folder, settings)
+    except PanelError as exc:
+        return _refusal(exc)
+    except OSError as exc:
+        return json_error(500, f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}")
+    panel.settings = settings
+    panel.live, panel.live_at = None, 0.0
+    return web.json_response(await _session_body(app))
+
+
+async def get_corners(request: web.Request) -> web.Response:
+    """Corners on a recent frame: shared by every poller, recomputed at most every LIVE_MIN_INTERVAL_S."""
+    app = request.app
+    panel = app[PANEL]
+    asked = time.monotonic()
+    async with panel.live_lock:
+        if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
+            try:
+                fs = await fresh_raw_frame(app)
+            except RouteError as exc:
+                return json_error(exc.status, exc.message)
+            settings = panel.settings
+            assert fs.raw is not None
+            found = await _work(app, lambda: detect_frame(fs.raw, settings.pattern, thorough=False))
+            panel.live = {"frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
+                          "image_size": list(fs.size), "pattern": str(settings.pattern), **found,
+                          "found": missing_in(found) is None}
+            panel.live_at = time.monotonic()
+        body = panel.live
+    return web.json_response(body, headers={"Cache-Control": "no-store"})
+
+
+async def post_pair(request: web.Request) -> web.Response:
+    app = request.app
+    panel = app[PANEL]
+    settings = panel.settings
+    async with panel.pairs_lock:
+        try:
+            fs = await fresh_raw_frame(app)
+        except RouteError as exc:
+            return json_error(exc.status, exc.message)
+        assert fs.raw is not None
+        found = await _work(app, lambda: detect_frame(fs.raw, settings.pattern, thorough=True))
+        where = missing_in(found)
+        if where is not None:
+            return json_error(422, f"the {settings.pattern} pattern was not found in {where} (frame {fs.frame}): "
+                                   "hold the whole board in view of both cameras, still and well lit; "
+                                   "nothing was stored")
+        entries = await _work(app, pair_entries, panel.store)
+        twin = same_view(found, entries)
+        if twin is not None:
+            return json_error(409, f"the board is where it was in pair {twin}: move or tilt it before the next "
+                                   "pair (the same view adds nothing); nothing was stored")
+        extra = {"purpose": PURPOSE, "pattern": str(settings.pattern),
+                 "square_mm": settings.pattern.square * 1000.0,
+                 "corners": {"left": found["left"], "right": found["right"]}}
+        try:
+            info = await store_capture(app, panel.store, fs, extra)
+        except CaptureError as exc:
+            app[METRICS].error(exc.message, "calibration")
+            return _refusal(exc)
+    body = await _session_body(app)
+    pair = next((p for p in body["pairs"] if p["id"] == info.id), None)
+    log.info("calibration pair %s stored (frame %d, %d pairs)", info.id, fs.frame, body["count"])
+    return web.json_response({"pair": pair, **body}, status=201)
+
+
+async def delete_pair(request: web.Request) -> web.Response:
+    app = request.app
+    panel = app[PANEL]
+    try:
+        async with panel.pairs_lock:
+            await _work(app, panel.store.delete, request.match_info["id"])
+    except CaptureError as exc:
+        return _refusal(exc)
+    return web.Response(status=204)
+
+
+async def delete_pairs(request: web.Request) -> web.Response:
+    app = request.app
+    panel = app[PANEL]
+    async with panel.pairs_lock:
+        for info in await _work(app, panel.store.list):
+            try:
+                await _work(app, panel.store.delete, info.id)
+            except CaptureError as exc:
+                return _refusal(exc)
+    return web.Response(status=204)
+
+
+async def get_compute(request: web.Request) -> web.Response:
+    return web.json_response(dict(request.app[PANEL].progress), headers={"Cache-Control": "no-store"})
+
+
+async def post_compute(request: web.Request) -> web.Response:
+    app = request.app
+    panel = app[PANEL]
+    if panel.progress.get("state") == "running":
+        return json_error(409, "a calibration is already being computed: wait for it "
+                               "(GET /api/calibration/compute shows its progress)")
+    try:
+        doc = await _json(request, empty_ok=True)
+        settings = panel.settings.updated(doc) if doc else panel.settings
+    except PanelError as exc:
+        return _refusal(exc)
+    panel.progress = {"state": "running", "stage": "detect", "done": 0, "total": 0, "started": time.time()}
+    started = panel.progress["started"]
+
+    def progress(stage: str, done: int, total: int) -> None:  # worker thread: replace, never mutate
+        panel.progress = {"state": "running", "stage": stage, "done": done, "total": total, "started": started}
+
+    rectify = app[OVERLAY].fabric.rectify
+    try:
+        async with panel.pairs_lock:
+            report, ids = await _work(app, lambda: compute(panel.store, settings, rectify, progress=progress))
+    except PanelError as exc:
+        panel.progress = {"state": "failed", "error": exc.message, "started": started}
+        return _refusal(exc)
+    except Exception as exc:
+        log.exception("calibration compute failed")
+        panel.progress = {"state": "failed", "error": f"{type(exc).__name__}: {exc}", "started": started}
+        raise
+    panel.candidate = Candidate(report, ids, time.time())
+    panel.progress = {"state": "done", "started": started, "seconds": round(time.time() - started, 2),
+                      "id": panel.candidate.id}
+    log.info("calibration computed from %d pairs: RMS %.3f px, row error %.3f px, %s", report.pairs_used,
+             report.rms, report.row_error_mean, report.calibration.id)
+    return web.json_response(panel.candidate.to_json())
+
+
+def _candidate(app: web.Application) -> Candidate:
+    cand = app[PANEL].candidate
+    if cand is None:
+        raise PanelError("no calibration has been computed yet: capture pairs, then POST /api/calibration/compute",
+                         status=404)
+    return cand
+
+
+async def get_candidate(request: web.Request) -> web.Response:
+    try:
+        return web.json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
+    except PanelError as exc:
+        return _refusal(exc)
+
+
+async def candidate_yaml(request: web.Request) -> web.Response:
+    try:
+        cand = _candidate(request.app)
+    except PanelError as exc:
+        return _refusal(exc)
+    return web.Response(text=cand.report.calibration.to_yaml(), content_type="application/yaml",
+                        headers={"Content-Disposition": 'attachment; filename="calibration.yaml"'})
+
+
+async def candidate_rectified(request: web.Request) -> web.Response:
+    app = request.app
+    try:
+        cand = _candidate(app)
+        pair = request.query.get("pair") or next(
+            (p["id"] for p in cand.to_json()["report"]["pairs"] if p["used"]), None)
+        if pair not in cand.pair_ids:
+            raise PanelError(f"pair {str(pair)[:40]!r} is not one the candidate was computed from", status=404)
+        png = await _work(app, rectified_figure, app[PANEL].store, pair, cand.report,
+                          app[OVERLAY].fabric.rectify.lb_rows)
+    except (ApiError, CaptureError) as exc:
+        return _refusal(exc)
+    return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "no-store"})
+
+
+async def post_apply(request: web.Request) -> web.Response:
+    app = request.app
+    try:
+        doc = await _json(request)
+        cand = _candidate(app)
+        if not isinstance(doc, dict) or set(doc) != {"id"} or not isinstance(doc["id"], str):
+            raise PanelError('send {"id": "<the candidate\'s id>"} (GET /api/calibration/candidate gives it)',
+                             status=400)
+        if doc["id"] != cand.id:
+            raise PanelError(f"the candidate is now {cand.id}, not {doc['id'][:40]}: review it, then apply it",
+                             status=409)
+    except PanelError as exc:
+        return _refusal(exc)
+    fabric = app[OVERLAY].fabric
+    cal, rectify, size = cand.report.calibration, fabric.rectify, _frame_size(app)
+    body = await activate(app, lambda: check_runnable(cal, rectify, size), "calibration panel")
+    return web.json_response(body)
+
+
+def setup(app: web.Application) -> None:
+    folder = pairs_folder(app[CONFIG])
+    store = CaptureStore(folder, min_free_bytes=int(app[CONFIG].min_free_mb * 1e6))
+    app[PANEL] = Panel(folder=folder, store=store, settings=load_settings(folder))
+    r = app.router
+    r.add_get("/api/calibration/session", get_session)
+    r.add_put("/api/calibration/session", put_session)
+    r.add_get("/api/calibration/corners", get_corners)
+    r.add_post("/api/calibration/pairs", post_pair)
+    r.add_delete("/api/calibration/pairs", delete_pairs)
+    r.add_delete(r"/api/calibration/pairs/{id:[^/]+}", delete_pair)
+    r.add_get("/api/calibration/compute", get_compute)
+    r.add_post("/api/calibration/compute", post_compute)
+    r.add_get("/api/calibration/candidate", get_candidate)
+    r.add_get("/api/calibration/candidate.yaml", candidate_yaml)
+    r.add_get("/api/calibration/candidate/rectified.png", candidate_rectified)
+    r.add_post("/api/calibration/apply", post_apply)

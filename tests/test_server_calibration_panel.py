@@ -1,0 +1,293 @@
+"""The page's calibration panel over HTTP: live corners, pairs, coverage, compute, figures, apply.
+
+Checkerboard views of the synthetic rig (known calibration, tests/sample.py)
+go in through the virtual camera, so the raw frames the panel works on are
+exactly those images; the calibration computed from them must come back to
+the rig's truth, and applying it must program the core and survive a restart.
+"""
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+
+import cv2
+import numpy as np
+import pytest
+from aiohttp import FormData
+
+from stereocam.calibrate import CalibrationReport, Pattern, detect_corners
+from stereocam.calibration_file import Calibration, load_calibration
+from stereocam.server import routes_calibration, routes_calibration_panel
+from stereocam.server.app import default_extensions, program_default_calibration
+from stereocam.server.calibration_pairs import SETTINGS_FILE
+from stereocam.server.config import Config
+from stereocam.server.routes_calibration_panel import PANEL, Candidate
+from stereocam.stereo import rectify
+
+from .sample import SYNTH_SQUARE, synthetic_views
+from .server_fixtures import FULL, make_overlay, start_daemon_fixture  # noqa: F401
+
+EXT = (routes_calibration.setup, routes_calibration_panel.setup)
+PATTERN = Pattern(9, 6, SYNTH_SQUARE)
+
+
+def png(gray: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", gray)
+    assert ok
+    return buf.tobytes()
+
+
+async def start(start_daemon, **settings):
+    return await start_daemon(overlay=make_overlay(size=FULL, fps=20.0, calibrate=False), extensions=EXT,
+                              **settings)
+
+
+async def show(daemon, left: np.ndarray, right: np.ndarray) -> None:
+    """Put a gray pair on the virtual camera: the raw frames the panel sees from now on."""
+    form = FormData()
+    form.add_field("left", png(left), filename="left.png", content_type="image/png")
+    form.add_field("right", png(right), filename="right.png", content_type="image/png")
+    async with daemon.http.post("/api/virtual-camera", data=form) as r:
+        assert r.status == 200, await r.text()
+
+
+async def session(daemon) -> dict:
+    async with daemon.http.get("/api/calibration/session") as r:
+        assert r.status == 200
+        return await r.json()
+
+
+async def put_settings(daemon, doc) -> "tuple[int, dict]":
+    async with daemon.http.put("/api/calibration/session", data=json.dumps(doc),
+                               headers={"Content-Type": "application/json"}) as r:
+        return r.status, await r.json()
+
+
+async def capture_pair(daemon) -> "tuple[int, dict]":
+    async with daemon.http.post("/api/calibration/pairs") as r:
+        return r.status, await r.json()
+
+
+def test_the_panel_is_a_default_extension() -> None:
+    assert routes_calibration_panel.setup in default_extensions()
+
+
+async def test_settings_default_validate_and_persist(start_daemon, tmp_path) -> None:
+    daemon = await start(start_daemon)
+    body = await session(daemon)
+    assert body["settings"] == {"pattern": "9x6", "square_mm": 25.0, "alpha": 0.0}
+    assert body["count"] == 0 and body["pairs"] == [] and body["image_size"] == list(FULL)
+    assert body["coverage"]["left"] == 0 and body["coverage"]["right"] == 0
+    assert body["folder"] == str(tmp_path / "calibration-pairs")
+
+    status, body = await put_settings(daemon, {"pattern": "7x5", "square_mm": 30, "alpha": 0.5})
+    assert status == 200 and body["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
+    for bad, words in (({"pattern": "7by5"}, "COLSxROWS"), ({"pattern": "2x5"}, "3x3"),
+                       ({"square_mm": -1}, "square_mm"), ({"square_mm": "25"}, "square_mm"),
+                       ({"alpha": 1.5}, "alpha"), ({"colour": 1}, "unknown field"), ([1, 2], "JSON object")):
+        status, err = await put_settings(daemon, bad)
+        assert status == 400 and words in err["error"], (bad, err)
+    async with daemon.http.put("/api/calibration/session", data=b"{not json",
+                               headers={"Content-Type": "application/json"}) as r:
+        assert r.status == 400 and "not valid JSON" in (await r.json())["error"]
+    assert (await session(daemon))["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
+    await daemon.stop()
+
+    again = await start(start_daemon)  # the same folders: the settings come back
+    assert (await session(again))["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
+    (tmp_path / "calibration-pairs" / SETTINGS_FILE).write_text("{broken")
+    await again.stop()
+    third = await start(start_daemon)  # an unreadable settings file: the defaults, and the daemon starts
+    assert (await session(third))["settings"]["pattern"] == "9x6"
+
+
+async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
+    daemon = await start(start_daemon)
+    async with daemon.http.get("/api/calibration/corners") as r:
+        assert r.status == 200
+        body = await r.json()
+    assert body["found"] is False and body["left"] is None and body["right"] is None  # the scene: no board
+    assert body["image_size"] == list(FULL) and body["pattern"] == "9x6"
+
+    _, views = synthetic_views()
+    left, right = views[0]
+    await show(daemon, left, right)
+    await asyncio.sleep(0.3)  # past the shared result's lifetime
+    async with daemon.http.get("/api/calibration/corners") as r:
+        body = await r.json()
+    assert body["found"] is True and body["source"] == "virtual"
+    got = np.asarray(body["left"])
+    want = detect_corners(left, PATTERN, thorough=False)
+    assert want is not None and got.shape == (54, 2)
+    assert np.abs(got - want).max() <= 0.006  # the same detector, rounded to 1/100 px
+    assert np.asarray(body["right"]).shape == (54, 2)
+
+    # Many pollers at once share one detection.
+    await asyncio.sleep(0.3)
+    replies = await asyncio.gather(*(daemon.http.get("/api/calibration/corners") for _ in range(6)))
+    frames = set()
+    for r in replies:
+        frames.add((await r.json())["frame"])
+        r.release()
+    assert len(frames) == 1
+
+
+async def test_pairs_are_refused_without_the_board_and_when_the_view_repeats(start_daemon, tmp_path) -> None:
+    daemon = await start(start_daemon)
+    status, err = await capture_pair(daemon)
+    assert status == 422 and "not found in either image" in err["error"] and "nothing was stored" in err["error"]
+    assert (await session(daemon))["count"] == 0
+    assert not any(p.name[0].isdigit() for p in (tmp_path / "calibration-pairs").iterdir())
+
+    _, views = synthetic_views()
+    blank = np.full_like(views[0][1], 128)
+    await show(daemon, views[0][0], blank)
+    status, err = await capture_pair(daemon)
+    assert status == 422 and "the right image" in err["error"]
+
+    await show(daemon, *views[0])
+    status, body = await capture_pair(daemon)
+    assert status == 201, body
+    assert body["count"] == 1 and body["pair"]["pattern"] == "9x6"
+    assert np.asarray(body["pair"]["corners"]["left"]).shape == (54, 2)
+    assert 0 < body["coverage"]["left"] < 1 and 0 < body["coverage"]["right"] < 1
+    pid, first_cover = body["pair"]["id"], body["coverage"]
+    folder = tmp_path / "calibration-pairs" / pid
+    assert {"raw_left.png", "raw_right.png", "rect_left.png", "meta.json"} <= {p.name for p in folder.iterdir()}
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["purpose"] == "calibration-pair" and meta["source"] == "virtual"
+    assert np.array_equal(cv2.imread(str(folder / "raw_left.png"), cv2.IMREAD_GRAYSCALE), views[0][0])
+
+    status, err = await capture_pair(daemon)  # the board has not moved
+    assert status == 409 and pid in err["error"]
+    await show(daemon, *views[1])
+    status, body = await capture_pair(daemon)
+    assert status == 201 and body["count"] == 2
+    assert body["coverage"]["left"] > first_cover["left"] and body["coverage"]["right"] > first_cover["right"]
+
+    async with daemon.http.delete(f"/api/calibration/pairs/{pid}") as r:
+        assert r.status == 204
+    assert [p["id"] for p in (await session(daemon))["pairs"]] == [body["pair"]["id"]]
+    for bad, code in (("../captures", 404), ("nope", 400), (pid, 404)):
+        async with daemon.http.delete(f"/api/calibration/pairs/{bad}") as r:
+            assert r.status == code, bad
+    async with daemon.http.delete("/api/calibration/pairs") as r:
+        assert r.status == 204
+    assert (await session(daemon))["count"] == 0
+
+
+async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
+    daemon = await start(start_daemon)
+    truth, views = synthetic_views()
+    status, _ = await put_settings(daemon, {"square_mm": SYNTH_SQUARE * 1000})
+    assert status == 200
+
+    for left, right in views[:3]:
+        await show(daemon, left, right)
+        assert (await capture_pair(daemon))[0] == 201
+    async with daemon.http.post("/api/calibration/compute") as r:
+        assert r.status == 422
+        assert "at least 5" in (await r.json())["error"]
+    async with daemon.http.get("/api/calibration/compute") as r:
+        assert (await r.json())["state"] == "failed"
+    async with daemon.http.get("/api/calibration/candidate") as r:
+        assert r.status == 404
+
+    for left, right in views[3:8]:
+        await show(daemon, left, right)
+        assert (await capture_pair(daemon))[0] == 201
+    cover = (await session(daemon))["coverage"]
+    assert cover["left"] > 0.15 and cover["right"] > 0.15
+    async with daemon.http.post("/api/calibration/compute") as r:
+        assert r.status == 200, await r.text()
+        cand = await r.json()
+    report = cand["report"]
+    assert report["pairs_used"] == 8 and report["rms"] < 0.3 and report["row_error_mean"] < 0.1
+    assert cand["fits"] is True and report["rows_needed"] <= report["lb_rows"] == 80
+    assert all("id" in p for p in report["pairs"]) and cand["worst_pair"] in [p["id"] for p in report["pairs"]]
+    for side, K in (("left", truth.K1), ("right", truth.K2)):
+        assert abs(report[side]["fx"] / K[0, 0] - 1) < 0.005 and abs(report[side]["fy"] / K[1, 1] - 1) < 0.005
+        assert abs(report[side]["cx"] - K[0, 2]) < 2 and abs(report[side]["cy"] - K[1, 2]) < 2
+    assert abs(report["baseline_m"] / truth.baseline - 1) < 0.01
+    async with daemon.http.get("/api/calibration/compute") as r:
+        assert (await r.json())["state"] == "done"
+
+    async with daemon.http.get("/api/calibration/candidate.yaml") as r:
+        assert r.status == 200
+        text = await r.text()
+    (tmp_path / "cand.yaml").write_text(text)
+    assert load_calibration(tmp_path / "cand.yaml").id == cand["id"]
+    async with daemon.http.get(f"/api/calibration/candidate/rectified.png?pair={cand['worst_pair']}") as r:
+        assert r.status == 200 and r.content_type == "image/png"
+        figure = cv2.imdecode(np.frombuffer(await r.read(), np.uint8), cv2.IMREAD_COLOR)
+    assert figure.shape == (FULL[1], 2 * FULL[0], 3)
+    async with daemon.http.get("/api/calibration/candidate/rectified.png?pair=nope") as r:
+        assert r.status == 404
+
+    before = daemon.overlay.fabric.rectify.read_config()
+    old_id = (await session(daemon))["candidate"]["id"]
+    assert old_id == cand["id"]
+    async with daemon.http.post("/api/calibration/apply", json={"id": "something-else"}) as r:
+        assert r.status == 409
+    async with daemon.http.post("/api/calibration/apply", json={"nope": 1}) as r:
+        assert r.status == 400
+    assert daemon.overlay.fabric.rectify.read_config() == before
+    assert not (tmp_path / "calibration.yaml").exists()
+
+    async with daemon.http.post("/api/calibration/apply", json={"id": cand["id"]}) as r:
+        assert r.status == 200, await r.text()
+        applied = await r.json()
+    assert applied["id"] == cand["id"] and applied["file"] == str(tmp_path / "calibration.yaml")
+    saved = load_calibration(tmp_path / "calibration.yaml")
+    cfg = daemon.overlay.fabric.rectify.read_config()
+    assert saved.id == cand["id"] and (cfg.left, cfg.right) == (saved.left, saved.right)
+    async with daemon.http.get("/api/status") as r:
+        assert (await r.json())["calibration"]["id"] == cand["id"]
+    await daemon.stop()
+
+    # Without --calibration, the next start programs what the page applied.
+    overlay = make_overlay(size=FULL, fps=20.0, calibrate=False)
+    try:
+        state = program_default_calibration(overlay, Config(captures=str(tmp_path / "captures")))
+        assert state.id == cand["id"] and state.calibration == saved
+        cfg = overlay.fabric.rectify.read_config()
+        assert (cfg.left, cfg.right) == (saved.left, saved.right)
+    finally:
+        overlay.close()
+
+
+async def test_a_saved_calibration_that_cannot_run_is_skipped_at_start(tmp_path, caplog) -> None:
+    (tmp_path / "calibration.yaml").write_text("schema: broken\n")
+    overlay = make_overlay(size=FULL, fps=20.0, calibrate=False)
+    try:
+        state = program_default_calibration(overlay, Config(captures=str(tmp_path / "captures")))
+    finally:
+        overlay.close()
+    assert state.id is not None and state.id.startswith("synthetic-rig-")
+    assert any("cannot be used" in rec.getMessage() for rec in caplog.records)
+
+
+async def test_apply_refuses_a_candidate_the_line_buffer_cannot_hold(start_daemon, tmp_path) -> None:
+    daemon = await start(start_daemon)
+    model = daemon.overlay.hw.source.model
+    wide = dataclasses.replace(model, D1=np.array([-0.45, 0.1, 0.0, 0.0]), D2=np.array([-0.45, 0.1, 0.0, 0.0]))
+    cal = Calibration.derive(wide, rectify(wide, alpha=1.0), alpha=1.0, source="test")
+    assert cal.rows_needed > 80
+    panel = daemon.app[PANEL]
+    panel.candidate = Candidate(CalibrationReport(cal, PATTERN, (), 0.2, 0.05, 0.1, 80), [], 0.0)
+    before = daemon.overlay.fabric.rectify.read_config()
+    async with daemon.http.post("/api/calibration/apply", json={"id": cal.id}) as r:
+        assert r.status == 422
+        err = (await r.json())["error"]
+    assert "previous calibration stays active" in err and str(cal.rows_needed) in err
+    assert daemon.overlay.fabric.rectify.read_config() == before
+    assert not (tmp_path / "calibration.yaml").exists()
+
+
+@pytest.mark.parametrize("path", ["/api/calibration/candidate", "/api/calibration/candidate.yaml",
+                                  "/api/calibration/candidate/rectified.png"])
+async def test_no_candidate_yet_is_a_clear_404(start_daemon, path) -> None:
+    daemon = await start(start_daemon)
+    async with daemon.http.get(path) as r:
+        assert r.status == 404 and "no calibration has been computed" in (await r.json())["error"]
