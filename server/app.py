@@ -307,6 +307,10 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
 def _camera_source(config: Config) -> Any:
     if config.source == "synthetic":
         return None  # the emulated fabric's default SyntheticRig
+    if config.source == "checkerboard":
+        from ..overlays.emulated.targets import CheckerboardTarget
+
+        return CheckerboardTarget()  # the rig with a 9x6 board (25 mm squares) held in a new pose every 1.5 s
     from ..overlays.emulated.cameras import ReplaySource
 
     return ReplaySource(Path(config.source).expanduser())

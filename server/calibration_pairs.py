@@ -178,10 +178,11 @@ def missing_in(found: Mapping[str, Any]) -> Optional[str]:
 
 def pair_entries(store: CaptureStore) -> List[Dict[str, Any]]:
     """The stored pairs, oldest first: id, created, frame, pattern and corners (from meta.json)."""
-    out = []
-    for info in store.list():
-        out.append(_entry(info))
-    return out
+    return [_entry(info) for info in _oldest_first(store)]
+
+
+def _oldest_first(store: CaptureStore) -> List[CaptureInfo]:
+    return sorted(store.list(), key=lambda info: info.id)  # ids start with the UTC time
 
 
 def _entry(info: CaptureInfo) -> Dict[str, Any]:
@@ -253,7 +254,7 @@ def compute(store: CaptureStore, settings: PanelSettings, rectify: Any, *, progr
     :class:`PanelError` (422) with the calibrator's message when it cannot
     calibrate (too few pairs showing the pattern, divergence, registers).
     """
-    infos = [i for i in store.list() if i.error is None]
+    infos = [i for i in _oldest_first(store) if i.error is None]
     pairs = [ImagePair(i.id, store.root / i.id / "raw_left.png", store.root / i.id / "raw_right.png")
              for i in infos]
     if len(pairs) < min_pairs:

@@ -34,8 +34,10 @@ class Config:
 
     Network: ``host``/``port`` (the board's service listens on 0.0.0.0).
     Fabric: ``backend`` (auto|pynq|emulated), ``bitstream`` (pynq), ``source``
-    (emulated cameras: ``synthetic`` or a folder of recorded pairs to
-    replay), ``fps`` (emulated camera rate), ``calibration``
+    (emulated cameras: ``synthetic``, the synthetic rig's scene;
+    ``checkerboard``, that scene with a 9x6 board of 25 mm squares held in
+    front in a new random pose every 1.5 s, for trying calibration; or a
+    folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
     calibration on the emulated fabric). Storage: ``captures`` folder,
     ``min_free_mb`` kept free on its disk. Streams: ``max_streams``

@@ -76,7 +76,7 @@ class Candidate:
 
     def to_json(self) -> Dict[str, Any]:
         body = self.report.to_dict()
-        for entry, pid in zip(body["pairs"], self.pair_ids):
+        for entry, pid in zip(body["pairs"], self.pair_ids, strict=True):
             entry["id"] = pid
         worst = max((p for p in body["pairs"] if p["used"]), key=lambda p: p["row_error_max"] or 0.0,
                     default=None)

@@ -274,7 +274,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "(default on the emulated fabric: the synthetic rig's known calibration)")
     s.add_argument("--bitstream", metavar="FILE", help="the overlay's .bit (pynq backend)")
     s.add_argument("--source", metavar="SRC",
-                   help="emulated cameras: synthetic (default) or a folder of recorded pairs to replay")
+                   help="emulated cameras: synthetic (default), checkerboard (a 9x6 board of 25 mm "
+                        "squares held up in a new pose every 1.5 s, to try calibration) or a folder of "
+                        "recorded pairs to replay")
     s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
     s.set_defaults(func=cmd_serve)
 

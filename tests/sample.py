@@ -13,6 +13,7 @@ from typing import List, Tuple
 import cv2
 import numpy as np
 
+from stereocam.overlays.emulated.targets import board_image, board_size_m, random_board_poses
 from stereocam.overlays.spec.rectify import CameraParams
 from stereocam.stereo import Rectification, StereoModel, core_cameras, rectify
 
@@ -95,16 +96,6 @@ SYNTH_PATTERN = (9, 6)
 SYNTH_SQUARE = 0.03  # metres
 
 
-def checkerboard(cols: int = 9, rows: int = 6, px: int = 40) -> np.ndarray:
-    """A printed board with ``cols`` x ``rows`` inner corners and a one-square white margin, (H, W) uint8."""
-    board = np.full(((rows + 3) * px, (cols + 3) * px), 255, np.uint8)
-    for i in range(rows + 1):
-        for j in range(cols + 1):
-            if (i + j) % 2 == 0:
-                board[(i + 1) * px:(i + 2) * px, (j + 1) * px:(j + 2) * px] = 0
-    return board
-
-
 @functools.lru_cache(maxsize=2)
 def synthetic_views(
     n: int = 12, seed: int = 0,
@@ -117,24 +108,10 @@ def synthetic_views(
     """
     from stereocam.overlays.emulated.cameras import SyntheticRig
 
-    cols, rows = SYNTH_PATTERN
-    board = checkerboard(cols, rows)
-    size_m = ((cols + 3) * SYNTH_SQUARE, (rows + 3) * SYNTH_SQUARE)
-    outline = np.array([[0, 0, 0], [size_m[0], 0, 0], [size_m[0], size_m[1], 0], [0, size_m[1], 0]], float)
-    rng = np.random.default_rng(seed)
+    board = board_image(*SYNTH_PATTERN)
+    size_m = board_size_m(SYNTH_PATTERN, SYNTH_SQUARE)
     with SyntheticRig(motion=False, colour=False) as rig:
-        m = rig.model
-        w, h = m.image_size
-        views = []
-        while len(views) < n:
-            rvec = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)])
-            R, _ = cv2.Rodrigues(rvec)
-            ray = np.linalg.inv(m.K1) @ np.array([rng.uniform(0.2, 0.8) * w, rng.uniform(0.2, 0.8) * h, 1.0])
-            t = ray * rng.uniform(0.35, 0.7) - R @ np.array([size_m[0] / 2, size_m[1] / 2, 0.0])
-            inside = True
-            for K, D, Rc, tc in ((m.K1, m.D1, R, t), (m.K2, m.D2, m.R @ R, m.R @ t + m.T)):
-                p = cv2.projectPoints(outline, cv2.Rodrigues(Rc)[0], tc, K, D)[0].reshape(-1, 2)
-                inside &= bool(np.all((p > 4) & (p < np.array([w, h]) - 5)))
-            if inside:
-                views.append(rig.render_plane_views(board, size_m, R, t))
-    return m, tuple(views)
+        rng = np.random.default_rng(seed)
+        poses = random_board_poses(rig.model, SYNTH_PATTERN, SYNTH_SQUARE, n=n, rng=rng)
+        views = tuple(rig.render_plane_views(board, size_m, R, t) for R, t in poses)
+        return rig.model, views

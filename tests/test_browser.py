@@ -20,39 +20,28 @@ is bounded (Playwright's timeout is 20 s).
 """
 from __future__ import annotations
 
-import contextlib
-import json
 import urllib.request
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Set, Tuple
+from typing import Iterator, List, Optional, Set, Tuple
 
 import numpy as np
 import pytest
-from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
+from playwright.sync_api import Page, expect
 
 from stereocam.bench_serve import running_daemon
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from .browser import chromium, daemon_serving, get_json, watched_page
+
 VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"]
-TIMEOUT_MS = 20_000
 DAEMON_FPS = 15.0
 # Chromium logs every non-2xx fetch; the one the test provokes on purpose (verify before upload) is fine.
 EXPECTED_409 = "status of 409"
 
 
-def _get_json(url: str) -> Dict[str, object]:
-    with urllib.request.urlopen(url, timeout=10) as resp:
-        result: Dict[str, object] = json.loads(resp.read())
-        return result
-
-
 @pytest.fixture
 def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
     """The real daemon on a free port (emulated fabric); yields its base URL."""
-    with running_daemon(fps=DAEMON_FPS, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
-                        health_timeout=60.0) as (_proc, base):
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
         yield base
 
 
@@ -75,7 +64,7 @@ def _write_png(path: Path, image: np.ndarray) -> Path:
 
 
 def test_page_end_to_end(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
-    status = _get_json(daemon + "/api/status")
+    status = get_json(daemon + "/api/status")
     frame_size = status["frame_size"]
     assert isinstance(frame_size, list) and len(frame_size) == 2, frame_size
     width, height = int(frame_size[0]), int(frame_size[1])
@@ -83,32 +72,8 @@ def test_page_end_to_end(daemon: str, tmp_path: Path, artifacts_dir: Path) -> No
     left_png = _write_png(tmp_path / "left.png", left)
     right_png = _write_png(tmp_path / "right.png", right)
 
-    problems: List[str] = []
-    with _chromium(tmp_path / "chromium-profile") as context:
-        page = context.new_page()
-        page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
-        page.on("console", lambda msg: problems.append(f"console {msg.type}: {msg.text}")
-                if msg.type == "error" and EXPECTED_409 not in msg.text else None)
-        try:
-            _drive_page(page, daemon, width, height, left_png, right_png)
-        finally:
-            page.screenshot(path=str(artifacts_dir / "page.png"), full_page=True)
-    assert not problems, problems
-
-
-@contextlib.contextmanager
-def _chromium(profile: Path) -> Iterator[BrowserContext]:
-    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to 20 s."""
-    with sync_playwright() as pw:
-        context = pw.chromium.launch_persistent_context(
-            str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS,
-            viewport={"width": 1400, "height": 1000})
-        try:
-            context.set_default_timeout(TIMEOUT_MS)
-            context.set_default_navigation_timeout(TIMEOUT_MS)
-            yield context
-        finally:
-            context.close()
+    with watched_page(tmp_path, artifacts_dir, "page.png", expected=[EXPECTED_409]) as page:
+        _drive_page(page, daemon, width, height, left_png, right_png)
 
 
 def _frame(page: Page, view: str) -> int:
@@ -217,7 +182,7 @@ def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
     config.write_text(f"access_token: {token}\n")
     with running_daemon(fps=5.0, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
                         extra_args=["--config", str(config)]) as (_proc, base):
-        with _chromium(tmp_path / "chromium-profile") as context:
+        with chromium(tmp_path / "chromium-profile") as context:
             page = context.new_page()
             try:
                 page.goto(base + "/")

@@ -14,14 +14,13 @@ import json
 import time
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, List
+from typing import Iterator
 
 import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-from stereocam.bench_serve import running_daemon
-from tests.test_browser import _chromium
+from .browser import daemon_serving, get_json, watched_page
 
 DAEMON_FPS = 15.0
 LOW_US = 300
@@ -29,12 +28,6 @@ HIGH_US = 20000
 WAIT_S = 20.0
 # Chromium logs every non-2xx fetch; the 400 the test provokes on purpose is fine.
 EXPECTED_400 = "status of 400"
-
-
-def _get_json(url: str) -> Dict[str, Any]:
-    with urllib.request.urlopen(url, timeout=10) as resp:
-        result: Dict[str, Any] = json.loads(resp.read())
-        return result
 
 
 def _mean_brightness(base: str) -> float:
@@ -49,8 +42,7 @@ def _mean_brightness(base: str) -> float:
 
 @pytest.fixture
 def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with running_daemon(fps=DAEMON_FPS, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
-                        health_timeout=60.0) as (_proc, base):
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
         yield base
 
 
@@ -60,7 +52,7 @@ def _set_exposure(page: Page, base: str, us: int) -> None:
     page.get_by_test_id("camera-exposure").dispatch_event("change")
     deadline = time.monotonic() + WAIT_S
     while True:
-        left = _get_json(base + "/api/cameras")["left"]
+        left = get_json(base + "/api/cameras")["left"]
         if abs(float(left["exposure_us"]) - us) <= max(0.05 * us, 50):
             break
         assert time.monotonic() < deadline, f"exposure never became {us} µs: {left}"
@@ -70,17 +62,8 @@ def _set_exposure(page: Page, base: str, us: int) -> None:
 
 
 def test_camera_controls_change_the_picture(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
-    problems: List[str] = []
-    with _chromium(tmp_path / "chromium-profile") as context:
-        page = context.new_page()
-        page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
-        page.on("console", lambda msg: problems.append(f"console {msg.type}: {msg.text}")
-                if msg.type == "error" and EXPECTED_400 not in msg.text else None)
-        try:
-            _drive(page, daemon, artifacts_dir)
-        finally:
-            page.screenshot(path=str(artifacts_dir / "cameras.png"), full_page=True)
-    assert not problems, problems
+    with watched_page(tmp_path, artifacts_dir, "cameras.png", expected=[EXPECTED_400]) as page:
+        _drive(page, daemon, artifacts_dir)
 
 
 def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
@@ -93,7 +76,7 @@ def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
 
     # The controls show what GET /api/cameras says.
     page.wait_for_function("() => document.getElementById('camera-form').dataset.exposure !== undefined")
-    state = _get_json(base + "/api/cameras")
+    state = get_json(base + "/api/cameras")
     left = state["left"]
     assert left is not None, state
     if left["aec"]:
@@ -105,13 +88,13 @@ def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
     if not aec.is_checked():
         aec.check()
         deadline = time.monotonic() + WAIT_S
-        while not _get_json(base + "/api/cameras")["left"]["aec"]:
+        while not get_json(base + "/api/cameras")["left"]["aec"]:
             assert time.monotonic() < deadline, "AEC never turned on"
             time.sleep(0.2)
     aec.uncheck()
     deadline = time.monotonic() + WAIT_S
     while True:
-        cams = _get_json(base + "/api/cameras")
+        cams = get_json(base + "/api/cameras")
         if not cams["left"]["aec"] and not cams["right"]["aec"]:
             break
         assert time.monotonic() < deadline, f"AEC never turned off: {cams}"
@@ -140,7 +123,7 @@ def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
             break
         assert time.monotonic() < deadline, f"the picture did not get brighter: {dark:.1f} -> {bright:.1f}"
         time.sleep(0.3)
-    cams = _get_json(base + "/api/cameras")
+    cams = get_json(base + "/api/cameras")
     assert abs(float(cams["left"]["exposure_us"]) - HIGH_US) <= 0.05 * HIGH_US, cams
     assert abs(float(cams["right"]["exposure_us"]) - HIGH_US) <= 0.05 * HIGH_US, cams
     (artifacts_dir / "brightness.json").write_text(json.dumps({"dark": dark, "bright": bright}))

@@ -19,6 +19,7 @@ from stereocam.overlays.emulated.cameras import (
     rig_model,
     undistort_normalized,
 )
+from stereocam.overlays.emulated.targets import board_corners, board_image, board_size_m
 from stereocam.overlays.spec.pixel import gray_of, pack, rgby
 from stereocam.stereo import StereoModel
 
@@ -207,21 +208,11 @@ def test_left_and_right_views_agree_with_the_calibration(rig: SyntheticRig) -> N
 
 # -- calibration targets -----------------------------------------------------
 
-def _checkerboard(cols: int = 9, rows: int = 6, px: int = 40) -> np.ndarray:
-    """A (cols x rows inner corners) checkerboard with a one-square white margin."""
-    board = np.full(((rows + 3) * px, (cols + 3) * px), 255, np.uint8)
-    for i in range(rows + 1):
-        for j in range(cols + 1):
-            if (i + j) % 2 == 0:
-                board[(i + 1) * px:(i + 2) * px, (j + 1) * px:(j + 2) * px] = 0
-    return board
-
-
 def test_rendered_checkerboard_corners_are_where_the_model_projects_them(rig: SyntheticRig) -> None:
     cols, rows, square = 9, 6, 0.03
-    board = _checkerboard(cols, rows)
-    size_m = ((cols + 3) * square, (rows + 3) * square)
-    corners = np.array([[(j + 2) * square, (i + 2) * square, 0.0] for i in range(rows) for j in range(cols)])
+    board = board_image(cols, rows)
+    size_m = board_size_m((cols, rows), square)
+    corners = board_corners((cols, rows), square)
     m = rig.model
     poses = (((0.3, -0.4, 0.1), (-0.2, -0.12, 0.55)), ((-0.2, 0.5, 0.6), (0.0, -0.1, 0.65)))
     for rvec, tvec in poses:

@@ -725,7 +725,7 @@ class SyntheticRig:
 
     def render_plane_views(
         self, pattern_image: np.ndarray, pattern_size_m: Tuple[float, float], pose_R: np.ndarray,
-        pose_t: Sequence[float], *, background: Union[float, str] = 128.0, t: float = 0.0,
+        pose_t: Union[np.ndarray, Sequence[float]], *, background: Union[float, str] = 128.0, t: float = 0.0,
         supersample: int = 2,
     ) -> Tuple[np.ndarray, np.ndarray]:
         """Both cameras' 8-bit gray views of a flat printed target, through the true distortion.

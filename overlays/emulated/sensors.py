@@ -299,9 +299,10 @@ class EmulatedSensorPair:
     """The board's two MT9V034s (left = camera 0, right = camera 1) on one emulated I2C bus.
 
     ``target`` is the camera source whose sensor stage they drive (the
-    fabric's :class:`SyntheticRig`; anything else, or None, leaves the
-    pixels alone). ``addresses`` are the sensors' 7-bit I2C addresses.
-    Attach the pair to the fabric (``EmulatedFabric(sensors=pair)`` or
+    fabric's :class:`SyntheticRig` or :class:`.targets.CheckerboardTarget`;
+    anything without ``set_sensor``, or None, leaves the pixels alone).
+    ``addresses`` are the sensors' 7-bit I2C addresses. Attach the pair to
+    the fabric (``EmulatedFabric(sensors=pair)`` or
     ``fabric.sensors = pair``) so it runs every frame; drive it over
     :attr:`bus` with :class:`stereocam.drivers.mt9v034.StereoSensors`.
     """
