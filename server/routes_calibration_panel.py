@@ -254,14 +254,14 @@ async def get_compute(request: web.Request) -> web.Response:
 async def post_compute(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
-    if panel.progress.get("state") == "running":
-        return json_error(409, "a calibration is already being computed: wait for it "
-                               "(GET /api/calibration/compute shows its progress)")
     try:
         doc = await _json(request, empty_ok=True)
         settings = panel.settings.updated(doc) if doc else panel.settings
     except PanelError as exc:
         return _refusal(exc)
+    if panel.progress.get("state") == "running":  # checked and set with no await between: one at a time
+        return json_error(409, "a calibration is already being computed: wait for it "
+                               "(GET /api/calibration/compute shows its progress)")
     panel.progress = {"state": "running", "stage": "detect", "done": 0, "total": 0, "started": time.time()}
     started = panel.progress["started"]
 

@@ -198,6 +198,14 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
         await show(daemon, left, right)
         assert (await capture_pair(daemon))[0] == 201
     cover = (await session(daemon))["coverage"]
+    # Two computes at once: one runs, the other is told to wait.
+    first, second = await asyncio.gather(daemon.http.post("/api/calibration/compute"),
+                                         daemon.http.post("/api/calibration/compute"))
+    assert sorted([first.status, second.status]) == [200, 409]
+    busy = first if first.status == 409 else second
+    assert "already being computed" in (await busy.json())["error"]
+    first.release()
+    second.release()
     assert cover["left"] > 0.15 and cover["right"] > 0.15
     async with daemon.http.post("/api/calibration/compute") as r:
         assert r.status == 200, await r.text()
@@ -283,6 +291,18 @@ async def test_apply_refuses_a_candidate_the_line_buffer_cannot_hold(start_daemo
     assert "previous calibration stays active" in err and str(cal.rows_needed) in err
     assert daemon.overlay.fabric.rectify.read_config() == before
     assert not (tmp_path / "calibration.yaml").exists()
+
+
+@pytest.mark.parametrize("method,path", [("POST", "/api/calibration/pairs"), ("DELETE", "/api/calibration/pairs"),
+                                         ("PUT", "/api/calibration/session"), ("POST", "/api/calibration/compute"),
+                                         ("POST", "/api/calibration/apply")])
+async def test_changes_from_another_origin_or_without_the_token_are_refused(start_daemon, method, path) -> None:
+    daemon = await start(start_daemon, access_token="panel-secret")
+    async with daemon.http.request(method, path, json={}, headers={"Origin": "http://evil.example"}) as r:
+        assert r.status == 403
+    async with daemon.http.request(method, path, json={}) as r:
+        assert r.status == 401
+    assert (await session(daemon))["settings"]["pattern"] == "9x6"
 
 
 @pytest.mark.parametrize("path", ["/api/calibration/candidate", "/api/calibration/candidate.yaml",
