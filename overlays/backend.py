@@ -70,6 +70,7 @@ def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, **e
     """
     choice = choose(backend, bitstream=bitstream)
     log.info("fabric backend: %s (%s)", choice.backend, choice.reason)
+    overlay: Any
     if choice.backend == "pynq":
         from .pynq_overlay import StereocamOverlay
 

@@ -28,7 +28,7 @@ def bind_pynq(ip_dict: Any, device: Any, *, frame_size: Tuple[int, int], timeout
     )
 
 
-class StereocamOverlay(pynq.Overlay):  # type: ignore[misc, name-defined]
+class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a module object, typed Any
     """The stereocam bitstream with :attr:`fabric` (a :class:`StereoFabric`) bound to its IP.
 
     ``bitfile`` needs its ``.hwh`` beside it (pynq reads the IP addresses and

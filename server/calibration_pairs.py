@@ -187,7 +187,8 @@ def _oldest_first(store: CaptureStore) -> List[CaptureInfo]:
 
 def _entry(info: CaptureInfo) -> Dict[str, Any]:
     meta = info.meta
-    corners = meta.get("corners") if isinstance(meta.get("corners"), dict) else {}
+    found = meta.get("corners")
+    corners: Mapping[str, Any] = found if isinstance(found, dict) else {}
     return {"id": info.id, "created": info.created, "frame": info.frame,
             "pattern": meta.get("pattern") if isinstance(meta.get("pattern"), str) else None,
             "corners": {side: corners.get(side) for side in ("left", "right")},

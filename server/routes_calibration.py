@@ -30,6 +30,7 @@ from aiohttp import web
 from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
 from ..calibration_io import CalibrationFileError
 from ..overlays.model.config import ConfigError
+from ..overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
 from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
 
 log = logging.getLogger(__name__)
@@ -83,7 +84,10 @@ def load_configured(arg: str, rectify: Any, frame_size: Tuple[int, int]) -> Tupl
     for p in paths:
         if not p.is_file():
             raise CalibrationFileError(f"{p}: no such file")
-    cal = load_calibration(paths, image_size=tuple(frame_size), lb_rows=rectify.lb_rows, **_limits(rectify))
+    limits = _limits(rectify)
+    cal = load_calibration(paths, image_size=(int(frame_size[0]), int(frame_size[1])), lb_rows=rectify.lb_rows,
+                           max_width=limits.get("max_width", DEFAULT_MAX_WIDTH),
+                           max_height=limits.get("max_height", DEFAULT_MAX_HEIGHT))
     kind = _sniff(paths[0]) if paths else "unknown"
     where = " and ".join(str(p) for p in paths)
     description = f"{KINDS.get(kind, kind)} {where}" + (f" ({cal.source})" if cal.source else "")

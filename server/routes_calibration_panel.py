@@ -179,8 +179,9 @@ async def get_corners(request: web.Request) -> web.Response:
             except RouteError as exc:
                 return json_error(exc.status, exc.message)
             settings = panel.settings
-            assert fs.raw is not None
-            found = await _work(app, lambda: detect_frame(fs.raw, settings.pattern, thorough=False))
+            raw = fs.raw
+            assert raw is not None
+            found = await _work(app, lambda: detect_frame(raw, settings.pattern, thorough=False))
             panel.live = {"frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
                           "image_size": list(fs.size), "pattern": str(settings.pattern), **found,
                           "found": missing_in(found) is None}
@@ -198,8 +199,9 @@ async def post_pair(request: web.Request) -> web.Response:
             fs = await fresh_raw_frame(app)
         except RouteError as exc:
             return json_error(exc.status, exc.message)
-        assert fs.raw is not None
-        found = await _work(app, lambda: detect_frame(fs.raw, settings.pattern, thorough=True))
+        raw = fs.raw
+        assert raw is not None
+        found = await _work(app, lambda: detect_frame(raw, settings.pattern, thorough=True))
         where = missing_in(found)
         if where is not None:
             return json_error(422, f"the {settings.pattern} pattern was not found in {where} (frame {fs.frame}): "

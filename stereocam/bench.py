@@ -13,14 +13,18 @@ import json
 import statistics
 import sys
 import time
-from typing import Callable, Dict, List, Tuple
+from typing import TYPE_CHECKING, Callable, Dict, List, Tuple
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .overlays.spec.rectify import CameraParams
+    from .stereo import Rectification, StereoModel
 
 WIDTH, HEIGHT = 752, 480
 
 
-def bench_calibration() -> "Tuple[object, object, object, object]":
+def bench_calibration() -> "Tuple[StereoModel, Rectification, CameraParams, CameraParams]":
     """The synthetic rig's known calibration, rectified with alpha 0: (model, rect, left, right)."""
     from .overlays.emulated.cameras import SyntheticRig
     from .stereo import core_cameras, rectify
@@ -124,7 +128,7 @@ def measure(seconds: float = 2.0) -> Dict[str, object]:
     }
 
 
-def measure_fabric(left: object, right: object, frames: List[np.ndarray], seconds: float) -> float:
+def measure_fabric(left: "CameraParams", right: "CameraParams", frames: List[np.ndarray], seconds: float) -> float:
     """Frame pairs per second through the drivers, emulated VDMA, mux and core (virtual camera path)."""
     from .overlays.emulated.overlay import EmulatedOverlay
 

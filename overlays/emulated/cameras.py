@@ -667,7 +667,7 @@ class SyntheticRig:
         if sensor.noise > 0:
             noise = self._noise_field(cam, index, radiance.shape)
             x = cv2.addWeighted(radiance, sensor.scale, noise, sensor.noise * sensor.gain, sensor.offset)
-            return cv2.convertScaleAbs(cv2.max(x, 0.0))  # clip at 0, round, saturate at 255
+            return cv2.convertScaleAbs(np.maximum(x, 0.0, out=x))  # clip at 0, round, saturate at 255
         if sensor.scale >= 0 and sensor.offset >= 0:  # radiance >= 0, so |x| == x
             return cv2.convertScaleAbs(radiance, alpha=sensor.scale, beta=sensor.offset)
         scaled = radiance * np.float32(sensor.scale) + np.float32(sensor.offset)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Protocol
+from typing import Dict, Optional, Protocol, Tuple
 
 import numpy as np
 
@@ -106,7 +106,7 @@ class EmulatedFabric:
         return {"vdma_raw": self.vdma_raw, "vdma_proc": self.vdma_proc, "rectify": self.core, "mux": self.mux}
 
     @property
-    def frame_size(self):  # type: ignore[no-untyped-def]
+    def frame_size(self) -> Tuple[int, int]:
         return self.source.frame_size
 
     def tick(self, index: int, t: float) -> None:
@@ -133,7 +133,7 @@ class EmulatedFabric:
             selected = self.mux.selected
             virtual = self.vdma_proc.mm2s_fetch()  # MM2S runs whether or not the mux listens
             frame = live if selected == LIVE else virtual if selected == VIRTUAL else None
-            if frame is None:
+            if frame is None or selected is None:
                 return
             c.mux_frames += 1
             c.per_input[selected] = c.per_input.get(selected, 0) + 1

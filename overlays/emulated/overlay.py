@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, Optional
 
+from ...drivers.rectify import RectifyCore
 from ..fabric import StereoFabric, bind
 from ..spec.axis_switch import VLNV as SWITCH_VLNV
 from ..spec.overlay import INSTANCES
@@ -48,7 +49,7 @@ class EmulatedOverlay:
 
     # Drivers, for convenience.
     @property
-    def rectify(self):  # type: ignore[no-untyped-def]
+    def rectify(self) -> RectifyCore:
         return self.fabric.rectify
 
     def start(self) -> "EmulatedOverlay":

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Dict, Iterable, Mapping, Optional, Tuple
+from typing import Dict, Iterable, Iterator, Mapping, Optional, Tuple
 
 
 class Access(enum.Enum):
@@ -148,7 +148,7 @@ class RegisterMap:
     def __contains__(self, name: object) -> bool:
         return name in self._by_name
 
-    def __iter__(self):  # type: ignore[no-untyped-def]
+    def __iter__(self) -> Iterator[Register]:
         return iter(sorted(self._by_offset.values(), key=lambda r: r.offset))
 
     def __len__(self) -> int:
