@@ -280,6 +280,7 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
         if saved.is_file():
             try:
                 cal, state_id, description = load_configured(str(saved), rectify, (w, h))
+                rectify.plan(cal.left, cal.right, w, h)  # what program() would refuse, refused here
             except (ValueError, OSError) as exc:
                 log.error("the saved calibration %s cannot be used (%s): starting without it; fix or remove "
                           "the file, or apply a new calibration from the page", saved, exc)

@@ -13,6 +13,7 @@ alpha) live in ``settings.json`` in the same folder.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import tempfile
@@ -41,6 +42,8 @@ from ..overlays.spec import pixel
 from .captures import CaptureInfo, CaptureStore
 from .errors import ApiError
 
+log = logging.getLogger(__name__)
+
 __all__ = [
     "PanelSettings", "PanelError", "PAIRS_FOLDER", "PURPOSE", "COVERAGE_GRID", "SAME_VIEW_PX",
     "detect_frame", "pair_entries", "coverage", "same_view", "compute", "rectified_figure",
@@ -52,6 +55,7 @@ SETTINGS_FILE = "settings.json"
 PURPOSE = "calibration-pair"
 COVERAGE_GRID = (16, 10)  # cells across and down in which coverage is counted
 SAME_VIEW_PX = 6.0  # a new pair whose corners are this close (mean) to a stored pair's adds nothing
+MIN_SQUARE_MM = 0.1
 MAX_SQUARE_MM = 1000.0
 
 
@@ -102,8 +106,8 @@ class PanelSettings:
         if "square_mm" in doc:
             value = doc["square_mm"]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or not 0 < value <= MAX_SQUARE_MM:
-                raise PanelError(f"square_mm is the side of one square in millimetres, more than 0 and at most "
+                    or not MIN_SQUARE_MM <= value <= MAX_SQUARE_MM:
+                raise PanelError(f"square_mm is the side of one square in millimetres, from {MIN_SQUARE_MM:g} to "
                                  f"{MAX_SQUARE_MM:g}; got {value!r}", status=400)
             square = float(value) / 1000.0
         if "alpha" in doc:
@@ -117,10 +121,15 @@ class PanelSettings:
 
 def load_settings(folder: Path) -> PanelSettings:
     """The settings saved in ``folder``; the defaults (9x6, 25 mm, alpha 0) if none or unreadable."""
+    path = folder / SETTINGS_FILE
     try:
-        doc = json.loads((folder / SETTINGS_FILE).read_text(encoding="utf-8"))
+        doc = json.loads(path.read_text(encoding="utf-8"))
         return PanelSettings.default().updated(doc)
-    except (OSError, ValueError, PanelError, CalibrationError):
+    except FileNotFoundError:
+        return PanelSettings.default()
+    except (OSError, ValueError, PanelError, CalibrationError) as exc:
+        log.warning("the calibration panel's settings %s cannot be used (%s): using 9x6, 25 mm, alpha 0",
+                    path, getattr(exc, "message", None) or exc)
         return PanelSettings.default()
 
 
@@ -247,17 +256,20 @@ def same_view(found: Mapping[str, Any], entries: Sequence[Mapping[str, Any]]) ->
 
 # -- compute and figures --------------------------------------------------------------------------
 
-def compute(store: CaptureStore, settings: PanelSettings, rectify: Any, *, progress: Progress,
-            min_pairs: int = 5) -> Tuple[CalibrationReport, List[str]]:
-    """Calibrate from every stored pair with the current settings (blocking, seconds).
+def pair_ids(store: CaptureStore) -> List[str]:
+    """The ids of the sound stored pairs, oldest first (what a compute uses)."""
+    return [i.id for i in _oldest_first(store) if i.error is None]
 
-    Returns the report and the pair ids in its order. Raises
+
+def compute(store: CaptureStore, ids: Sequence[str], settings: PanelSettings, rectify: Any, *,
+            progress: Progress, min_pairs: int = 5) -> CalibrationReport:
+    """Calibrate from the stored pairs ``ids`` with ``settings`` (blocking, seconds).
+
+    The report's pairs are in the order of ``ids``. Raises
     :class:`PanelError` (422) with the calibrator's message when it cannot
     calibrate (too few pairs showing the pattern, divergence, registers).
     """
-    infos = [i for i in _oldest_first(store) if i.error is None]
-    pairs = [ImagePair(i.id, store.root / i.id / "raw_left.png", store.root / i.id / "raw_right.png")
-             for i in infos]
+    pairs = [ImagePair(i, store.root / i / "raw_left.png", store.root / i / "raw_right.png") for i in ids]
     if len(pairs) < min_pairs:
         raise PanelError(f"{len(pairs)} pairs are stored and at least {min_pairs} are needed: capture more "
                          "pairs, moving and tilting the board between them")
@@ -271,7 +283,7 @@ def compute(store: CaptureStore, settings: PanelSettings, rectify: Any, *, progr
                    f"squares {settings.pattern.square * 1000:g} mm, alpha {settings.alpha:g}")
     except ValueError as exc:  # CalibrationError, NotEnoughPairs, ConfigError: all say what to do
         raise PanelError(str(exc)) from None
-    return report, [i.id for i in infos]
+    return report
 
 
 LINE_EVERY_PX = 32

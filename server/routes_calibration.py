@@ -28,7 +28,7 @@ from typing import Any, Callable, Dict, Optional, Tuple
 from aiohttp import web
 
 from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
-from ..calibration_io import CalibrationFileError
+from ..calibration_io import CalibrationFileError, atomic_write_text
 from ..overlays.model.config import ConfigError
 from ..overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
 from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
@@ -181,12 +181,23 @@ def _check(text: str, rectify: Any, frame_size: Tuple[int, int]) -> Calibration:
     return check_runnable(cal, rectify, frame_size)
 
 
+def previous_path(path: Path) -> Path:
+    """Where the calibration file replaced by the last PUT/apply is kept: ``calibration.previous.yaml``."""
+    return path.with_name(f"{path.stem}.previous{path.suffix or '.yaml'}")
+
+
 def _apply(rectify: Any, cal: Calibration, path: Path) -> Any:
-    """Program the core, then write the file; a failed write puts the previous registers back (blocking)."""
+    """Program the core, then write the file; a failed write puts the previous registers back (blocking).
+
+    The file being replaced is kept as :func:`previous_path` (one level of undo:
+    a calibration someone trusted is never lost to a click).
+    """
     w, h = cal.image_size
     previous = rectify.read_config()
     config, _ = rectify.program(cal.left, cal.right, w, h)
     try:
+        if path.is_file():
+            atomic_write_text(previous_path(path), path.read_text(encoding="utf-8"))
         cal.save(path)
     except OSError as exc:
         rectify.load(previous)

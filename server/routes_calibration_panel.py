@@ -26,7 +26,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, TypeVar
+from typing import Any, Callable, Dict, List, Optional, Set, TypeVar
 
 from aiohttp import web
 
@@ -38,6 +38,7 @@ from .calibration_pairs import (
     PanelSettings,
     compute,
     coverage,
+    pair_ids,
     detect_frame,
     load_settings,
     missing_in,
@@ -51,7 +52,7 @@ from .errors import ApiError
 from .routes_api import ApiError as RouteError
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
-from .state import CONFIG, EXECUTORS, METRICS, OVERLAY
+from .state import CONFIG, EXECUTORS, FEED, METRICS, OVERLAY
 from .streams import json_error
 
 log = logging.getLogger(__name__)
@@ -96,6 +97,8 @@ class Panel:
     live_at: float = 0.0
     live_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     pairs_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    settings_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    computing: Optional[Set[str]] = None  # the pair ids of the compute that runs
     progress: Dict[str, Any] = field(default_factory=lambda: {"state": "idle"})
     candidate: Optional[Candidate] = None
 
@@ -156,13 +159,16 @@ async def put_session(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
     try:
-        settings = panel.settings.updated(await _json(request))
-        await _work(app, save_settings, panel.folder, settings)
+        doc = await _json(request)
+        async with panel.settings_lock:  # read, change, save, set: concurrent PUTs lose nothing
+            settings = panel.settings.updated(doc)
+            await _work(app, save_settings, panel.folder, settings)
+            panel.settings = settings
     except PanelError as exc:
         return _refusal(exc)
     except OSError as exc:
-        return json_error(500, f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}")
-    panel.settings = settings
+        return json_error(500, f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}; "
+                               "the previous settings stay")
     panel.live, panel.live_at = None, 0.0
     return web.json_response(await _session_body(app))
 
@@ -172,6 +178,11 @@ async def get_corners(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
     asked = time.monotonic()
+    feed = app[FEED]
+    since = feed.last_frame_at if feed.last_frame_at is not None else feed.started_at
+    if asked - since > max(1.0, 2 * app[CONFIG].no_signal_s):
+        # No frame for longer than a capture would wait: answer now, pollers must not queue up.
+        return json_error(503, f"no signal: no frame has come for {asked - since:.1f} s")
     async with panel.live_lock:
         if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
             try:
@@ -193,8 +204,8 @@ async def get_corners(request: web.Request) -> web.Response:
 async def post_pair(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
-    settings = panel.settings
     async with panel.pairs_lock:
+        settings = panel.settings
         try:
             fs = await fresh_raw_frame(app)
         except RouteError as exc:
@@ -229,9 +240,12 @@ async def post_pair(request: web.Request) -> web.Response:
 async def delete_pair(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
+    pid = request.match_info["id"]
+    if panel.computing is not None and pid in panel.computing:
+        return json_error(409, f"pair {pid} is in the calibration being computed: delete it when that is done")
     try:
         async with panel.pairs_lock:
-            await _work(app, panel.store.delete, request.match_info["id"])
+            await _work(app, panel.store.delete, pid)
     except CaptureError as exc:
         return _refusal(exc)
     return web.Response(status=204)
@@ -240,6 +254,8 @@ async def delete_pair(request: web.Request) -> web.Response:
 async def delete_pairs(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
+    if panel.computing is not None:
+        return json_error(409, "a calibration is being computed from the pairs: delete them when that is done")
     async with panel.pairs_lock:
         for info in await _work(app, panel.store.list):
             try:
@@ -258,22 +274,27 @@ async def post_compute(request: web.Request) -> web.Response:
     panel = app[PANEL]
     try:
         doc = await _json(request, empty_ok=True)
-        settings = panel.settings.updated(doc) if doc else panel.settings
+        if not isinstance(doc, dict):
+            raise PanelError('send no body, or a JSON object of settings to use, e.g. {"alpha": 0.5}', status=400)
+        settings = panel.settings.updated(doc)
     except PanelError as exc:
         return _refusal(exc)
-    if panel.progress.get("state") == "running":  # checked and set with no await between: one at a time
+    if panel.computing is not None:  # checked and set with no await between: one at a time
         return json_error(409, "a calibration is already being computed: wait for it "
                                "(GET /api/calibration/compute shows its progress)")
-    panel.progress = {"state": "running", "stage": "detect", "done": 0, "total": 0, "started": time.time()}
-    started = panel.progress["started"]
+    panel.computing = set()
+    started = time.time()
+    panel.progress = {"state": "running", "stage": "detect", "done": 0, "total": 0, "started": started}
 
     def progress(stage: str, done: int, total: int) -> None:  # worker thread: replace, never mutate
         panel.progress = {"state": "running", "stage": stage, "done": done, "total": total, "started": started}
 
     rectify = app[OVERLAY].fabric.rectify
     try:
-        async with panel.pairs_lock:
-            report, ids = await _work(app, lambda: compute(panel.store, settings, rectify, progress=progress))
+        async with panel.pairs_lock:  # a snapshot: pairs captured meanwhile wait for the next compute
+            ids = await _work(app, pair_ids, panel.store)
+        panel.computing = set(ids)
+        report = await _work(app, lambda: compute(panel.store, ids, settings, rectify, progress=progress))
     except PanelError as exc:
         panel.progress = {"state": "failed", "error": exc.message, "started": started}
         return _refusal(exc)
@@ -281,6 +302,10 @@ async def post_compute(request: web.Request) -> web.Response:
         log.exception("calibration compute failed")
         panel.progress = {"state": "failed", "error": f"{type(exc).__name__}: {exc}", "started": started}
         raise
+    finally:
+        panel.computing = None
+        if panel.progress.get("state") == "running":  # cancelled (client gone, shutdown)
+            panel.progress = {"state": "failed", "error": "the compute was interrupted", "started": started}
     panel.candidate = Candidate(report, ids, time.time())
     panel.progress = {"state": "done", "started": started, "seconds": round(time.time() - started, 2),
                       "id": panel.candidate.id}
@@ -332,10 +357,10 @@ async def post_apply(request: web.Request) -> web.Response:
     app = request.app
     try:
         doc = await _json(request)
-        cand = _candidate(app)
         if not isinstance(doc, dict) or set(doc) != {"id"} or not isinstance(doc["id"], str):
             raise PanelError('send {"id": "<the candidate\'s id>"} (GET /api/calibration/candidate gives it)',
                              status=400)
+        cand = _candidate(app)
         if doc["id"] != cand.id:
             raise PanelError(f"the candidate is now {cand.id}, not {doc['id'][:40]}: review it, then apply it",
                              status=409)

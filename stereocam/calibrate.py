@@ -705,8 +705,8 @@ def calibrate_pairs(
     assert size is not None
     if not views.index:
         raise NotEnoughPairs(
-            f"the {pattern} pattern was found in none of the {total} pairs: check --pattern "
-            "(inner corners per row x per column, e.g. a board of 10x7 squares has 9x6) "
+            f"the {pattern} pattern was found in none of the {total} pairs: check the pattern "
+            "(--pattern, the page's inner corners: per row x per column, e.g. a board of 10x7 squares has 9x6) "
             "and that the whole board is in both images"
         )
     _require(views, results, min_pairs, total)

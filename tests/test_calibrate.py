@@ -264,7 +264,7 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
             ["--left", *LEFTS[:3], "--right", *RIGHTS[:3]],
             "only 3 of 3 pairs show the whole pattern in both cameras and at least 5 are needed",
         ),
-        ([str(blank)], "the 9x6 pattern was found in none of the 6 pairs: check --pattern"),
+        ([str(blank)], "the 9x6 pattern was found in none of the 6 pairs: check the pattern (--pattern"),
         (["--left", LEFTS[0], "--right", str(small)], "left is 640x480 but right is 320x240"),
         (
             ["--left", LEFTS[0], str(corrupt), "--right", RIGHTS[0], RIGHTS[1]],

@@ -213,3 +213,14 @@ def test_program_default_calibration_reads_a_stereocam_yaml(tmp_path) -> None:
             program_default_calibration(overlay, Config(calibration=str(big)))
     finally:
         overlay.close()
+
+
+async def test_put_keeps_the_file_it_replaces(start_daemon, tmp_path) -> None:
+    daemon = await start_daemon(extensions=EXT)
+    first, second = rig_calibration(daemon, alpha=0.2), rig_calibration(daemon, alpha=0.7)
+    for cal in (first, second):
+        async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+            assert r.status == 200, await r.text()
+    assert load_calibration(tmp_path / "calibration.yaml") == second
+    assert load_calibration(routes_calibration.previous_path(tmp_path / "calibration.yaml")) == first
+    assert routes_calibration.previous_path(tmp_path / "calibration.yaml").name == "calibration.previous.yaml"

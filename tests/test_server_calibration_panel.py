@@ -52,6 +52,18 @@ async def show(daemon, left: np.ndarray, right: np.ndarray) -> None:
         assert r.status == 200, await r.text()
 
 
+async def show_nothing(daemon) -> None:
+    """Back to the live cameras (stopped by the test): wait until the daemon says no signal."""
+    async with daemon.http.put("/api/source", json={"source": "live"}) as r:
+        assert r.status == 200
+    for _ in range(100):
+        async with daemon.http.get("/api/status") as r:
+            if not (await r.json())["signal"]:
+                return
+        await asyncio.sleep(0.05)
+    raise AssertionError("the daemon never lost the signal")
+
+
 async def session(daemon) -> dict:
     async with daemon.http.get("/api/calibration/session") as r:
         assert r.status == 200
@@ -62,6 +74,12 @@ async def put_settings(daemon, doc) -> "tuple[int, dict]":
     async with daemon.http.put("/api/calibration/session", data=json.dumps(doc),
                                headers={"Content-Type": "application/json"}) as r:
         return r.status, await r.json()
+
+
+async def late(body: bytes):
+    """A request body that arrives 0.3 s after the headers."""
+    await asyncio.sleep(0.3)
+    yield body
 
 
 async def capture_pair(daemon) -> "tuple[int, dict]":
@@ -85,6 +103,7 @@ async def test_settings_default_validate_and_persist(start_daemon, tmp_path) -> 
     assert status == 200 and body["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
     for bad, words in (({"pattern": "7by5"}, "COLSxROWS"), ({"pattern": "2x5"}, "3x3"),
                        ({"square_mm": -1}, "square_mm"), ({"square_mm": "25"}, "square_mm"),
+                       ({"square_mm": 1e-300}, "square_mm"),
                        ({"alpha": 1.5}, "alpha"), ({"colour": 1}, "unknown field"), ([1, 2], "JSON object")):
         status, err = await put_settings(daemon, bad)
         assert status == 400 and words in err["error"], (bad, err)
@@ -92,10 +111,22 @@ async def test_settings_default_validate_and_persist(start_daemon, tmp_path) -> 
                                headers={"Content-Type": "application/json"}) as r:
         assert r.status == 400 and "not valid JSON" in (await r.json())["error"]
     assert (await session(daemon))["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
+    # Two changes at once, bodies arriving late: both are kept.
+    replies = await asyncio.gather(
+        daemon.http.put("/api/calibration/session", data=late(b'{"pattern": "8x5"}'),
+                        headers={"Content-Type": "application/json"}),
+        daemon.http.put("/api/calibration/session", data=late(b'{"alpha": 0.25}'),
+                        headers={"Content-Type": "application/json"}))
+    assert [r.status for r in replies] == [200, 200]
+    for r in replies:
+        r.release()
+    both = {"pattern": "8x5", "square_mm": 30.0, "alpha": 0.25}
+    assert (await session(daemon))["settings"] == both
+    assert json.loads((tmp_path / "calibration-pairs" / SETTINGS_FILE).read_text()) == both
     await daemon.stop()
 
     again = await start(start_daemon)  # the same folders: the settings come back
-    assert (await session(again))["settings"] == {"pattern": "7x5", "square_mm": 30.0, "alpha": 0.5}
+    assert (await session(again))["settings"] == both
     (tmp_path / "calibration-pairs" / SETTINGS_FILE).write_text("{broken")
     await again.stop()
     third = await start(start_daemon)  # an unreadable settings file: the defaults, and the daemon starts
@@ -122,6 +153,17 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     assert want is not None and got.shape == (54, 2)
     assert np.abs(got - want).max() <= 0.006  # the same detector, rounded to 1/100 px
     assert np.asarray(body["right"]).shape == (54, 2)
+
+    # Without signal the answer is an immediate 503, not a queue of pollers waiting for frames.
+    daemon.overlay.hw.cameras_running = False
+    await show_nothing(daemon)
+    await asyncio.sleep(1.0)  # longer than a capture waits for a frame
+    t0 = asyncio.get_running_loop().time()
+    async with daemon.http.get("/api/calibration/corners") as r:
+        assert r.status == 503 and "no signal" in (await r.json())["error"]
+    assert asyncio.get_running_loop().time() - t0 < 0.5
+    daemon.overlay.hw.cameras_running = True
+    await show(daemon, left, right)
 
     # Many pollers at once share one detection.
     await asyncio.sleep(0.3)
@@ -198,14 +240,31 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
         await show(daemon, left, right)
         assert (await capture_pair(daemon))[0] == 201
     cover = (await session(daemon))["coverage"]
-    # Two computes at once: one runs, the other is told to wait.
-    first, second = await asyncio.gather(daemon.http.post("/api/calibration/compute"),
-                                         daemon.http.post("/api/calibration/compute"))
+    # Two computes at once, their bodies arriving late (both handlers wait in the read): one runs,
+    # the other is told to wait.
+    first, second = await asyncio.gather(daemon.http.post("/api/calibration/compute", data=late(b"{}")),
+                                         daemon.http.post("/api/calibration/compute", data=late(b"{}")))
     assert sorted([first.status, second.status]) == [200, 409]
     busy = first if first.status == 409 else second
     assert "already being computed" in (await busy.json())["error"]
     first.release()
     second.release()
+    # While a compute runs, its pairs cannot be deleted (and nothing else waits for it).
+    pairs = (await session(daemon))["pairs"]
+    running = asyncio.ensure_future(daemon.http.post("/api/calibration/compute"))
+    while True:
+        async with daemon.http.get("/api/calibration/compute") as r:
+            p = await r.json()
+        if p["state"] == "running" and p["total"]:
+            break
+        assert not running.done(), "the compute ended before it was seen running"
+        await asyncio.sleep(0.01)
+    async with daemon.http.delete(f"/api/calibration/pairs/{pairs[0]['id']}") as r:
+        assert r.status == 409 and "being computed" in (await r.json())["error"]
+    async with daemon.http.delete("/api/calibration/pairs") as r:
+        assert r.status == 409
+    (await running).release()
+    assert (await session(daemon))["count"] == 8
     assert cover["left"] > 0.15 and cover["right"] > 0.15
     async with daemon.http.post("/api/calibration/compute") as r:
         assert r.status == 200, await r.text()
@@ -240,6 +299,8 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
         assert r.status == 409
     async with daemon.http.post("/api/calibration/apply", json={"nope": 1}) as r:
         assert r.status == 400
+    async with daemon.http.post("/api/calibration/compute", json=[]) as r:
+        assert r.status == 400 and "JSON object" in (await r.json())["error"]
     assert daemon.overlay.fabric.rectify.read_config() == before
     assert not (tmp_path / "calibration.yaml").exists()
 
@@ -311,3 +372,11 @@ async def test_no_candidate_yet_is_a_clear_404(start_daemon, path) -> None:
     daemon = await start(start_daemon)
     async with daemon.http.get(path) as r:
         assert r.status == 404 and "no calibration has been computed" in (await r.json())["error"]
+
+
+async def test_apply_checks_the_body_before_the_candidate(start_daemon) -> None:
+    daemon = await start(start_daemon)
+    async with daemon.http.post("/api/calibration/apply", json=[1]) as r:
+        assert r.status == 400 and '{"id"' in (await r.json())["error"]
+    async with daemon.http.post("/api/calibration/apply", json={"id": "x"}) as r:
+        assert r.status == 404

@@ -607,7 +607,7 @@
   // polled (one request at a time) and the corners are drawn over the raw views. Pairs,
   // coverage, compute, figures and apply go through the /api/calibration/* endpoints.
   const SVG_NS = "http://www.w3.org/2000/svg";
-  const CORNER_PAUSE_MS = 150;
+  const CORNER_PAUSE_MS = 300;  // a detection costs tens of ms of the board's CPU
   let cornersRunning = false;
   let cornersFailing = false;
   let calibSession = null;
@@ -709,6 +709,12 @@
     return lower.slice(0, -1).concat(upper.slice(0, -1));
   }
 
+  // "#n": the pair's place in the stored list (oldest first), the same number everywhere.
+  function pairLabel(id) {
+    const i = calibSession ? calibSession.pairs.findIndex((p) => p.id === id) : -1;
+    return i < 0 ? "(deleted)" : "#" + (i + 1);
+  }
+
   function renderSession(session) {
     calibSession = session;
     const st = session.settings || {};
@@ -727,6 +733,10 @@
       const li = document.createElement("li");
       li.setAttribute("data-testid", "calib-pair");
       li.dataset.id = pair.id;
+      if (calibCandidate && calibCandidate.worst_pair === pair.id) {
+        li.className = "worst";
+        li.title = "the largest row error in the computed calibration";
+      }
       const info = document.createElement("div");
       info.className = "cap-info";
       const name = document.createElement("code");
@@ -749,6 +759,9 @@
     });
     list.replaceChildren(frag);
     $("btn-calib-clear").disabled = !session.count;
+    if (calibCandidate) renderPairTable(calibCandidate);
+    const progress = session.progress || {};
+    if (progress.state === "running" && !computeWatching) watchCompute();
   }
 
   async function refreshSession() { renderSession(await api("GET", "/api/calibration/session")); }
@@ -791,17 +804,32 @@
     }
     dl.replaceChildren(frag);
 
+    renderPairTable(cand);
+    const select = $("calib-preview-pair");
+    if (cand.worst_pair && [...select.options].some((o) => o.value === cand.worst_pair)) select.value = cand.worst_pair;
+    $("btn-calib-apply").disabled = !cand.fits;
+    $("btn-calib-apply").title = cand.fits ? "" : "this calibration needs more line-buffer rows than the core has";
+    box.dataset.id = cand.id;
+    box.hidden = false;
+    return showPreview();
+  }
+
+  function renderPairTable(cand) {
+    const r = cand.report;
     const worstRms = Math.max(1e-9, ...r.pairs.filter((p) => p.used).map((p) => p.rms));
     const tbody = $("calib-pair-table").tBodies[0];
     const tf = document.createDocumentFragment();
     const select = $("calib-preview-pair");
+    const chosen = select.value;
     const options = document.createDocumentFragment();
-    r.pairs.forEach((p, i) => {
+    for (const p of r.pairs) {
+      const label = pairLabel(p.id);
+      const gone = label === "(deleted)";
       const tr = document.createElement("tr");
       tr.setAttribute("data-testid", "calib-pair-row");
       const cells = p.used ?
-        ["#" + (i + 1), fixed(p.rms, 3), fixed(p.row_error_mean, 3) + " / " + fixed(p.row_error_max, 3)] :
-        ["#" + (i + 1), "rejected", p.reason];
+        [label, fixed(p.rms, 3), fixed(p.row_error_mean, 3) + " / " + fixed(p.row_error_max, 3)] :
+        [label, "rejected", p.reason];
       for (const c of cells) {
         const td = document.createElement("td");
         td.textContent = c;
@@ -809,31 +837,44 @@
       }
       const barCell = document.createElement("td");
       if (p.used) {
+        const track = document.createElement("div");
+        track.className = "bar-track";
         const bar = document.createElement("div");
         bar.className = "bar";
         bar.style.width = Math.round(100 * p.rms / worstRms) + "%";
-        barCell.append(bar);
+        track.append(bar);
+        barCell.append(track);
       } else {
         tr.className = "bad";
       }
+      if (!gone) {
+        const drop = document.createElement("button");
+        drop.type = "button";
+        drop.className = "danger drop";
+        drop.textContent = "×";
+        drop.title = "delete this pair (then compute again)";
+        drop.setAttribute("aria-label", "delete pair " + label);
+        drop.setAttribute("data-testid", "calib-pair-row-delete");
+        drop.addEventListener("click", () => action(drop, async () => {
+          await api("DELETE", "/api/calibration/pairs/" + encodeURIComponent(p.id));
+          await refreshSession();
+        }));
+        barCell.append(drop);
+      }
       tr.append(barCell);
+      if (p.id === cand.worst_pair) tr.classList.add("worst");
       tr.title = p.id || p.name;
       tf.append(tr);
-      if (p.used) {
+      if (p.used && !gone) {
         const opt = document.createElement("option");
         opt.value = p.id;
-        opt.textContent = "#" + (i + 1) + (p.id === cand.worst_pair ? " (largest row error)" : "");
+        opt.textContent = label + (p.id === cand.worst_pair ? " (largest row error)" : "");
         options.append(opt);
       }
-    });
+    }
     tbody.replaceChildren(tf);
     select.replaceChildren(options);
-    if (cand.worst_pair) select.value = cand.worst_pair;
-    $("btn-calib-apply").disabled = !cand.fits;
-    $("btn-calib-apply").title = cand.fits ? "" : "this calibration needs more line-buffer rows than the core has";
-    box.dataset.id = cand.id;
-    box.hidden = false;
-    return showPreview();
+    if ([...select.options].some((o) => o.value === chosen)) select.value = chosen;
   }
 
   function showPreview() {
@@ -844,56 +885,109 @@
     return loadImage($("calib-rectified"), url);
   }
 
-  async function computeCalibration() {
-    const btn = $("btn-calib-compute");
+  // Progress of a compute, whichever tab started it; when it is done the candidate is shown.
+  let computeWatching = false;
+  async function watchCompute() {
+    if (computeWatching) return;
+    computeWatching = true;
     const bar = $("calib-progress");
     const text = $("calib-progress-text");
-    let polling = true;
-    const poll = async () => {
-      while (polling) {
-        try {
-          const p = await api("GET", "/api/calibration/compute");
-          if (p.state === "running" && p.total) {
+    bar.hidden = false;
+    bar.removeAttribute("value");
+    try {
+      for (;;) {
+        let p;
+        try { p = await api("GET", "/api/calibration/compute"); } catch (e) { p = { state: "unknown" }; }
+        if (p.state === "running") {
+          if (p.total) {
             bar.max = p.total;
             bar.value = p.done;
             text.textContent = p.stage + " " + p.done + " / " + p.total;
+          } else {
+            text.textContent = "computing…";
           }
-        } catch (e) { /* the POST reports errors */ }
+        } else {
+          if (p.state === "failed") text.textContent = "failed: " + p.error;
+          if (p.state === "done") await loadCandidate();
+          return;
+        }
         await new Promise((r) => setTimeout(r, 250));
       }
-    };
+    } finally {
+      computeWatching = false;
+      bar.hidden = true;
+    }
+  }
+
+  async function loadCandidate() {
+    let cand;
+    try {
+      cand = await api("GET", "/api/calibration/candidate");
+    } catch (e) {
+      if (e instanceof ApiError && e.message.includes("→ 404")) return;  // none computed yet
+      throw e;
+    }
+    if (!calibCandidate || calibCandidate.id !== cand.id || calibCandidate.computed_at !== cand.computed_at) {
+      $("calib-progress-text").textContent = "computed from " + cand.report.pairs_used + " pairs";
+      await renderCandidate(cand);
+    }
+  }
+
+  async function computeCalibration() {
+    const btn = $("btn-calib-compute");
     await action(btn, async () => {
-      bar.hidden = false;
-      bar.removeAttribute("value");
-      text.textContent = "computing…";
-      poll();
+      $("calib-progress-text").textContent = "computing…";
+      const watching = watchCompute();
       try {
         const cand = await api("POST", "/api/calibration/compute");
-        text.textContent = "computed from " + cand.report.pairs_used + " pairs";
+        $("calib-progress-text").textContent = "computed from " + cand.report.pairs_used + " pairs";
         await renderCandidate(cand);
         await refreshSession();
       } catch (e) {
-        text.textContent = "";
+        $("calib-progress-text").textContent = "";
         throw e;
       } finally {
-        polling = false;
-        bar.hidden = true;
+        await watching;
       }
     });
+  }
+
+  function typing(target) {
+    return target instanceof HTMLElement && (target.isContentEditable ||
+      ["INPUT", "SELECT", "TEXTAREA", "BUTTON"].includes(target.tagName));
   }
 
   function initCalibration() {
     const details = $("calib");
     details.addEventListener("toggle", () => {
       if (details.open) {
-        action(null, refreshSession);
+        action(null, async () => { await refreshSession(); await loadCandidate(); });
         cornersLoop();
+      }
+    });
+    // Space or C captures a pair while the panel is open: the person holding the board may be
+    // far from the mouse (a wireless keyboard or presenter remote sends these).
+    document.addEventListener("keydown", (ev) => {
+      if (!details.open || ev.repeat || ev.ctrlKey || ev.metaKey || ev.altKey || typing(ev.target)) return;
+      if (ev.key === " " || ev.key === "c" || ev.key === "C") {
+        ev.preventDefault();
+        const btn = $("btn-calib-pair");
+        if (!btn.disabled) btn.click();
       }
     });
     $("calib-live").addEventListener("change", () => cornersLoop());
     $("calib-pattern").addEventListener("change", (ev) => putCalibSettings({ pattern: ev.target.value.trim() }));
-    $("calib-square").addEventListener("change", (ev) => putCalibSettings({ square_mm: Number(ev.target.value) }));
-    $("calib-alpha").addEventListener("change", (ev) => putCalibSettings({ alpha: Number(ev.target.value) }));
+    const numberSetting = (id, key, what) => $(id).addEventListener("change", (ev) => {
+      const text = ev.target.value.trim();
+      if (text === "" || !Number.isFinite(Number(text))) {
+        showError("give the " + what + " as a number");
+        if (calibSession) renderSession(calibSession);
+        return;
+      }
+      putCalibSettings({ [key]: Number(text) });
+    });
+    numberSetting("calib-square", "square_mm", "square size in millimetres");
+    numberSetting("calib-alpha", "alpha", "alpha (0 to 1)");
     $("btn-calib-pair").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
       const res = await api("POST", "/api/calibration/pairs");
       renderSession(res);
