@@ -375,6 +375,8 @@ def run(config: Config, *, extensions: Optional[Sequence[Setup]] = None) -> int:
     try:
         reason = getattr(getattr(overlay, "choice", None), "reason", "")
         log.info("fabric: %s (%s)", overlay.fabric.backend, reason)
+        log.info("captures in %s; the page's calibration file and pairs in %s", config.captures_path,
+                 config.state_path)
         calibration = program_default_calibration(overlay, config)
         app = create_app(config, overlay, calibration=calibration,
                          extensions=default_extensions() if extensions is None else extensions)

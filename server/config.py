@@ -40,7 +40,9 @@ class Config:
     folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
     calibration on the emulated fabric). Storage: ``captures`` folder,
-    ``min_free_mb`` kept free on its disk. Streams: ``max_streams``
+    ``min_free_mb`` kept free on its disk, ``state_dir`` (where the page's
+    ``calibration.yaml`` and ``calibration-pairs/`` live; default: the
+    captures folder's parent). Streams: ``max_streams``
     (MJPEG + WebSocket clients; more get 503), ``stream_timeout_s`` (a
     client whose frame write takes longer is dropped), ``default_fps`` /
     ``default_quality`` (when the query gives none), ``disparity_fps``,
@@ -57,6 +59,7 @@ class Config:
     fps: float = 60.0
     calibration: Optional[str] = None
     captures: str = DEFAULT_CAPTURES
+    state_dir: Optional[str] = None
     min_free_mb: float = 64.0
     max_streams: int = 32
     stream_timeout_s: float = 10.0
@@ -143,6 +146,11 @@ class Config:
     def captures_path(self) -> Path:
         return Path(self.captures).expanduser()
 
+    @property
+    def state_path(self) -> Path:
+        """``state_dir``, or the captures folder's parent (``~/.local/share/stereocam`` by default)."""
+        return Path(self.state_dir).expanduser() if self.state_dir else self.captures_path.parent
+
     def public(self) -> Dict[str, Any]:
         """The settings as JSON, without the access token."""
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("access_token", "extra")}
@@ -204,7 +212,7 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
         return value
     if key in ("host", "source", "captures"):
         return _text(origin, key, value, optional=False)
-    if key in ("bitstream", "calibration"):
+    if key in ("bitstream", "calibration", "state_dir"):
         return _text(origin, key, value, optional=True)
     if key == "access_token":
         token = _text(origin, key, value, optional=True)

@@ -96,7 +96,7 @@ def load_configured(arg: str, rectify: Any, frame_size: Tuple[int, int]) -> Tupl
 
 def calibration_path(config: Any) -> Path:
     """Where PUT writes: the ``--calibration`` file if it is a stereocam calibration file,
-    else ``calibration.yaml`` next to the captures folder (``<captures>/../calibration.yaml``)."""
+    else ``calibration.yaml`` in the state folder (``state_dir``, default ``<captures>/..``)."""
     arg = config.calibration
     if arg and "," not in arg:
         p = Path(arg).expanduser()
@@ -105,7 +105,7 @@ def calibration_path(config: Any) -> Path:
                 return p
         except OSError:
             pass
-    return config.captures_path.parent / CALIBRATION_FILE
+    return config.state_path / CALIBRATION_FILE
 
 
 # -- the routes ---------------------------------------------------------------------------------

@@ -107,8 +107,8 @@ PANEL: "web.AppKey[Panel]" = web.AppKey("stereocam.calibration.panel")
 
 
 def pairs_folder(config: Any) -> Path:
-    """Where the panel keeps its pairs: ``<captures>/../calibration-pairs``, beside ``calibration.yaml``."""
-    return config.captures_path.parent / PAIRS_FOLDER
+    """Where the panel keeps its pairs: ``<state_dir>/calibration-pairs``, beside ``calibration.yaml``."""
+    return config.state_path / PAIRS_FOLDER
 
 
 async def _work(app: web.Application, fn: Callable[..., T], *args: Any) -> T:

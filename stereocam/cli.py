@@ -231,8 +231,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     try:
         config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
-                             captures=args.captures, calibration=args.calibration, bitstream=args.bitstream,
-                             source=args.source, fps=args.fps)
+                             captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
+                             bitstream=args.bitstream, source=args.source, fps=args.fps)
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:
         raise UserError(str(exc)) from None
@@ -269,6 +269,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
     s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/config.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
+    s.add_argument("--state-dir", metavar="DIR",
+                   help="where the page's calibration.yaml and calibration-pairs/ live "
+                        "(default: the capture folder's parent)")
     s.add_argument("--calibration", metavar="CAL",
                    help="a stereocam calibration.yaml or any format 'calibration import' reads "
                         "(default on the emulated fabric: the synthetic rig's known calibration)")

@@ -380,3 +380,12 @@ async def test_apply_checks_the_body_before_the_candidate(start_daemon) -> None:
         assert r.status == 400 and '{"id"' in (await r.json())["error"]
     async with daemon.http.post("/api/calibration/apply", json={"id": "x"}) as r:
         assert r.status == 404
+
+
+async def test_state_dir_holds_the_pairs_and_the_calibration_file(start_daemon, tmp_path) -> None:
+    daemon = await start(start_daemon, state_dir=str(tmp_path / "state"))
+    assert (await session(daemon))["folder"] == str(tmp_path / "state" / "calibration-pairs")
+    async with daemon.http.get("/api/calibration") as r:
+        assert (await r.json())["file"] == str(tmp_path / "state" / "calibration.yaml")
+    with pytest.raises(ValueError, match="state_dir"):
+        Config(state_dir="  ")
