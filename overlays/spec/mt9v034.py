@@ -42,10 +42,10 @@ With the reset values (752 + 94 clocks at 26.6 MHz) a row lasts 31.80 us,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Dict, Iterable, Iterator, Mapping, Optional, Tuple
+from dataclasses import dataclass
+from typing import ClassVar, Iterable, Mapping, Tuple
 
-from .regs import Access, Field
+from .regs import Access, Field, Register, RegisterMap
 
 __all__ = [
     "Register16",
@@ -124,154 +124,46 @@ ADDRESS_MAX = 0xFF  # 8-bit register addresses
 
 
 @dataclass(frozen=True)
-class Register16:
-    """One 16-bit register of an I2C device: address, access, reset value, fields, allowed values.
+class Register16(Register):
+    """One 16-bit register of an I2C device at an 8-bit address (:class:`.regs.Register`'s rules).
 
-    ``limits`` lists ``(name, lo, hi)``: the values the device accepts for a
-    field (``name`` a field name) or for the whole register (``name`` the
-    register's own name). Fields and access kinds mean what they mean in
-    :mod:`.regs`; bits outside every field are reserved.
+    ``offset`` is the register address (``R0x..``), also readable as :attr:`address`.
     """
 
-    name: str
-    address: int
-    access: Access = Access.RW
-    reset: int = 0
-    fields: Tuple[Field, ...] = ()
-    limits: Tuple[Tuple[str, int, int], ...] = ()
-    doc: str = ""
-    _by_name: Dict[str, Field] = field(default_factory=dict, init=False, repr=False, compare=False)
+    BITS: ClassVar[int] = REG_BITS
+    ALIGN: ClassVar[int] = 1
 
     def __post_init__(self) -> None:
-        if not 0 <= self.address <= ADDRESS_MAX:
-            raise ValueError(f"{self.name}: address {self.address:#x} is not an 8-bit register address")
-        if not 0 <= self.reset <= REG_MASK:
-            raise ValueError(f"{self.name}: reset value {self.reset:#x} does not fit 16 bits")
-        used = 0
-        for f in self.fields:
-            if f.mask & used:
-                raise ValueError(f"{self.name}: field {f.name} overlaps another field")
-            if f.lsb + f.width > REG_BITS:
-                raise ValueError(f"{self.name}: field {f.name} runs past bit 15")
-            used |= f.mask
-            self._by_name[f.name] = f
-        for name, lo, hi in self.limits:
-            width_max = REG_MASK if name == self.name else self.field(name).max
-            if not 0 <= lo <= hi <= width_max:
-                raise ValueError(f"{self.name}: limits of {name} ({lo}..{hi}) do not fit its bits")
+        if not 0 <= self.offset <= ADDRESS_MAX:
+            raise ValueError(f"{self.name}: address {self.offset:#x} is not an 8-bit register address")
+        super().__post_init__()
 
-    def field(self, name: str) -> Field:
-        try:
-            return self._by_name[name]
-        except KeyError:
-            known = ", ".join(self._by_name) or "none"
-            raise KeyError(f"register {self.name} has no field {name!r} (fields: {known})") from None
-
-    def field_access(self, f: Field) -> Access:
-        return f.access if f.access is not None else self.access
-
-    def mask_of(self, access: Access) -> int:
-        """Bits whose access is ``access`` (the whole register if it has no fields)."""
-        if not self.fields:
-            return REG_MASK if self.access is access else 0
-        m = 0
-        for f in self.fields:
-            if self.field_access(f) is access:
-                m |= f.mask
-        return m
+    @property
+    def address(self) -> int:
+        return self.offset
 
     @property
     def reserved_mask(self) -> int:
         """Bits outside every field (none if the register has no fields)."""
-        if not self.fields:
-            return 0
-        m = 0
-        for f in self.fields:
-            m |= f.mask
-        return REG_MASK & ~m
-
-    def limit(self, name: Optional[str] = None) -> Tuple[int, int]:
-        """``(lo, hi)`` the device accepts for field ``name`` (or the whole register)."""
-        key = self.name if name is None else name
-        for n, lo, hi in self.limits:
-            if n == key:
-                return lo, hi
-        if key == self.name:
-            return 0, REG_MASK
-        return 0, self.field(key).max
-
-    def encode(self, base: int = 0, **values: int) -> int:
-        """``base`` with the named fields replaced; a value too wide for its field is refused."""
-        word = int(base)
-        for name, value in values.items():
-            f = self.field(name)
-            value = int(value)
-            if value < 0 or value > f.max:
-                raise ValueError(f"{self.name}.{name} takes 0..{f.max}, not {value}")
-            word = (word & ~f.mask) | (value << f.lsb)
-        return word & REG_MASK
-
-    def decode(self, word: int) -> Dict[str, int]:
-        return {f.name: (word >> f.lsb) & f.max for f in self.fields}
-
-    def get(self, word: int, name: str) -> int:
-        f = self.field(name)
-        return (int(word) >> f.lsb) & f.max
-
-    def bit(self, name: str) -> int:
-        return self.field(name).mask
+        return self.unassigned_mask
 
 
-class Register16Map:
+class Register16Map(RegisterMap[Register16]):
     """All registers of one I2C device, looked up by name or address."""
 
+    OFFSET_TITLE = "R0x"
+
     def __init__(self, name: str, registers: Iterable[Register16], *, doc: str = "") -> None:
-        self.name = name
-        self.doc = doc
-        self._by_name: Dict[str, Register16] = {}
-        self._by_address: Dict[int, Register16] = {}
-        for r in registers:
-            if r.name in self._by_name:
-                raise ValueError(f"{name}: register {r.name} defined twice")
-            if r.address in self._by_address:
-                other = self._by_address[r.address].name
-                raise ValueError(f"{name}: address {r.address:#04x} used by {other} and {r.name}")
-            self._by_name[r.name] = r
-            self._by_address[r.address] = r
-
-    def __getitem__(self, name: str) -> Register16:
-        try:
-            return self._by_name[name]
-        except KeyError:
-            raise KeyError(f"{self.name} has no register {name!r}") from None
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._by_name
-
-    def __iter__(self) -> Iterator[Register16]:
-        return iter(sorted(self._by_address.values(), key=lambda r: r.address))
-
-    def __len__(self) -> int:
-        return len(self._by_name)
-
-    def at(self, address: int) -> Optional[Register16]:
-        return self._by_address.get(address)
+        super().__init__(name, registers, size=ADDRESS_MAX + 1, doc=doc)
 
     def address(self, name: str) -> int:
-        return self[name].address
+        return self.offset(name)
 
-    def reset_values(self) -> Dict[int, int]:
-        return {r.address: r.reset for r in self}
+    def _offset_text(self, r: Register16) -> str:
+        return f"{r.offset:02X}"
 
-    def table_markdown(self) -> str:
-        lines = ["| R0x | name | access | reset | fields |", "|---|---|---|---|---|"]
-        for r in self:
-            fields = "; ".join(
-                f"{f.name}[{f.lsb + f.width - 1}:{f.lsb}]" if f.width > 1 else f"{f.name}[{f.lsb}]"
-                for f in r.fields
-            )
-            lines.append(f"| {r.address:02X} | {r.name} | {r.access.value} | {r.reset:#06x} | {fields} |")
-        return "\n".join(lines)
+    def _reset_text(self, r: Register16) -> str:
+        return f"{r.reset:#06x}"
 
 
 # --------------------------------------------------------------------------
