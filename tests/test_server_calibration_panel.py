@@ -18,6 +18,7 @@ from aiohttp import FormData
 
 from stereocam.calibrate import CalibrationReport, Pattern, detect_corners
 from stereocam.calibration_file import Calibration, load_calibration
+from stereocam.cli import main as cli_main
 from stereocam.server import routes_calibration, routes_calibration_panel
 from stereocam.server.app import default_extensions, program_default_calibration
 from stereocam.server.calibration_pairs import SETTINGS_FILE
@@ -314,6 +315,14 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
     async with daemon.http.get("/api/status") as r:
         assert (await r.json())["calibration"]["id"] == cand["id"]
     await daemon.stop()
+
+    # The pairs folder is a valid input of the command line calibrator: the same figures.
+    code = cli_main(["calibrate", "--pattern", "9x6", "--square", f"{SYNTH_SQUARE * 1000:g}mm", "--quiet",
+                     "-o", str(tmp_path / "cli.yaml"), str(tmp_path / "calibration-pairs")])
+    assert code == 0
+    cli = load_calibration(tmp_path / "cli.yaml")
+    assert cli.quality["pairs_used"] == [{"name": p["id"], "rms_px": round(p["rms"], 6)} for p in report["pairs"]]
+    assert np.allclose(cli.model.K1, saved.model.K1) and np.allclose(cli.model.T, saved.model.T)
 
     # Without --calibration, the next start programs what the page applied.
     overlay = make_overlay(size=FULL, fps=20.0, calibrate=False)
