@@ -60,14 +60,19 @@ apt_install() {
     _unlock
 }
 
-# Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg.
+# Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg, VLC (cvlc).
 ensure_test_debian_packages() {
-    if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ] && command -v ffmpeg >/dev/null 2>&1; then
+    if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ] && command -v ffmpeg >/dev/null 2>&1 \
+        && command -v cvlc >/dev/null 2>&1; then
         return 0
     fi
     command -v apt-get >/dev/null 2>&1 \
-        || die "chromium, chromium-driver and ffmpeg are missing and there is no apt-get: install them"
-    apt_install chromium chromium-driver ffmpeg
+        || die "chromium, chromium-driver, ffmpeg and vlc are missing and there is no apt-get: install them"
+    if ! [ -x /usr/bin/chromium ] || ! [ -x /usr/bin/chromedriver ] || ! command -v ffmpeg >/dev/null 2>&1; then
+        apt_install chromium chromium-driver ffmpeg
+    fi
+    # VLC without its GUI and recommends: the player and its base plugins (about 40 packages).
+    command -v cvlc >/dev/null 2>&1 || apt_install --no-install-recommends vlc-bin vlc-plugin-base
 }
 
 # Print the first working Python 3.10 interpreter (the PYNQ image's version).

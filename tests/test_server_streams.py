@@ -8,7 +8,9 @@ import shutil
 import socket
 import struct
 import subprocess
+import tempfile
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -303,6 +305,43 @@ async def test_ffmpeg_reads_n_frames_from_a_stream(start_daemon, tmp_path) -> No
     assert len(files) == 5
     for f in files:
         assert jpeg_size(f.read_bytes()) == (H, W, 3)
+
+
+async def test_vlc_plays_a_stream(start_daemon) -> None:
+    """VLC (cvlc, headless) reads the MJPEG stream and decodes it: it re-encodes what it got to a file.
+
+    VLC refuses to run as root, so as root it runs as ``nobody`` (setpriv) in a folder it may write.
+    """
+    cvlc = shutil.which("cvlc") or "/usr/bin/cvlc"
+    if not os.path.exists(cvlc):
+        pytest.fail("VLC is not installed (./scripts/test installs vlc-bin and vlc-plugin-base)")
+    d = await start_daemon()
+    folder = Path(tempfile.mkdtemp(prefix="stereocam-vlc-"))
+    try:
+        os.chmod(folder, 0o777)
+        out = folder / "out.ts"
+        command = [cvlc, "-I", "dummy", "--no-audio", "--vout=dummy", f"{d.url}stream/rect_left?fps=10",
+                   "--sout", f"#transcode{{vcodec=mp4v,vb=2000}}:std{{access=file,mux=ts,dst={out}}}"]
+        if os.geteuid() == 0:
+            command = ["setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups", "env",
+                       f"HOME={folder}", *command]
+        proc = await asyncio.create_subprocess_exec(*command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            await asyncio.sleep(5.0)  # a live stream never ends: let VLC play for a while
+        finally:
+            proc.terminate()
+            _, err = await asyncio.wait_for(proc.communicate(), 20)
+        probe = await asyncio.create_subprocess_exec(
+            shutil.which("ffprobe") or "/usr/bin/ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0",
+            "-show_entries", "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(out),
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        text, perr = await asyncio.wait_for(probe.communicate(), 30)
+        assert probe.returncode == 0, (perr.decode(), err.decode()[-2000:])
+        first = next(line for line in text.decode().splitlines() if line.strip())  # the stream (ts repeats it)
+        width, height, frames = (int(x) for x in first.split(",")[:3])
+        assert (width, height) == (W, H) and frames >= 10, (text, err.decode()[-2000:])
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _videocapture_frames(url: str, n: int) -> list:
