@@ -27,6 +27,7 @@ from ..overlays.spec import pixel
 from ..overlays.spec.rectify import RECTIFY_MAP
 from .captures import CaptureError, CaptureStore
 from .encoders import BroadcastClosed, png_for
+from .errors import ApiError
 from .pipeline import COUNT_MOD, FrameSet, SourceState
 from .state import (
     CALIBRATION,
@@ -42,36 +43,21 @@ from .state import (
     STREAMS,
     VIRTUAL,
 )
-from .streams import json_error
+from .streams import error_response, json_error
 from .uploads import PAIR_FIELDS, SBS_FIELD, UploadError, decode_pair, parse_json_capture_request
 from .verify import VerifyError, compare, difference_image
 
 log = logging.getLogger(__name__)
 
-__all__ = ["VirtualCamera", "setup_routes", "core_model_setup", "fresh_raw_frame", "store_capture", "ApiError"]
+__all__ = ["VirtualCamera", "setup_routes", "core_model_setup", "fresh_raw_frame", "store_capture"]
 
 T = TypeVar("T")
 SOURCES = ("live", "virtual")
 ROUND_TRIP_FRAMES = 2  # frames after MM2S picks the store up until the core's output surely comes from it
 
 
-class ApiError(Exception):
-    """A refusal: ``status`` and one line for the user."""
-
-    def __init__(self, status: int, message: str) -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
-
-
 async def _run(request: web.Request, fn: Callable[..., T], *args: Any) -> T:
-    return await asyncio.get_running_loop().run_in_executor(request.app[EXECUTORS].work, fn, *args)
-
-
-def _answer(exc: Exception) -> web.Response:
-    status = int(getattr(exc, "status", 500))
-    message = getattr(exc, "message", None) or str(exc)
-    return json_error(status, message)
+    return await request.app[EXECUTORS].run(fn, *args)
 
 
 # -- the model, as the core's registers describe it -----------------------------------------------
@@ -161,7 +147,7 @@ class VirtualCamera:
                 count = await loop.run_in_executor(loop_executor, self._send_blocking, frame)
             except Exception as exc:
                 await self._back_to_live(loop_executor)
-                raise ApiError(504, f"the fabric did not take the virtual-camera frame: {exc}") from exc
+                raise ApiError(f"the fabric did not take the virtual-camera frame: {exc}", status=504) from exc
             effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
             self.pipeline.set_source(SourceState("virtual", frame, effective))
             self.source, self.input, self.origin, self.effective_count = "virtual", frame, origin, effective
@@ -170,9 +156,9 @@ class VirtualCamera:
                 result = await self._virtual_frame()
             except asyncio.TimeoutError:
                 await self._back_to_live(loop_executor)
-                raise ApiError(504, f"the fabric returned no processed frame within "
-                                    f"{self._round_trip_s():g} s; is the rectify core enabled? "
-                                    "(GET /api/status); the source is live again") from None
+                raise ApiError(f"the fabric returned no processed frame within "
+                               f"{self._round_trip_s():g} s; is the rectify core enabled? "
+                               "(GET /api/status); the source is live again", status=504) from None
             self.result = result
             return result
 
@@ -270,13 +256,13 @@ async def status_handler(request: web.Request) -> web.Response:
 async def _json_body(request: web.Request) -> Any:
     if request.content_type != "application/json":
         given = request.content_type or "nothing"
-        raise ApiError(415, f"send JSON (Content-Type: application/json), not {given}")
+        raise ApiError(f"send JSON (Content-Type: application/json), not {given}", status=415)
     try:
         return json.loads(await request.read())
     except web.HTTPRequestEntityTooLarge:
         raise
     except (ValueError, UnicodeDecodeError):
-        raise ApiError(400, "the body is not valid JSON") from None
+        raise ApiError("the body is not valid JSON", status=400) from None
 
 
 async def get_source(request: web.Request) -> web.Response:
@@ -287,10 +273,10 @@ async def put_source(request: web.Request) -> web.Response:
     try:
         doc = await _json_body(request)
         if not isinstance(doc, dict) or set(doc) != {"source"} or doc["source"] not in SOURCES:
-            raise ApiError(400, 'send {"source": "live"} or {"source": "virtual"}')
+            raise ApiError('send {"source": "live"} or {"source": "virtual"}', status=400)
         await request.app[VIRTUAL].select(request.app[EXECUTORS].work, doc["source"])
     except ApiError as exc:
-        return _answer(exc)
+        return error_response(exc)
     return web.json_response({"source": request.app[VIRTUAL].source})
 
 
@@ -307,14 +293,14 @@ async def _read_fields(request: web.Request, limit: int) -> Dict[str, bytes]:
             if part is None:
                 break
             if not isinstance(part, BodyPartReader):
-                raise ApiError(400, "nested multipart bodies are not accepted: "
-                                    "send the fields left and right, or sbs")
+                raise ApiError("nested multipart bodies are not accepted: "
+                               "send the fields left and right, or sbs", status=400)
             name = part.name
             if name not in PAIR_FIELDS and name != SBS_FIELD:
-                raise ApiError(400, f"unknown field {str(name)[:40]!r}: send the fields left and right "
-                                    "(a stereo pair) or one field sbs (a side-by-side image)")
+                raise ApiError(f"unknown field {str(name)[:40]!r}: send the fields left and right "
+                               "(a stereo pair) or one field sbs (a side-by-side image)", status=400)
             if name in fields:
-                raise ApiError(400, f"field {name} was sent twice")
+                raise ApiError(f"field {name} was sent twice", status=400)
             data = bytearray()
             while True:
                 chunk = await part.read_chunk(1 << 16)
@@ -322,14 +308,14 @@ async def _read_fields(request: web.Request, limit: int) -> Dict[str, bytes]:
                     break
                 total += len(chunk)
                 if total > limit:
-                    raise ApiError(413, f"the upload is larger than {limit} bytes (max_upload_bytes)")
+                    raise ApiError(f"the upload is larger than {limit} bytes (max_upload_bytes)", status=413)
                 data.extend(chunk)
             fields[name] = bytes(data)
     except (ApiError, web.HTTPException):
         raise
     except (ValueError, AssertionError, KeyError, asyncio.IncompleteReadError) as exc:
-        raise ApiError(400, f"malformed multipart body ({type(exc).__name__}): send multipart/form-data "
-                            "with fields left and right, or sbs") from None
+        raise ApiError(f"malformed multipart body ({type(exc).__name__}): send multipart/form-data "
+                       "with fields left and right, or sbs", status=400) from None
     return fields
 
 
@@ -345,8 +331,8 @@ async def post_virtual_camera(request: web.Request) -> web.Response:
             store: CaptureStore = app[CAPTURES]
             left, right = await _run(request, store.raw_pair, capture_id)
             if left.shape[:2] != (fabric.frame_size[1], fabric.frame_size[0]):
-                raise ApiError(422, f"capture {capture_id} is {left.shape[1]}x{left.shape[0]}, "
-                                    f"the fabric takes {fabric.frame_size[0]}x{fabric.frame_size[1]}")
+                raise ApiError(f"capture {capture_id} is {left.shape[1]}x{left.shape[0]}, "
+                               f"the fabric takes {fabric.frame_size[0]}x{fabric.frame_size[1]}", status=422)
             frame = pixel.pack(left, right)
             origin = f"capture {capture_id}"
         elif ctype.startswith("multipart/"):
@@ -354,17 +340,17 @@ async def post_virtual_camera(request: web.Request) -> web.Response:
             frame = await _run(request, _decode, fields, fabric.frame_size, limit)
             origin = "upload (" + ", ".join(sorted(fields)) + ")"
         else:
-            raise ApiError(415, "send multipart/form-data with fields left and right (or sbs), "
-                                'or JSON {"capture": "<id>"}')
+            raise ApiError("send multipart/form-data with fields left and right (or sbs), "
+                           'or JSON {"capture": "<id>"}', status=415)
     except (ApiError, UploadError, CaptureError) as exc:
         metrics.upload("rejected")
-        return _answer(exc)
+        return error_response(exc)
     metrics.upload("ok")
     try:
         result = await app[VIRTUAL].send(app[EXECUTORS].work, frame, origin)
     except ApiError as exc:
         metrics.error(exc.message, "virtual-camera")
-        return _answer(exc)
+        return error_response(exc)
     except BroadcastClosed:
         return json_error(503, "the daemon is shutting down")
     w, h = fabric.frame_size
@@ -427,7 +413,7 @@ async def post_verify(request: web.Request) -> web.Response:
     try:
         result = await _run(request, _verify_blocking, vc, vc.input, actual)
     except VerifyError as exc:
-        return _answer(exc)
+        return error_response(exc)
     vc.verify = result
     return web.json_response(result.report)
 
@@ -458,9 +444,10 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
         with pipeline.raw_wanted():
             return await feed.next_frame(timeout=timeout, accept=wanted)
     except asyncio.TimeoutError:
-        raise ApiError(503, f"no signal: no frame came within {timeout:g} s, nothing was captured") from None
+        raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",
+                       status=503) from None
     except BroadcastClosed:
-        raise ApiError(503, "the daemon is shutting down") from None
+        raise ApiError("the daemon is shutting down", status=503) from None
 
 
 async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
@@ -469,11 +456,9 @@ async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
 
     Returns the :class:`CaptureInfo`; raises :class:`CaptureError` (disk full, I/O) with nothing stored.
     """
-    loop = asyncio.get_running_loop()
-    work = app[EXECUTORS].work
     overlay = app[OVERLAY]
     try:
-        registers = await loop.run_in_executor(work, overlay.fabric.rectify.dump)
+        registers = await app[EXECUTORS].run(overlay.fabric.rectify.dump)
     except Exception as exc:
         registers = {"error": str(exc)}
     calibration = app[CALIBRATION]
@@ -495,7 +480,7 @@ async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
     meta.update(extra or {})
     frames = {"raw_left": fs.raw[..., pixel.LEFT], "raw_right": fs.raw[..., pixel.RIGHT],
               "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
-    return await loop.run_in_executor(work, store.save, frames, meta)
+    return await app[EXECUTORS].run(store.save, frames, meta)
 
 
 async def post_capture(request: web.Request) -> web.Response:
@@ -504,13 +489,13 @@ async def post_capture(request: web.Request) -> web.Response:
     try:
         fs = await fresh_raw_frame(app)
     except ApiError as exc:
-        return _answer(exc)
+        return error_response(exc)
     store: CaptureStore = app[CAPTURES]
     try:
         info = await store_capture(app, store, fs)
     except CaptureError as exc:
         metrics.error(exc.message, "captures")
-        return _answer(exc)
+        return error_response(exc)
     metrics.captures += 1
     body = info.to_json()
     return web.json_response(body, status=201, headers={"Location": f"/api/captures/{info.id}"})
@@ -528,7 +513,7 @@ async def get_capture(request: web.Request) -> web.Response:
     try:
         info = await _run(request, store.get, request.match_info["id"])
     except CaptureError as exc:
-        return _answer(exc)
+        return error_response(exc)
     return web.json_response(info.to_json(meta=True))
 
 
@@ -538,7 +523,7 @@ async def capture_zip(request: web.Request) -> web.StreamResponse:
     try:
         chunks = await _run(request, store.zip_stream, cid)
     except CaptureError as exc:
-        return _answer(exc)
+        return error_response(exc)
     resp = web.StreamResponse(headers={"Content-Type": "application/zip",
                                        "Content-Disposition": f'attachment; filename="{cid}.zip"'})
     try:
@@ -579,7 +564,7 @@ async def capture_file(request: web.Request) -> web.Response:
     try:
         body = await _run(request, _read_capture_file, store, cid, name)
     except CaptureError as exc:
-        return _answer(exc)
+        return error_response(exc)
     except OSError as exc:
         status = 404 if isinstance(exc, FileNotFoundError) else 500
         return json_error(status, f"cannot read {name}: {exc.strerror}")
@@ -592,7 +577,7 @@ async def delete_capture(request: web.Request) -> web.Response:
     try:
         await _run(request, store.delete, request.match_info["id"])
     except CaptureError as exc:
-        return _answer(exc)
+        return error_response(exc)
     return web.Response(status=204)
 
 

@@ -217,19 +217,17 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
     """
     fabric = app[OVERLAY].fabric
     rectify = fabric.rectify
-    loop = asyncio.get_running_loop()
-    work = app[EXECUTORS].work
     active = app[ACTIVE]
     async with active.lock:
         try:
-            cal = await loop.run_in_executor(work, check)
+            cal = await app[EXECUTORS].run(check)
         except CalibrationRefused as exc:
             raise web.HTTPUnprocessableEntity(text=f"refused, the previous calibration stays active: {exc}") \
                 from None
         except ValueError as exc:
             raise web.HTTPBadRequest(text=f"refused, the previous calibration stays active: {exc}") from None
         try:
-            core_config = await loop.run_in_executor(work, _apply, rectify, cal, active.path)
+            core_config = await app[EXECUTORS].run(_apply, rectify, cal, active.path)
         except (OSError, ConfigError) as exc:
             raise web.HTTPInternalServerError(text=str(exc)) from None
         state = app[CALIBRATION]

@@ -26,7 +26,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Set, TypeVar
+from typing import Any, Dict, List, Optional, Set
 
 from aiohttp import web
 
@@ -38,28 +38,26 @@ from .calibration_pairs import (
     PanelSettings,
     compute,
     coverage,
-    pair_ids,
     detect_frame,
     load_settings,
     missing_in,
     pair_entries,
+    pair_ids,
     rectified_figure,
     same_view,
     save_settings,
 )
 from .captures import CaptureError, CaptureStore
 from .errors import ApiError
-from .routes_api import ApiError as RouteError
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
 from .state import CONFIG, EXECUTORS, FEED, METRICS, OVERLAY
-from .streams import json_error
+from .streams import error_response, json_error
 
 log = logging.getLogger(__name__)
 
 __all__ = ["setup", "PANEL", "Panel", "LIVE_MIN_INTERVAL_S", "pairs_folder"]
 
-T = TypeVar("T")
 LIVE_MIN_INTERVAL_S = 0.2
 
 
@@ -111,15 +109,6 @@ def pairs_folder(config: Any) -> Path:
     return config.state_path / PAIRS_FOLDER
 
 
-async def _work(app: web.Application, fn: Callable[..., T], *args: Any) -> T:
-    return await asyncio.get_running_loop().run_in_executor(app[EXECUTORS].work, fn, *args)
-
-
-def _refusal(exc: Exception) -> web.Response:
-    status = int(getattr(exc, "status", 500))
-    return json_error(status, getattr(exc, "message", None) or str(exc))
-
-
 async def _json(request: web.Request, *, empty_ok: bool = False) -> Any:
     raw = await request.read()
     if not raw.strip():
@@ -139,9 +128,9 @@ def _frame_size(app: web.Application) -> Any:
 
 async def _session_body(app: web.Application) -> Dict[str, Any]:
     panel = app[PANEL]
-    entries = await _work(app, pair_entries, panel.store)
+    entries = await app[EXECUTORS].run(pair_entries, panel.store)
     size = _frame_size(app)
-    cover = await _work(app, coverage, entries, size)
+    cover = await app[EXECUTORS].run(coverage, entries, size)
     cand = panel.candidate
     return {"settings": panel.settings.to_json(), "folder": str(panel.folder), "image_size": list(size),
             "pairs": entries, "count": len(entries), "coverage": cover, "progress": dict(panel.progress),
@@ -162,10 +151,10 @@ async def put_session(request: web.Request) -> web.Response:
         doc = await _json(request)
         async with panel.settings_lock:  # read, change, save, set: concurrent PUTs lose nothing
             settings = panel.settings.updated(doc)
-            await _work(app, save_settings, panel.folder, settings)
+            await app[EXECUTORS].run(save_settings, panel.folder, settings)
             panel.settings = settings
     except PanelError as exc:
-        return _refusal(exc)
+        return error_response(exc)
     except OSError as exc:
         return json_error(500, f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}; "
                                "the previous settings stay")
@@ -187,12 +176,12 @@ async def get_corners(request: web.Request) -> web.Response:
         if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
             try:
                 fs = await fresh_raw_frame(app)
-            except RouteError as exc:
-                return json_error(exc.status, exc.message)
+            except ApiError as exc:
+                return error_response(exc)
             settings = panel.settings
             raw = fs.raw
             assert raw is not None
-            found = await _work(app, lambda: detect_frame(raw, settings.pattern, thorough=False))
+            found = await app[EXECUTORS].run(lambda: detect_frame(raw, settings.pattern, thorough=False))
             panel.live = {"frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
                           "image_size": list(fs.size), "pattern": str(settings.pattern), **found,
                           "found": missing_in(found) is None}
@@ -208,17 +197,17 @@ async def post_pair(request: web.Request) -> web.Response:
         settings = panel.settings
         try:
             fs = await fresh_raw_frame(app)
-        except RouteError as exc:
-            return json_error(exc.status, exc.message)
+        except ApiError as exc:
+            return error_response(exc)
         raw = fs.raw
         assert raw is not None
-        found = await _work(app, lambda: detect_frame(raw, settings.pattern, thorough=True))
+        found = await app[EXECUTORS].run(lambda: detect_frame(raw, settings.pattern, thorough=True))
         where = missing_in(found)
         if where is not None:
             return json_error(422, f"the {settings.pattern} pattern was not found in {where} (frame {fs.frame}): "
                                    "hold the whole board in view of both cameras, still and well lit; "
                                    "nothing was stored")
-        entries = await _work(app, pair_entries, panel.store)
+        entries = await app[EXECUTORS].run(pair_entries, panel.store)
         twin = same_view(found, entries)
         if twin is not None:
             return json_error(409, f"the board is where it was in pair {twin}: move or tilt it before the next "
@@ -230,7 +219,7 @@ async def post_pair(request: web.Request) -> web.Response:
             info = await store_capture(app, panel.store, fs, extra)
         except CaptureError as exc:
             app[METRICS].error(exc.message, "calibration")
-            return _refusal(exc)
+            return error_response(exc)
     body = await _session_body(app)
     pair = next((p for p in body["pairs"] if p["id"] == info.id), None)
     log.info("calibration pair %s stored (frame %d, %d pairs)", info.id, fs.frame, body["count"])
@@ -245,9 +234,9 @@ async def delete_pair(request: web.Request) -> web.Response:
         return json_error(409, f"pair {pid} is in the calibration being computed: delete it when that is done")
     try:
         async with panel.pairs_lock:
-            await _work(app, panel.store.delete, pid)
+            await app[EXECUTORS].run(panel.store.delete, pid)
     except CaptureError as exc:
-        return _refusal(exc)
+        return error_response(exc)
     return web.Response(status=204)
 
 
@@ -257,11 +246,11 @@ async def delete_pairs(request: web.Request) -> web.Response:
     if panel.computing is not None:
         return json_error(409, "a calibration is being computed from the pairs: delete them when that is done")
     async with panel.pairs_lock:
-        for info in await _work(app, panel.store.list):
+        for info in await app[EXECUTORS].run(panel.store.list):
             try:
-                await _work(app, panel.store.delete, info.id)
+                await app[EXECUTORS].run(panel.store.delete, info.id)
             except CaptureError as exc:
-                return _refusal(exc)
+                return error_response(exc)
     return web.Response(status=204)
 
 
@@ -278,7 +267,7 @@ async def post_compute(request: web.Request) -> web.Response:
             raise PanelError('send no body, or a JSON object of settings to use, e.g. {"alpha": 0.5}', status=400)
         settings = panel.settings.updated(doc)
     except PanelError as exc:
-        return _refusal(exc)
+        return error_response(exc)
     if panel.computing is not None:  # checked and set with no await between: one at a time
         return json_error(409, "a calibration is already being computed: wait for it "
                                "(GET /api/calibration/compute shows its progress)")
@@ -292,12 +281,12 @@ async def post_compute(request: web.Request) -> web.Response:
     rectify = app[OVERLAY].fabric.rectify
     try:
         async with panel.pairs_lock:  # a snapshot: pairs captured meanwhile wait for the next compute
-            ids = await _work(app, pair_ids, panel.store)
+            ids = await app[EXECUTORS].run(pair_ids, panel.store)
         panel.computing = set(ids)
-        report = await _work(app, lambda: compute(panel.store, ids, settings, rectify, progress=progress))
+        report = await app[EXECUTORS].run(lambda: compute(panel.store, ids, settings, rectify, progress=progress))
     except PanelError as exc:
         panel.progress = {"state": "failed", "error": exc.message, "started": started}
-        return _refusal(exc)
+        return error_response(exc)
     except Exception as exc:
         log.exception("calibration compute failed")
         panel.progress = {"state": "failed", "error": f"{type(exc).__name__}: {exc}", "started": started}
@@ -326,14 +315,14 @@ async def get_candidate(request: web.Request) -> web.Response:
     try:
         return web.json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
     except PanelError as exc:
-        return _refusal(exc)
+        return error_response(exc)
 
 
 async def candidate_yaml(request: web.Request) -> web.Response:
     try:
         cand = _candidate(request.app)
     except PanelError as exc:
-        return _refusal(exc)
+        return error_response(exc)
     return web.Response(text=cand.report.calibration.to_yaml(), content_type="application/yaml",
                         headers={"Content-Disposition": 'attachment; filename="calibration.yaml"'})
 
@@ -343,13 +332,13 @@ async def candidate_rectified(request: web.Request) -> web.Response:
     try:
         cand = _candidate(app)
         pair = request.query.get("pair") or next(
-            (p["id"] for p in cand.to_json()["report"]["pairs"] if p["used"]), None)
+            (pid for p, pid in zip(cand.report.pairs, cand.pair_ids, strict=True) if p.used), None)
         if pair not in cand.pair_ids:
             raise PanelError(f"pair {str(pair)[:40]!r} is not one the candidate was computed from", status=404)
-        png = await _work(app, rectified_figure, app[PANEL].store, pair, cand.report,
+        png = await app[EXECUTORS].run(rectified_figure, app[PANEL].store, pair, cand.report,
                           app[OVERLAY].fabric.rectify.lb_rows)
     except (ApiError, CaptureError) as exc:
-        return _refusal(exc)
+        return error_response(exc)
     return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "no-store"})
 
 
@@ -365,7 +354,7 @@ async def post_apply(request: web.Request) -> web.Response:
             raise PanelError(f"the candidate is now {cand.id}, not {doc['id'][:40]}: review it, then apply it",
                              status=409)
     except PanelError as exc:
-        return _refusal(exc)
+        return error_response(exc)
     fabric = app[OVERLAY].fabric
     cal, rectify, size = cand.report.calibration, fabric.rectify, _frame_size(app)
     body = await activate(app, lambda: check_runnable(cal, rectify, size), "calibration panel")

@@ -152,11 +152,10 @@ def _open_sensors(service: CameraService, overlay: Any, profile: Any, pair_optio
 
 
 async def _refresh_loop(app: web.Application, service: CameraService) -> None:
-    loop = asyncio.get_running_loop()
     while True:
         await asyncio.sleep(REFRESH_S)
         try:
-            await loop.run_in_executor(app[EXECUTORS].work, service.refresh)
+            await app[EXECUTORS].run(service.refresh)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # pragma: no cover - read() does not raise for a sensor that stops
@@ -168,8 +167,7 @@ def _sensors_ctx(profile: Any, pair_options: Dict[str, Any]
     async def ctx(app: web.Application) -> AsyncIterator[None]:
         service = app[CAMERA_SERVICE]
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(app[EXECUTORS].work, _open_sensors, service, app[OVERLAY], profile,
-                                   pair_options)
+        await app[EXECUTORS].run(_open_sensors, service, app[OVERLAY], profile, pair_options)
         task = loop.create_task(_refresh_loop(app, service), name="stereocam-sensors")
         try:
             yield
@@ -194,7 +192,7 @@ def _unavailable(service: CameraService) -> web.Response:
 
 async def get_cameras(request: web.Request) -> web.Response:
     service = request.app[CAMERA_SERVICE]
-    body = await asyncio.get_running_loop().run_in_executor(request.app[EXECUTORS].work, service.refresh)
+    body = await request.app[EXECUTORS].run(service.refresh)
     return web.json_response(body)
 
 
@@ -216,8 +214,7 @@ async def put_cameras(request: web.Request) -> web.Response:
     if service.sensors is None:
         return _unavailable(service)
     try:
-        answer = await asyncio.get_running_loop().run_in_executor(
-            request.app[EXECUTORS].work, service.apply, body, camera)
+        answer = await request.app[EXECUTORS].run(service.apply, body, camera)
     except SensorUnavailable as exc:
         return json_error(503, str(exc))
     except ValueError as exc:

@@ -8,10 +8,11 @@ register providers in ``app[EXTENSIONS]``: what they add to ``/api/status``,
 """
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional, TypeVar
 
 from aiohttp import web
 
@@ -25,6 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .streams import StreamClients
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 __all__ = [
     "CONFIG", "OVERLAY", "PIPELINE", "FEED", "ENCODERS", "STREAMS", "METRICS", "CAPTURES", "VIRTUAL",
@@ -46,6 +48,10 @@ class Executors:
                                                          thread_name_prefix="stereocam-encode"),
             work=concurrent.futures.ThreadPoolExecutor(4, thread_name_prefix="stereocam-work"),
         )
+
+    async def run(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` on a ``work`` thread, awaited from the event loop."""
+        return await asyncio.get_running_loop().run_in_executor(self.work, fn, *args)
 
     def shutdown(self) -> None:
         self.encode.shutdown(wait=False, cancel_futures=True)

@@ -39,6 +39,11 @@ def json_error(status: int, message: str, **headers: str) -> web.Response:
     return web.json_response({"error": " ".join(message.split())}, status=status, headers=headers or None)
 
 
+def error_response(exc: Exception) -> web.Response:
+    """:func:`json_error` for a refusal carrying ``status`` and ``message`` (an :class:`.errors.ApiError`)."""
+    return json_error(int(getattr(exc, "status", 500)), getattr(exc, "message", None) or str(exc))
+
+
 # -- clients -------------------------------------------------------------------------------
 
 @dataclass(eq=False)
