@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from .calibration_file import Calibration
+from .overlays.model.fast import source_positions
 from .overlays.model.reference import source_position
 from .overlays.spec.rectify import (
     DEFAULT_LB_ROWS,
@@ -347,24 +348,12 @@ def _same_order(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 def core_source(p: CameraParams, x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """The core's source position (pixels, before the 1/32 rounding) of output positions (x, y).
 
-    Steps 1-4 of the core in binary64, in the specification's order, for any
-    real (x, y): at integer pixels ``rint(32 * u)`` is the core's ``iu``.
+    Steps 1-4 of the core in binary64 (:func:`~.overlays.model.fast.source_positions`),
+    for any real (x, y): at integer pixels ``rint(32 * u)`` is the core's ``iu``; NaN
+    where the homography maps to infinity.
     """
-    h00, h01, h02, h10, h11, h12, h20, h21, h22 = p.hinv
-    with np.errstate(all="ignore"):
-        X = (h00 * x + h01 * y) + h02
-        Y = (h10 * x + h11 * y) + h12
-        Z = (h20 * x + h21 * y) + h22
-        xn = (X / Z - p.cx) / p.fx
-        yn = (Y / Z - p.cy) / p.fy
-        x2, y2, xy = xn * xn, yn * yn, xn * yn
-        r2 = x2 + y2
-        radial = 1.0 + (p.k1 + p.k2 * r2) * r2
-        xd = (xn * radial + 2.0 * p.p1 * xy) + p.p2 * (r2 + 2.0 * x2)
-        yd = (yn * radial + p.p1 * (r2 + 2.0 * y2)) + 2.0 * p.p2 * xy
-        su = (p.fx * xd + p.cx) * FRAC_ONE
-        sv = (p.fy * yd + p.cy) * FRAC_ONE
-    return su / FRAC_ONE, sv / FRAC_ONE
+    su, sv, nonzero = source_positions(p, np.asarray(x, np.float64), np.asarray(y, np.float64))
+    return np.where(nonzero, su / FRAC_ONE, np.nan), np.where(nonzero, sv / FRAC_ONE, np.nan)
 
 
 def _check_against_reference(p: CameraParams, x: np.ndarray, y: np.ndarray) -> None:

@@ -31,6 +31,37 @@ from .result import CoreOptions, ModelResult
 NEIGHBOURS = ((0, 0), (1, 0), (0, 1), (1, 1))
 
 
+def source_positions(p: CameraParams, x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-4 of the core for output positions (x, y), in binary64: ``(su, sv, nonzero)``.
+
+    ``su``/``sv`` are source positions in 1/32 pixel before rounding; where
+    the homography's Z is 0 (``nonzero`` False) they are meaningless. The
+    operations are the reference model's, in its order, so rounding them
+    gives its positions bit for bit; x and y may be any real numbers.
+    """
+    h00, h01, h02, h10, h11, h12, h20, h21, h22 = p.hinv
+    with np.errstate(all="ignore"):
+        X = (h00 * x + h01 * y) + h02
+        Y = (h10 * x + h11 * y) + h12
+        Z = (h20 * x + h21 * y) + h22
+        nonzero = Z != 0.0
+        Z = np.where(nonzero, Z, 1.0)
+        xp = X / Z
+        yp = Y / Z
+        xn = (xp - p.cx) / p.fx
+        yn = (yp - p.cy) / p.fy
+        x2 = xn * xn
+        y2 = yn * yn
+        xy = xn * yn
+        r2 = x2 + y2
+        radial = 1.0 + (p.k1 + p.k2 * r2) * r2
+        xd = (xn * radial + 2.0 * p.p1 * xy) + p.p2 * (r2 + 2.0 * x2)
+        yd = (yn * radial + p.p1 * (r2 + 2.0 * y2)) + 2.0 * p.p2 * xy
+        su = (p.fx * xd + p.cx) * FRAC_ONE
+        sv = (p.fy * yd + p.cy) * FRAC_ONE
+    return su, sv, nonzero
+
+
 @dataclass(frozen=True)
 class SourceMap:
     """Fixed-point source positions of every output pixel of one camera.
@@ -45,35 +76,17 @@ class SourceMap:
 
     @classmethod
     def compute(cls, p: CameraParams, width: int, height: int) -> "SourceMap":
-        h00, h01, h02, h10, h11, h12, h20, h21, h22 = p.hinv
         y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+        su, sv, nonzero = source_positions(p, x, y)
         with np.errstate(all="ignore"):
-            X = (h00 * x + h01 * y) + h02
-            Y = (h10 * x + h11 * y) + h12
-            Z = (h20 * x + h21 * y) + h22
-            nonzero = Z != 0.0
-            Z = np.where(nonzero, Z, 1.0)
-            xp = X / Z
-            yp = Y / Z
-            xn = (xp - p.cx) / p.fx
-            yn = (yp - p.cy) / p.fy
-            x2 = xn * xn
-            y2 = yn * yn
-            xy = xn * yn
-            r2 = x2 + y2
-            radial = 1.0 + (p.k1 + p.k2 * r2) * r2
-            xd = (xn * radial + 2.0 * p.p1 * xy) + p.p2 * (r2 + 2.0 * x2)
-            yd = (yn * radial + p.p1 * (r2 + 2.0 * y2)) + 2.0 * p.p2 * xy
-            su = (p.fx * xd + p.cx) * FRAC_ONE
-            sv = (p.fy * yd + p.cy) * FRAC_ONE
             valid = (
                 nonzero
                 & np.isfinite(su) & np.isfinite(sv)
                 & (su > -COORD_LIMIT) & (su < COORD_LIMIT)
                 & (sv > -COORD_LIMIT) & (sv < COORD_LIMIT)
             )
-            su = np.where(valid, su, 0.0)
-            sv = np.where(valid, sv, 0.0)
+        su = np.where(valid, su, 0.0)
+        sv = np.where(valid, sv, 0.0)
         return cls(np.rint(su).astype(np.int64), np.rint(sv).astype(np.int64), valid)
 
     def neighbour_rows_needed(self, width: int, height: int) -> Tuple[np.ndarray, np.ndarray]:
