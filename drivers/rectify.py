@@ -5,7 +5,7 @@ Same code on the board (window = ``pynq.MMIO``) and on the emulated fabric.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional
+from typing import Dict, Optional, Union
 
 from ..overlays.model.config import plan
 from ..overlays.model.linebuffer import LineBufferFit
@@ -16,9 +16,10 @@ from ..overlays.spec.rectify import (
     PARAM_NAMES,
     RECTIFY_MAP,
     CameraParams,
+    CameraRegs,
     CoreConfig,
-    f64_to_words,
-    words_to_f64,
+    i64_to_words,
+    words_to_i64,
 )
 from .mmio import DriverError, Registers, RegisterWindow, UnsupportedIP
 
@@ -55,17 +56,23 @@ class RectifyCore:
             )
         major = self.regs.field("VERSION", "MAJOR")
         if major != CORE_VERSION >> 16:
-            raise UnsupportedIP(f"rectify: core version {major}.x is not supported by this driver (1.x)")
+            raise UnsupportedIP(
+                f"rectify: core version {major}.x is not supported by this driver ({CORE_VERSION >> 16}.x): "
+                "load a bitstream built from this version of stereocam"
+            )
         self.max_width = self.regs.read("MAX_WIDTH")
         self.max_height = self.regs.read("MAX_HEIGHT")
         self.lb_rows = self.regs.read("LB_ROWS")
+        self.colour = bool(self.regs.field("CAPS", "COLOUR"))  # False: a gray-only build
 
-    def plan(self, left: CameraParams, right: CameraParams, width: int, height: int) -> "tuple[CoreConfig, LineBufferFit]":
+    def plan(self, left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int,
+             height: int) -> "tuple[CoreConfig, LineBufferFit]":
         """Check a calibration against this core; raises ``ConfigError`` with what to change."""
         return plan(left, right, width, height, lb_rows=self.lb_rows,
                     max_width=self.max_width, max_height=self.max_height)
 
-    def program(self, left: CameraParams, right: CameraParams, width: int, height: int, *,
+    def program(self, left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int,
+                height: int, *,
                 wait: bool = True) -> "tuple[CoreConfig, LineBufferFit]":
         """Check a calibration, then write and APPLY it; a refused one leaves the core untouched."""
         config, fit = self.plan(left, right, width, height)
@@ -78,14 +85,14 @@ class RectifyCore:
         The core itself still refuses out-of-range values (CONFIG_ERROR ->
         :class:`ConfigRefused`); prefer :meth:`program`. With ``wait=False``
         it returns after setting APPLY (for a clock the caller steps itself);
-        :meth:`check_applied` then confirms.
+        :meth:`check_applied` then confirms. Between frames the core latches at once.
         """
         self.regs.write("WIDTH", RECTIFY_MAP["WIDTH"].encode(VALUE=config.width))
         self.regs.write("HEIGHT", RECTIFY_MAP["HEIGHT"].encode(VALUE=config.height))
         self.regs.write("LB_DELAY", RECTIFY_MAP["LB_DELAY"].encode(VALUE=config.lb_delay))
         for cam in CAMERAS:
             for name, value in config.camera(cam).values().items():
-                lo, hi = f64_to_words(value)
+                lo, hi = i64_to_words(value)
                 self.regs.write(f"{cam}_{name}_LO", lo)
                 self.regs.write(f"{cam}_{name}_HI", hi)
         self.clear_flags("CONFIG_ERROR")
@@ -104,9 +111,9 @@ class RectifyCore:
         """The shadow parameter set as the registers hold it."""
         cams = {}
         for cam in CAMERAS:
-            values = {n: words_to_f64(self.regs.read(f"{cam}_{n}_LO"), self.regs.read(f"{cam}_{n}_HI"))
+            values = {n: words_to_i64(self.regs.read(f"{cam}_{n}_LO"), self.regs.read(f"{cam}_{n}_HI"))
                       for n in PARAM_NAMES}
-            cams[cam] = CameraParams.from_values(values)
+            cams[cam] = CameraRegs.from_values(values)
         return CoreConfig(cams["L"], cams["R"], self.regs.field("WIDTH", "VALUE"),
                           self.regs.field("HEIGHT", "VALUE"), self.regs.field("LB_DELAY", "VALUE"))
 

@@ -315,7 +315,7 @@ def rectified_figure(store: CaptureStore, pair_id: str, report: CalibrationRepor
         pts = _array(found[side])
         if pts is None:
             continue
-        rect = core_rectified_points(params, pts, K, D, R, P)
+        rect = core_rectified_points(params, pts, K, D, R, P, size=(w, h))
         for x, y in rect:
             if not (np.isfinite(x) and np.isfinite(y)):
                 continue

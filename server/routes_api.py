@@ -68,7 +68,7 @@ def core_model_setup(rectify: Any) -> Tuple[Any, CoreOptions]:
     control = RECTIFY_MAP["CONTROL"].decode(rectify.regs.read("CONTROL"))
     debug_row = rectify.regs.field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None
     options = CoreOptions(lb_rows=rectify.lb_rows, lb_delay=config.lb_delay, gray=bool(control["GRAY"]),
-                          bypass=bool(control["BYPASS"]), debug_row=debug_row)
+                          bypass=bool(control["BYPASS"]), debug_row=debug_row, colour=rectify.colour)
     return config, options
 
 

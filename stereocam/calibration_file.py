@@ -3,8 +3,9 @@
 A :class:`Calibration` is a stereo model (both cameras' intrinsics and
 distortion, the pose of the right camera), its stereo rectification, and
 what follows from them for the rectify core: per camera the 17 binary64
-parameters (:class:`~stereocam.overlays.spec.rectify.CameraParams`) and the
-line-buffer figures (``LB_DELAY`` and the rows needed). Its ``id`` is the
+values the core's registers are derived from
+(:class:`~stereocam.overlays.spec.rectify.CameraParams`: inverse homography
+and lens) and the line-buffer figures (``LB_DELAY`` and the rows needed). Its ``id`` is the
 first 12 hex digits of the SHA-256 of a canonical serialisation of the model
 and rectification numbers, so two files with the same id program the core
 identically.
@@ -27,9 +28,9 @@ Layout (schema_version 1)::
     core:                       # derived from the above; checked on load
       width: 640
       height: 480
-      lb_delay: 35              # LB_DELAY
-      rows_needed: 63           # line-buffer rows this calibration needs
-      left:                     # register block 0x100; value = binary64, lo/hi = its register words
+      lb_delay: 35              # LB_DELAY (derived again on load)
+      rows_needed: 63           # line-buffer rows this calibration needs (derived again on load)
+      left:                     # camera of register block 0x100; value = binary64, lo/hi = its bits
         H00: {value: 1.02, lo: 0x..., hi: 0x...}
         ... (H00..H22, FX, FY, CX, CY, K1, K2, P1, P2)
       right: ...                # register block 0x200
@@ -49,6 +50,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
@@ -70,15 +72,18 @@ from .overlays.spec.rectify import (
     DEFAULT_LB_ROWS,
     DEFAULT_MAX_HEIGHT,
     DEFAULT_MAX_WIDTH,
-    PARAM_NAMES,
+    HINV_NAMES,
+    INTRINSIC_NAMES,
     CameraParams,
     CoreConfig,
-    f64_to_words,
+    camera_registers,
 )
 from .stereo import Rectification, StereoModel, camera_params, rectify
 
 SCHEMA_VERSION = 1
 ID_LENGTH = 12
+# The core block lists each camera's calibration values (CameraParams) as binary64 with their bits.
+PARAM_NAMES = HINV_NAMES + INTRINSIC_NAMES
 
 TOP_FIELDS = ("schema_version", "id", "source", "units", "model", "rectification", "core", "quality")
 TOP_REQUIRED = ("schema_version", "id", "model", "rectification", "core")
@@ -111,6 +116,12 @@ PathLike = Union[str, Path]
 # --------------------------------------------------------------------------
 # The calibration
 # --------------------------------------------------------------------------
+
+
+def f64_to_words(value: float) -> Tuple[int, int]:
+    """binary64 -> (bits 31:0, bits 63:32): how the file spells a value exactly."""
+    (bits,) = struct.unpack("<Q", struct.pack("<d", float(value)))
+    return bits & 0xFFFFFFFF, bits >> 32
 
 
 def _model_numbers(model: StereoModel, rect: Rectification) -> Dict[str, Any]:
@@ -222,7 +233,7 @@ class Calibration:
                 f"{where}: the rectification (P1*R1 or P2*R2) is singular; "
                 "the file is not a valid calibration"
             ) from None
-        check_params(left, right)
+        check_params(left, right, w, h)
         fit = rows_needed([left, right], w, h)
         return cls(
             model,
@@ -254,7 +265,7 @@ class Calibration:
     def core_config(self) -> CoreConfig:
         """The register set to program (both parameter blocks, WIDTH, HEIGHT, LB_DELAY)."""
         w, h = self.image_size
-        return CoreConfig(self.left, self.right, w, h, self.fit.delay)
+        return CoreConfig(camera_registers(self.left, w, h), camera_registers(self.right, w, h), w, h, self.fit.delay)
 
     def check_fits(self, lb_rows: int) -> None:
         """Raise :class:`LineBufferTooSmall` if a bitstream of ``lb_rows`` rows cannot run this."""
@@ -352,7 +363,7 @@ def _emit(cal: Calibration) -> str:
     ]
     for side, cam, params in (("left", "L", cal.left), ("right", "R", cal.right)):
         lines.append(
-            f"  {side}:  # block {CAMERA_BASE[cam]:#05x}: binary64 value, lo = bits 31:0, hi = bits 63:32"
+            f"  {side}:  # camera of register block {CAMERA_BASE[cam]:#05x}: binary64 value, lo/hi = its bits"
         )
         for name, value in params.values().items():
             lo, hi = f64_to_words(value)
@@ -540,12 +551,7 @@ def parse_yaml(
     if "core" not in top or "id" not in top:
         raise CalibrationFileError(f"{where}: missing {'core' if 'core' not in top else 'id'}")
     core = _fields(where, top["core"], "core", CORE_FIELDS, CORE_FIELDS)
-    for name, want in (
-        ("width", w),
-        ("height", h),
-        ("lb_delay", cal.fit.delay),
-        ("rows_needed", cal.fit.rows),
-    ):
+    for name, want in (("width", w), ("height", h)):
         got = _integer(where, f"core.{name}", core[name])
         if got != want:
             raise CalibrationFileError(
@@ -553,6 +559,10 @@ def parse_yaml(
                 "the file was edited inconsistently; "
                 "delete core and id and run `stereocam calibration import FILE -o NEW` to derive them again"
             )
+    # lb_delay and rows_needed are figures of the core version that wrote the file (1.0 computed
+    # positions in binary64, 2.0 in fixed point); they are read for form and derived again.
+    for name in ("lb_delay", "rows_needed"):
+        _integer(where, f"core.{name}", core[name])
     left = _core_params(where, "left", core["left"], cal.left)
     right = _core_params(where, "right", core["right"], cal.right)
     if top["id"] != cal.id:

@@ -15,7 +15,9 @@ import pytest
 import scipy.io
 import yaml
 
-from stereocam.calibration_file import Calibration, calibration_id, load_calibration, parse_yaml
+from stereocam.calibration_file import (
+    PARAM_NAMES, Calibration, calibration_id, f64_to_words, load_calibration, parse_yaml,
+)
 from stereocam.calibration_io import CalibrationFileError
 from stereocam.cli import main
 from stereocam.overlays.model.config import (
@@ -24,7 +26,7 @@ from stereocam.overlays.model.config import (
     LineBufferTooSmall,
     ParameterOutOfRange,
 )
-from stereocam.overlays.spec.rectify import PARAM_NAMES, f64_to_words
+from stereocam.overlays.spec.rectify import camera_registers
 from stereocam.stereo import rectify
 
 from .sample import PAIRS, calibrate_sample, pair_paths, write_opencv_files
@@ -149,8 +151,15 @@ EDITS = {
         lambda d: d.update(id="000000000000"),
         "id is '000000000000' but the model and rectification hash to",
     ),
-    "lb_delay": (lambda d: d["core"].update(lb_delay=0), "core.lb_delay is 0 but the model gives 35"),
+    "width": (lambda d: d["core"].update(width=641), "core.width is 641 but the model gives 640"),
 }
+
+
+def test_line_buffer_figures_in_the_file_are_derived_again(sample_cal) -> None:
+    """Files written by core 1.0 hold its figures (binary64 positions); 2.0 loads them and derives its own."""
+    old = parse_yaml(_edit(sample_cal.to_yaml(), lambda d: d["core"].update(lb_delay=36, rows_needed=62)))
+    assert (old.lb_delay, old.rows_needed) == (sample_cal.lb_delay, sample_cal.rows_needed)
+    assert old == sample_cal
 
 
 @pytest.mark.parametrize("case", sorted(EDITS))
@@ -550,7 +559,7 @@ def test_loaded_calibration_feeds_the_core(written) -> None:
     cal = load_calibration(written)
     config = cal.core_config()
     assert (config.width, config.height, config.lb_delay) == (640, 480, 35)
-    assert config.left == cal.left and config.right == cal.right
+    assert config.left == camera_registers(cal.left, 640, 480) and config.right == camera_registers(cal.right, 640, 480)
     assert cal.summary() == (
         f"calibration {cal.id}: 640x480, baseline {cal.model.baseline:.6g} m, line buffer 63 rows (delay 35)"
     )

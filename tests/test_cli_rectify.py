@@ -148,7 +148,7 @@ def test_bad_images_get_one_line_and_exit_2(tmp_path, calfiles, capsys) -> None:
     for l_img, r_img, message in (
         (corrupt, right, "corrupt.png: not a readable image"),
         (left, small, "left is 640x480 but right is 120x100"),
-        (huge_l, huge_r, "a 2000x100 frame does not fit the core (at most 1024x1024)"),
+        (huge_l, huge_r, "a 2000x100 frame does not fit the core (at most 752x1024)"),
         (deep, right, "uint16 pixels"),
         (tmp_path / "nope.png", right, "nope.png: no such file"),
     ):

@@ -1,4 +1,4 @@
-"""The rectify core model: reference vs fast path bit for bit, and vs OpenCV."""
+"""The rectify core model: reference vs fast path bit for bit, steps 1-4 in fixed point, and vs OpenCV."""
 from __future__ import annotations
 
 import math
@@ -7,11 +7,14 @@ import cv2
 import numpy as np
 import pytest
 
+from stereocam.overlays.model import fixed
 from stereocam.overlays.model.fast import RectifyModel, SourceMap
 from stereocam.overlays.model.linebuffer import rows_needed
 from stereocam.overlays.model.reference import rectify_reference, source_position
 from stereocam.overlays.model.result import CoreOptions
-from stereocam.overlays.spec.rectify import CameraParams
+from stereocam.overlays.spec import rectify as spec
+from stereocam.overlays.spec.rectify import CameraParams, CameraRegs, camera_registers
+from stereocam.stereo import camera_params
 
 
 def random_params(rng: np.random.Generator, w: int, h: int, *, strength: float = 1.0) -> CameraParams:
@@ -33,7 +36,16 @@ def translate(dx: float, dy: float, *, w: int = 40, h: int = 30, k1: float = 0.0
 
 
 def random_frame(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
+    """Random bytes: the gray bytes are not the gray of R, G, B (as a virtual-camera upload may be)."""
     return rng.integers(0, 256, (h, w, 8), dtype=np.uint8)
+
+
+def camera_frame(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
+    """Random colour pixels whose gray bytes are the demosaic's gray of R, G, B (as from the cameras)."""
+    from stereocam.overlays.spec import pixel
+
+    rgb = rng.integers(0, 256, (2, h, w, 3), dtype=np.uint8)
+    return pixel.pack(pixel.rgby(rgb[0]), pixel.rgby(rgb[1]))
 
 
 def both(frame, left, right, options):
@@ -65,7 +77,7 @@ def test_fast_equals_reference_on_random_calibrations(seed: int) -> None:
 def test_exact_pixel_positions_copy_the_input() -> None:
     """Integer translation without distortion: every source lies exactly on a pixel."""
     rng = np.random.default_rng(1)
-    frame = random_frame(rng, 40, 30)
+    frame = camera_frame(rng, 40, 30)
     p = translate(3.0, -2.0)
     ref, fast = both(frame, p, p, CoreOptions(lb_rows=30, lb_delay=0))
     assert_same(ref, fast)
@@ -74,13 +86,22 @@ def test_exact_pixel_positions_copy_the_input() -> None:
     assert not ref.frame[:2].any() and not ref.frame[:, 37:].any()
 
 
-def test_half_steps_round_half_to_even() -> None:
-    """A shift of 1/64 px lands exactly between two 1/32 steps: the tie goes to even."""
-    p = translate(1.0 / 64.0, 3.0 / 64.0)
-    assert source_position(p, 0, 0) == (0, 2)  # 0.5 -> 0, 1.5 -> 2
-    assert source_position(p, 1, 0) == (32, 2)  # 32.5 -> 32
+def exact_regs(dx64: int = 0, dy64: int = 0, **lens: int) -> CameraRegs:
+    """Registers whose steps 1-4 are exact: xn = (x + dx64/64) / 32, fx = 32 px, cx = cy = 0."""
+    n = (1 << 35, 0, dx64 << 29, 0, 1 << 35, dy64 << 29, 0, 0, 1 << 40)
+    values = dict(fx=32 << 20, fy=32 << 20, cx=0, cy=0, k1=0, k2=0, p1=0, p2=0)
+    values.update(lens)
+    return CameraRegs(n, **values)
+
+
+def test_ties_round_half_up() -> None:
+    """A shift of +-1/64 px lands exactly between two 1/32 steps: the tie goes up (towards +infinity)."""
+    assert source_position(exact_regs(1, 3), 0, 0, 40, 30) == (1, 2)  # 0.5 -> 1, 1.5 -> 2
+    assert source_position(exact_regs(1, 3), 1, 0, 40, 30) == (33, 2)  # 32.5 -> 33
+    assert source_position(exact_regs(-1, -3), 2, 1, 40, 30) == (64, 31)  # 63.5 -> 64, 30.5 -> 31
     rng = np.random.default_rng(2)
     frame = random_frame(rng, 40, 30)
+    p = exact_regs(1, -1)
     assert_same(*both(frame, p, p, CoreOptions(lb_rows=30)))
 
 
@@ -125,16 +146,113 @@ def test_too_small_buffer_is_bit_exact_too(seed: int) -> None:
 
 
 def test_degenerate_positions_give_zero() -> None:
-    """Z = 0 on a column, and a distortion so strong the position overflows 16.5 bits."""
+    """Z <= 0 left of a column: those pixels give 0 in both models."""
     frame = np.full((30, 40, 8), 77, dtype=np.uint8)
     z0 = CameraParams((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, -5.0), 40.0, 40.0, 20.0, 15.0, 0.0, 0.0, 0.0, 0.0)
-    assert source_position(z0, 5, 3) is None
-    wild = CameraParams((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), 1.0, 1.0, 20.0, 15.0, 900.0, 0.0, 0.0, 0.0)
-    assert source_position(wild, 0, 0) is None
-    for p in (z0, wild):
-        ref, fast = both(frame, p, p, CoreOptions(lb_rows=30))
-        assert_same(ref, fast)
-        assert not ref.frame[:, 5].any() if p is z0 else not ref.frame[0, 0].any()
+    assert source_position(z0, 5, 3, 40, 30) is None
+    assert source_position(z0, 4, 3, 40, 30) is None
+    ref, fast = both(frame, z0, z0, CoreOptions(lb_rows=30))
+    assert_same(ref, fast)
+    assert not ref.frame[:, :6].any()
+
+
+# Each validity limit of RECTIFY_CORE.md reached from exact registers (xn = x/32 etc.), and where
+# possible a pixel just inside it (|X| < 4 Z alone cannot be valid: r2 < 8 needs |xn| < 2.83):
+# (registers, pixel, valid).
+LIMITS = {
+    "Z <= 0": (CameraRegs((1 << 35, 0, 0, 0, 1 << 35, 0, 0, 0, 0), 32 << 20, 32 << 20, 0, 0, 0, 0, 0, 0), (3, 3), False),
+    "|X| = 4 Z": (exact_regs(), (128, 0), False),
+    "r2 >= 8": (exact_regs(), (70, 70), False),  # (70/32)^2 * 2 = 9.6
+    "r2 < 8": (exact_regs(), (64, 63), True),  # 7.9
+    "radial >= 8": (exact_regs(k1=7 << 32), (40, 0), False),  # 1 + 7 * 1.5625 = 11.9
+    "radial < 8": (exact_regs(k1=7 << 32), (31, 0), True),  # 1 + 7 * 0.94
+    "|xd| >= 16": (exact_regs(p2=(1 << 32) - 1), (120, 0), False),  # xd = x + p2 (r2 + 2 x2) = 3.75 + 42
+    "|iu| >= 2^20": (exact_regs(fx=(1 << 35) - 1), (60, 0), False),  # 32768 px * 1.9
+}
+
+
+@pytest.mark.parametrize("name", sorted(LIMITS))
+def test_each_validity_limit(name: str) -> None:
+    regs, (x, y), valid = LIMITS[name]
+    pos = fixed.position(regs, x, y)
+    iu, iv, ok = fixed.positions(regs, np.array([x]), np.array([y]))
+    assert (pos is not None) == valid == bool(ok[0]), name
+    if valid:
+        assert pos == (int(iu[0]), int(iv[0]))
+    else:
+        assert iu[0] == 0 and iv[0] == 0
+
+
+def test_radial_limit_is_strict() -> None:
+    """|radial| < 8 exactly: 1 + 7 r2 reaches 8 at r2 = 1, one step below stays valid."""
+    regs = exact_regs(k1=7 << 32)
+    assert fixed.position(regs, 32, 0) is None  # r2 = 1 -> radial = 8
+    assert fixed.position(regs, 31, 0) is not None
+
+
+def random_raw_registers(rng: np.random.Generator) -> CameraRegs:
+    """Any integers the core accepts, most of them producing invalid pixels and wrapping accumulators."""
+    values = {}
+    for name, (lo, hi) in spec.PARAM_RANGE.items():
+        bits = int(rng.integers(1, (hi - lo).bit_length()))
+        values[name] = int(np.clip(int(rng.integers(-(1 << (bits - 1)), 1 << (bits - 1))), lo, hi))
+    return CameraRegs.from_values(values)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_fixed_point_forms_agree_on_any_registers(seed: int) -> None:
+    """position() (Python integers) and positions() (int64 numpy) are the same function, even for wild sets."""
+    rng = np.random.default_rng(100 + seed)
+    regs = random_raw_registers(rng) if seed % 2 else camera_registers(random_params(rng, 64, 48, strength=6.0), 64, 48)
+    x = rng.integers(0, 2048, 400)
+    y = rng.integers(0, 2048, 400)
+    iu, iv, ok = fixed.positions(regs, x, y)
+    for k in range(x.size):
+        pos = fixed.position(regs, int(x[k]), int(y[k]))
+        assert (pos is not None) == bool(ok[k]), (x[k], y[k])
+        if pos is not None:
+            assert pos == (int(iu[k]), int(iv[k]))
+
+
+def rig_cameras(fx: float, k1: float, alpha: float, seed: int) -> "list[tuple[np.ndarray, ...]]":
+    """Both cameras of a 752x480 rig (K, D, R, P) rectified by OpenCV."""
+    rng = np.random.default_rng(seed)
+    w, h = 752, 480
+    K1 = np.array([[fx, 0, w / 2 + rng.normal(0, 5)], [0, fx * 1.001, h / 2 + rng.normal(0, 5)], [0, 0, 1]])
+    K2 = K1.copy()
+    K2[0, 2] += 3
+    D1 = np.array([k1, 0.1 * rng.normal(), 0.001 * rng.normal(), 0.001 * rng.normal(), 0.0])
+    D2 = D1 * 0.9
+    R = cv2.Rodrigues(rng.normal(0, 0.02, 3))[0]
+    T = np.array([[-0.06], [0.001], [0.0005]])
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K1, D1, K2, D2, (w, h), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
+                                                alpha=alpha)
+    return [(K1, D1[:4], R1, P1), (K2, D2[:4], R2, P2)]
+
+
+def opencv_positions(K, D, R, P, w: int, h: int) -> "tuple[np.ndarray, np.ndarray]":
+    m1, m2 = cv2.initUndistortRectifyMap(K, D, R, P, (w, h), cv2.CV_16SC2)
+    return m1[..., 0].astype(np.int64) * 32 + (m2 & 31), m1[..., 1].astype(np.int64) * 32 + (m2 >> 5)
+
+
+RIGS = [(fx, k1, alpha) for fx in (400, 700, 1200) for k1 in (-0.3, -0.45) for alpha in (0.0, 1.0)]
+
+
+@pytest.mark.parametrize("fx,k1,alpha", RIGS)
+def test_positions_match_opencv_initundistortrectifymap(fx: float, k1: float, alpha: float) -> None:
+    """The issue's check: >= 99.95 % of positions equal OpenCV's CV_16SC2 map, every mismatch 1/32 px."""
+    w, h = 752, 480
+    for K, D, R, P in rig_cameras(fx, k1, alpha, seed=int(fx + 1000 * alpha - 100 * k1)):
+        smap = SourceMap.compute(camera_params(K, D, R, P), w, h)
+        ou, ov = opencv_positions(K, D, R, P, w, h)
+        # Compare where OpenCV's position has a neighbour inside the image (elsewhere both give 0).
+        used = (ou > -32) & (ou < 32 * w) & (ov > -32) & (ov < 32 * h)
+        equal = smap.valid & (smap.iu == ou) & (smap.iv == ov)
+        share = equal[used].mean()
+        assert share >= 0.9995, f"{100 * share:.4f} % equal"
+        assert smap.valid[used].all()
+        worst = np.maximum(np.abs(smap.iu - ou), np.abs(smap.iv - ov))[used].max()
+        assert worst <= 1
 
 
 def test_gray_bypass_and_debug_line() -> None:
@@ -156,13 +274,32 @@ def test_gray_bypass_and_debug_line() -> None:
     np.testing.assert_array_equal(by_ref.frame, frame)
 
 
+def test_gray_build_rectifies_the_stream_gray_byte() -> None:
+    """The gray build stores the input's gray byte; the colour build recomputes gray from R, G, B."""
+    rng = np.random.default_rng(6)
+    w, h = 40, 30
+    left, right = random_params(rng, w, h), random_params(rng, w, h)
+    frame = random_frame(rng, w, h)  # gray bytes unrelated to R, G, B
+    fit = rows_needed([left, right], w, h)
+    gray_build = CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay, colour=False)
+    ref, fast = both(frame, left, right, gray_build)
+    assert_same(ref, fast)
+    plain = frame.copy()
+    plain[..., 0:3] = frame[..., 3:4]
+    plain[..., 4:7] = frame[..., 7:8]
+    colour_of_gray = RectifyModel(left, right, w, h, CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay, gray=True))
+    np.testing.assert_array_equal(ref.frame, colour_of_gray.process(plain).frame)
+    colour = rectify_reference(frame, left, right, CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay)).frame
+    assert not np.array_equal(colour[..., 3], ref.frame[..., 3]), "colour build: gray follows R, G, B"
+
+
 def test_source_map_matches_reference_positions() -> None:
     rng = np.random.default_rng(5)
     p = random_params(rng, 64, 48, strength=2.0)
     smap = SourceMap.compute(p, 64, 48)
     for y in range(0, 48, 5):
         for x in range(0, 64, 3):
-            pos = source_position(p, x, y)
+            pos = source_position(p, x, y, 64, 48)
             assert smap.valid[y, x] == (pos is not None)
             if pos is not None:
                 assert (int(smap.iu[y, x]), int(smap.iv[y, x])) == pos

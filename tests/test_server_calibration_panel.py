@@ -311,7 +311,8 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
     assert applied["id"] == cand["id"] and applied["file"] == str(tmp_path / "calibration.yaml")
     saved = load_calibration(tmp_path / "calibration.yaml")
     cfg = daemon.overlay.fabric.rectify.read_config()
-    assert saved.id == cand["id"] and (cfg.left, cfg.right) == (saved.left, saved.right)
+    programmed = saved.core_config()
+    assert saved.id == cand["id"] and (cfg.left, cfg.right) == (programmed.left, programmed.right)
     async with daemon.http.get("/api/status") as r:
         assert (await r.json())["calibration"]["id"] == cand["id"]
     await daemon.stop()
@@ -330,7 +331,7 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
         state = program_default_calibration(overlay, Config(captures=str(tmp_path / "captures")))
         assert state.id == cand["id"] and state.calibration == saved
         cfg = overlay.fabric.rectify.read_config()
-        assert (cfg.left, cfg.right) == (saved.left, saved.right)
+        assert (cfg.left, cfg.right) == (programmed.left, programmed.right)
     finally:
         overlay.close()
 

@@ -278,6 +278,7 @@ def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> Non
     from stereocam.calibration_io import write_opencv_pair
     from stereocam.overlays.emulated.cameras import SyntheticRig
     from stereocam.overlays.emulated.overlay import EmulatedOverlay
+    from stereocam.overlays.spec.rectify import camera_registers
     from stereocam.server.config import Config
     from stereocam.stereo import rectify
 
@@ -288,7 +289,8 @@ def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> Non
     try:
         state = app_module.program_default_calibration(overlay, Config())
         config = overlay.fabric.rectify.read_config()
-        assert (config.left, config.right) == (left, right)  # the same as the benchmarks' calibration
+        w, h = overlay.fabric.frame_size  # the same as the benchmarks' calibration, as registers
+        assert (config.left, config.right) == (camera_registers(left, w, h), camera_registers(right, w, h))
         assert state.id is not None and state.id.startswith("synthetic-rig-")
         assert state.rows_needed is not None and state.lb_rows == 80 and state.rows_needed <= 80
 
@@ -298,7 +300,7 @@ def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> Non
         assert from_files.id is not None and from_files.id.startswith("opencv-")
         assert str(intr) in from_files.description
         loaded = overlay.fabric.rectify.read_config()
-        assert abs(loaded.left.fx - left.fx) < 1e-6 * abs(left.fx)
+        assert loaded.left.fx == camera_registers(left, w, h).fx  # fx in 1/2**20 px: files round-trip exactly
     finally:
         overlay.close()
 

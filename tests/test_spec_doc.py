@@ -1,14 +1,22 @@
-"""overlays/RECTIFY_CORE.md and overlays/spec/rectify.py describe the same core."""
+"""overlays/RECTIFY_CORE.md, overlays/spec/rectify.py and overlays/rtl/rectify_spec.vh describe the same core."""
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
+from stereocam.overlays.spec import verilog
 from stereocam.overlays.spec.rectify import (
-    CAMERA_BASE, PARAM_NAMES, PARAM_RANGE, RECTIFY_MAP, param_offset,
+    BUILDS,
+    CAMERA_BASE,
+    PARAM_FORMAT,
+    PARAM_NAMES,
+    PARAM_RANGE,
+    RECTIFY_MAP,
+    param_offset,
 )
 
-DOC = (Path(__file__).parents[1] / "overlays" / "RECTIFY_CORE.md").read_text()
+ROOT = Path(__file__).parents[1]
+DOC = (ROOT / "overlays" / "RECTIFY_CORE.md").read_text()
 
 
 def test_every_control_register_is_documented_with_offset_access_and_reset() -> None:
@@ -25,13 +33,41 @@ def test_every_control_register_is_documented_with_offset_access_and_reset() -> 
             assert f"{f.name}{bits}" in fields, f"{reg.name}.{f.name}"
 
 
+def _power(text: str) -> int:
+    """'-2^35', '2^35 - 1', '2^20' -> int."""
+    m = re.fullmatch(r"(-?)2\^(\d+)( - 1)?", text.strip())
+    assert m, text
+    value = (1 << int(m.group(2))) * (-1 if m.group(1) else 1)
+    return value - 1 if m.group(3) else value
+
+
 def test_parameter_blocks_match_the_document() -> None:
-    assert "Left camera block at `0x100`, right camera block at `0x200`" in DOC
+    assert "Left camera block at `0x100`,\nright camera block at `0x200`" in DOC
     assert CAMERA_BASE == {"L": 0x100, "R": 0x200}
     assert " ".join(PARAM_NAMES[:9]) in DOC
+    n_row = re.search(r"^\| 0\.\.8 \| N00 .* \| (\d+) \| \[(.+?), (.+?)\] \|$", DOC, re.M)
+    assert n_row and int(n_row.group(1)) == PARAM_FORMAT["N00"].frac
+    assert (_power(n_row.group(2)), _power(n_row.group(3))) == PARAM_RANGE["N00"]
     for i, name in enumerate(PARAM_NAMES[9:], start=9):
-        lo, hi = PARAM_RANGE[name]
-        assert re.search(rf"^\| {i} \| {name} \| .* \| \[{lo:g}, {hi:g}\] \|$", DOC, re.M), name
+        m = re.search(rf"^\| {i} \| {name} \| .* \| (\d+) \| \[(.+?), (.+?)\](.*)\|$", DOC, re.M)
+        assert m, name
+        assert int(m.group(1)) == PARAM_FORMAT[name].frac, name
+        assert (_power(m.group(2)), _power(m.group(3))) == PARAM_RANGE[name], name
     assert RECTIFY_MAP["L_FX_LO"].offset == 0x148 == param_offset("L", "FX")
     assert RECTIFY_MAP["R_P2_HI"].offset == 0x284
     assert "`L_FX_LO` at 0x148, `R_P2_HI` at 0x284" in DOC
+
+
+def test_builds_table_matches_the_spec() -> None:
+    for b in BUILDS.values():
+        row = f"| {b.name} | {b.max_width} | {b.max_height} | {b.lb_rows} | {int(b.colour)} |"
+        assert row in DOC, row
+
+
+def test_generated_verilog_header_is_up_to_date() -> None:
+    """Regenerate with `python -m stereocam.overlays.spec.verilog` after changing the spec."""
+    assert verilog.header_path().read_text() == verilog.header()
+    header = verilog.header()
+    for name in PARAM_NAMES:
+        assert f"`define RC_{name}_W {PARAM_FORMAT[name].bits}" in header
+    assert f"`define RC_REG_CONTROL {RECTIFY_MAP['CONTROL'].offset}" in header

@@ -1,10 +1,11 @@
 """Behavioural model of the rectify core's register block and datapath.
 
 Registers follow :data:`RECTIFY_MAP`; the datapath is the fast model, so the
-emulated fabric is bit-exact to the model by construction and the tests can
-concentrate on the register behaviour: shadow parameters latched by APPLY at
-a frame start, sticky W1C flags, refusal of out-of-range parameter sets, a
-frame counter, and dropping frames of the wrong size.
+emulated fabric is bit-exact to the model (and the RTL) by construction, and
+its tests concentrate on the register behaviour: shadow parameters latched
+by APPLY between frames, sticky W1C flags, refusal of out-of-range parameter
+sets, a frame counter, and the malformed-input rules for frames of the wrong
+size. The co-simulation uses it as the oracle for the RTL.
 """
 from __future__ import annotations
 
@@ -12,34 +13,35 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from ..model.config import ConfigError, check_frame_size, check_params
+from ..model.config import ConfigError, check_frame_size
 from ..model.fast import RectifyModel
+from ..model.frames import fit_frame, padded
 from ..model.result import CoreOptions
 from ..spec.rectify import (
     CAMERAS,
-    DEFAULT_LB_ROWS,
-    DEFAULT_MAX_HEIGHT,
-    DEFAULT_MAX_WIDTH,
+    DEFAULT_BUILD,
     PARAM_NAMES,
     RECTIFY_MAP,
-    CameraParams,
+    CameraRegs,
     CoreConfig,
-    words_to_f64,
+    identity_registers,
+    words_to_i64,
 )
 from ..spec.regs import Register
 from .regblock import RegisterBlock
 
 
 class EmulatedRectifyCore(RegisterBlock):
-    """The core as built with ``max_width`` x ``max_height`` and ``lb_rows`` buffered rows."""
+    """The core as built with ``max_width`` x ``max_height``, ``lb_rows`` rows and a colour or gray datapath."""
 
     def __init__(
-        self, *, max_width: int = DEFAULT_MAX_WIDTH, max_height: int = DEFAULT_MAX_HEIGHT,
-        lb_rows: int = DEFAULT_LB_ROWS, name: str = "rectify",
+        self, *, max_width: int = DEFAULT_BUILD.max_width, max_height: int = DEFAULT_BUILD.max_height,
+        lb_rows: int = DEFAULT_BUILD.lb_rows, colour: bool = DEFAULT_BUILD.colour, name: str = "rectify",
     ) -> None:
         self.max_width = max_width
         self.max_height = max_height
         self.lb_rows = lb_rows
+        self.colour = colour
         super().__init__(RECTIFY_MAP, name)
         self.active: Optional[CoreConfig] = None  # None: never applied, frames pass through
         self._models: Dict[Tuple[object, ...], RectifyModel] = {}
@@ -50,12 +52,13 @@ class EmulatedRectifyCore(RegisterBlock):
         self.set("MAX_WIDTH", self.max_width)
         self.set("MAX_HEIGHT", self.max_height)
         self.set("LB_ROWS", self.lb_rows)
+        self.set_field("CAPS", "COLOUR", int(self.colour))
 
     # -- registers ----------------------------------------------------------------------
     def on_write(self, reg: Register, old: int, written: int) -> None:
         if reg.name == "CONTROL" and RECTIFY_MAP["CONTROL"].get(written, "APPLY"):
-            # Idle core: latch at once. Running core: at the next frame start.
-            if not self.get_field("CONTROL", "ENABLE"):
+            # Between frames (or disabled): latch at once. A frame in flight: at the next frame start.
+            if not self.get_field("CONTROL", "ENABLE") or not self.get_field("STATUS", "BUSY"):
                 self._latch()
         self._update_status()
 
@@ -67,8 +70,8 @@ class EmulatedRectifyCore(RegisterBlock):
         """The parameter set software has written, whether or not applied."""
         cams = {}
         for cam in CAMERAS:
-            values = {n: words_to_f64(self.get(f"{cam}_{n}_LO"), self.get(f"{cam}_{n}_HI")) for n in PARAM_NAMES}
-            cams[cam] = CameraParams.from_values(values)
+            values = {n: words_to_i64(self.get(f"{cam}_{n}_LO"), self.get(f"{cam}_{n}_HI")) for n in PARAM_NAMES}
+            cams[cam] = CameraRegs.from_values(values)
         return CoreConfig(
             cams["L"], cams["R"],
             self.get_field("WIDTH", "VALUE"), self.get_field("HEIGHT", "VALUE"), self.get_field("LB_DELAY", "VALUE"),
@@ -79,7 +82,8 @@ class EmulatedRectifyCore(RegisterBlock):
         cfg = self.shadow_config()
         try:
             check_frame_size(cfg.width, cfg.height, self.max_width, self.max_height)
-            check_params(cfg.left, cfg.right)
+            if cfg.left.problems() or cfg.right.problems():
+                raise ConfigError("a parameter is outside its register's range")
             if cfg.lb_delay >= self.max_height:
                 raise ConfigError("LB_DELAY beyond the frame")
         except ConfigError:
@@ -103,23 +107,29 @@ class EmulatedRectifyCore(RegisterBlock):
             if control["APPLY"]:
                 self._latch()
             cfg = self.active
-            width = cfg.width if cfg else self.get_field("WIDTH", "VALUE")
-            height = cfg.height if cfg else self.get_field("HEIGHT", "VALUE")
-            if frame.shape != (height, width, 8):
+            width = cfg.width if cfg else RECTIFY_MAP["WIDTH"].reset
+            height = cfg.height if cfg else RECTIFY_MAP["HEIGHT"].reset
+            bypass = bool(control["BYPASS"]) or cfg is None
+            lb_delay = cfg.lb_delay if cfg else 0
+            fit = fit_frame(frame.shape, width, height, lb_delay, bypass)
+            if fit.size_error:
                 self.raise_bits("FLAGS", RECTIFY_MAP["FLAGS"].bit("SIZE_ERROR"))
+            if fit.dropped:
                 self.frames_dropped += 1
                 return None
             options = CoreOptions(
                 lb_rows=self.lb_rows,
-                lb_delay=cfg.lb_delay if cfg else 0,
+                lb_delay=lb_delay,
                 gray=bool(control["GRAY"]),
-                bypass=bool(control["BYPASS"]) or cfg is None,
+                bypass=bypass,
                 debug_row=self.get_field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None,
+                colour=self.colour,
             )
             model = self._model(cfg, width, height, options)
             self.set_field("STATUS", "BUSY", 1)
         try:
-            result = model.process(frame)
+            result = model.process(np.ascontiguousarray(padded(frame, width, height)),
+                                   rows=fit.rows if fit.size_error else None)
         finally:
             with self.lock:
                 self.set_field("STATUS", "BUSY", 0)
@@ -127,14 +137,16 @@ class EmulatedRectifyCore(RegisterBlock):
             if result.lb_overflow:
                 self.raise_bits("FLAGS", RECTIFY_MAP["FLAGS"].bit("LB_OVERFLOW"))
             self.set("FRAME_COUNT", (self.get("FRAME_COUNT") + 1) & 0xFFFFFFFF)
+            if self.get_field("CONTROL", "APPLY"):  # written while this frame was in flight
+                self._latch()
         return result.frame
 
     def _model(self, cfg: Optional[CoreConfig], width: int, height: int, options: CoreOptions) -> RectifyModel:
         key = (cfg, width, height, options)
         model = self._models.get(key)
         if model is None:
-            if cfg is None:
-                dummy = CameraParams((1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0), 1.0, 1.0, 0, 0, 0, 0, 0, 0)
+            if cfg is None:  # bypass: the parameters are not used
+                dummy = identity_registers(width, height)
                 model = RectifyModel(dummy, dummy, width, height, options)
             else:
                 model = RectifyModel(cfg.left, cfg.right, width, height, options)

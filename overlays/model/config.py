@@ -7,9 +7,9 @@ calibration that needs more line-buffer rows than the bitstream has.
 """
 from __future__ import annotations
 
-from typing import List
+from typing import List, Tuple, Union
 
-from ..spec.rectify import CameraParams, CoreConfig, RECTIFY_MAP
+from ..spec.rectify import RECTIFY_MAP, CameraParams, CameraRegs, CoreConfig, camera_registers
 from .linebuffer import LineBufferFit, rows_needed
 
 
@@ -44,17 +44,37 @@ def check_frame_size(width: int, height: int, max_width: int, max_height: int) -
         )
 
 
-def check_params(left: CameraParams, right: CameraParams) -> None:
-    problems: List[str] = [f"left {p}" for p in left.problems()] + [f"right {p}" for p in right.problems()]
+def registers(
+    left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int, height: int
+) -> Tuple[CameraRegs, CameraRegs]:
+    """Both cameras' registers for this frame size; :class:`ParameterOutOfRange` says every value that does not fit."""
+    problems: List[str] = []
+    out: List[CameraRegs] = []
+    for side, cam in (("left", left), ("right", right)):
+        if isinstance(cam, CameraRegs):
+            problems += [f"{side} {p}" for p in cam.problems()]
+            out.append(cam)
+            continue
+        try:
+            out.append(camera_registers(cam, width, height))
+        except ValueError as exc:
+            problems += [f"{side} {p}" for p in str(exc).split("; ")]
     if problems:
         raise ParameterOutOfRange(
             "the calibration does not fit the core's registers: " + "; ".join(problems)
             + "; check the calibration file"
         )
+    return out[0], out[1]
+
+
+def check_params(
+    left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int, height: int
+) -> None:
+    registers(left, right, width, height)
 
 
 def plan(
-    left: CameraParams, right: CameraParams, width: int, height: int, *,
+    left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int, height: int, *,
     lb_rows: int, max_width: int, max_height: int,
 ) -> "tuple[CoreConfig, LineBufferFit]":
     """The register set for this calibration and frame size, checked against the bitstream.
@@ -62,11 +82,11 @@ def plan(
     Raises a :class:`ConfigError` subclass; nothing is written anywhere.
     """
     check_frame_size(width, height, max_width, max_height)
-    check_params(left, right)
-    fit = rows_needed([left, right], width, height)
+    lregs, rregs = registers(left, right, width, height)
+    fit = rows_needed([lregs, rregs], width, height)
     if not fit.fits(lb_rows):
         raise LineBufferTooSmall(fit, lb_rows)
     delay_max = RECTIFY_MAP["LB_DELAY"].field("VALUE").max
     if fit.delay > delay_max:  # pragma: no cover - needs a frame taller than 65535 rows
         raise ConfigError(f"line-buffer delay {fit.delay} exceeds the register's {delay_max}")
-    return CoreConfig(left, right, width, height, fit.delay), fit
+    return CoreConfig(lregs, rregs, width, height, fit.delay), fit

@@ -1,73 +1,47 @@
 """The fast model: the same core, a frame at a time.
 
-Steps 1-4 depend only on the calibration, so they are computed once per
-parameter set, vectorised in numpy with the very same binary64 operations,
-in the same order, as :mod:`.reference`. Step 5 uses 5 fractional bits and
-weights that are exact integer products (sum 1024, rounded half up): this is
-exactly OpenCV's fixed-point bilinear ``remap`` with ``CV_16SC2`` maps
-(``INTER_TAB_SIZE`` 32, ``INTER_REMAP_COEF_BITS`` 15 = our 10 bits times 32),
-so ``cv2.remap`` does the per-frame work, bit-exact. The few pixels whose
-neighbours fall outside the line-buffer window (only with a calibration that
-does not fit the bitstream) are recomputed in numpy afterwards.
+Steps 1-4 depend only on the parameters, so they are computed once per
+parameter set (:func:`.fixed.positions`, exact int64 numpy, bit for bit the
+reference's integers). Step 5 uses 5 fractional bits and weights that are
+exact integer products (sum 1024, rounded half up): this is exactly OpenCV's
+fixed-point bilinear ``remap`` with ``CV_16SC2`` maps (``INTER_TAB_SIZE`` 32,
+``INTER_REMAP_COEF_BITS`` 15 = our 10 bits times 32), so ``cv2.remap`` does
+the per-frame work, bit-exact. The few pixels whose neighbours fall outside
+the line-buffer window (only with a calibration that does not fit the
+bitstream) are recomputed in numpy afterwards.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Dict, Optional, Tuple, Union
 
 import cv2
 import numpy as np
 
+from ..spec.pixel import gray_of
 from ..spec.rectify import (
-    COORD_LIMIT,
     FRAC_BITS,
     FRAC_ONE,
     WEIGHT_BITS,
     WEIGHT_ROUND,
     CameraParams,
+    CameraRegs,
+    as_registers,
 )
+from .fixed import positions
+from .frames import newest_row
 from .result import CoreOptions, ModelResult
 
 NEIGHBOURS = ((0, 0), (1, 0), (0, 1), (1, 1))
-
-
-def source_positions(p: CameraParams, x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Steps 1-4 of the core for output positions (x, y), in binary64: ``(su, sv, nonzero)``.
-
-    ``su``/``sv`` are source positions in 1/32 pixel before rounding; where
-    the homography's Z is 0 (``nonzero`` False) they are meaningless. The
-    operations are the reference model's, in its order, so rounding them
-    gives its positions bit for bit; x and y may be any real numbers.
-    """
-    h00, h01, h02, h10, h11, h12, h20, h21, h22 = p.hinv
-    with np.errstate(all="ignore"):
-        X = (h00 * x + h01 * y) + h02
-        Y = (h10 * x + h11 * y) + h12
-        Z = (h20 * x + h21 * y) + h22
-        nonzero = Z != 0.0
-        Z = np.where(nonzero, Z, 1.0)
-        xp = X / Z
-        yp = Y / Z
-        xn = (xp - p.cx) / p.fx
-        yn = (yp - p.cy) / p.fy
-        x2 = xn * xn
-        y2 = yn * yn
-        xy = xn * yn
-        r2 = x2 + y2
-        radial = 1.0 + (p.k1 + p.k2 * r2) * r2
-        xd = (xn * radial + 2.0 * p.p1 * xy) + p.p2 * (r2 + 2.0 * x2)
-        yd = (yn * radial + p.p1 * (r2 + 2.0 * y2)) + 2.0 * p.p2 * xy
-        su = (p.fx * xd + p.cx) * FRAC_ONE
-        sv = (p.fy * yd + p.cy) * FRAC_ONE
-    return su, sv, nonzero
+Camera = Union[CameraParams, CameraRegs]
 
 
 @dataclass(frozen=True)
 class SourceMap:
     """Fixed-point source positions of every output pixel of one camera.
 
-    ``iu``/``iv`` are int64 in 1/32 pixel; ``valid`` is False where the
-    position was not finite or beyond the 16.5 range (the pixel gives 0).
+    ``iu``/``iv`` are int64 in 1/32 pixel; ``valid`` is False where a
+    validity limit was reached (the pixel gives 0; iu, iv are 0 there).
     """
 
     iu: np.ndarray
@@ -75,19 +49,11 @@ class SourceMap:
     valid: np.ndarray
 
     @classmethod
-    def compute(cls, p: CameraParams, width: int, height: int) -> "SourceMap":
-        y, x = np.mgrid[0:height, 0:width].astype(np.float64)
-        su, sv, nonzero = source_positions(p, x, y)
-        with np.errstate(all="ignore"):
-            valid = (
-                nonzero
-                & np.isfinite(su) & np.isfinite(sv)
-                & (su > -COORD_LIMIT) & (su < COORD_LIMIT)
-                & (sv > -COORD_LIMIT) & (sv < COORD_LIMIT)
-            )
-        su = np.where(valid, su, 0.0)
-        sv = np.where(valid, sv, 0.0)
-        return cls(np.rint(su).astype(np.int64), np.rint(sv).astype(np.int64), valid)
+    def compute(cls, p: Camera, width: int, height: int) -> "SourceMap":
+        """Steps 1-4 for a ``width`` x ``height`` frame (a calibration is converted to registers first)."""
+        y, x = np.mgrid[0:height, 0:width]
+        iu, iv, valid = positions(as_registers(p, width, height), x, y)
+        return cls(iu, iv, valid)
 
     def neighbour_rows_needed(self, width: int, height: int) -> Tuple[np.ndarray, np.ndarray]:
         """Per output row, the lowest and highest input row any in-image neighbour needs.
@@ -129,7 +95,7 @@ def _cv_maps(smap: SourceMap, width: int, height: int) -> Tuple[np.ndarray, np.n
 class _CameraPlan:
     """Everything precomputed for one camera: OpenCV maps and line-buffer fix-ups."""
 
-    def __init__(self, params: CameraParams, width: int, height: int, options: CoreOptions) -> None:
+    def __init__(self, params: Camera, width: int, height: int, options: CoreOptions) -> None:
         self.smap = SourceMap.compute(params, width, height)
         self.map1, self.map2 = _cv_maps(self.smap, width, height)
         # Pixels with a neighbour inside the image but outside the line-buffer window.
@@ -174,14 +140,14 @@ class _CameraPlan:
 class RectifyModel:
     """The core for one parameter set and options; :meth:`process` runs a frame.
 
-    Construction does steps 1-4 for every output pixel (tens of milliseconds
-    for 752x480); :meth:`process` is cheap and thread-safe (no shared
-    mutable state), so one model can serve several threads.
+    ``left`` and ``right`` are register sets, or calibrations converted to
+    registers for this frame size. Construction does steps 1-4 for every
+    output pixel (tens of milliseconds for 752x480); :meth:`process` is
+    cheap and thread-safe (no shared mutable state), so one model can serve
+    several threads.
     """
 
-    def __init__(
-        self, left: CameraParams, right: CameraParams, width: int, height: int, options: CoreOptions
-    ) -> None:
+    def __init__(self, left: Camera, right: Camera, width: int, height: int, options: CoreOptions) -> None:
         self.width = width
         self.height = height
         self.options = options
@@ -191,15 +157,36 @@ class RectifyModel:
 
     @property
     def lb_overflow(self) -> bool:
-        """True if every frame through this model raises FLAGS.LB_OVERFLOW."""
+        """True if every complete frame through this model raises FLAGS.LB_OVERFLOW."""
         return any(p.overflow for p in self.plans.values())
 
-    def process(self, frame: np.ndarray, out: Optional[np.ndarray] = None) -> ModelResult:
+    def _overflow_in(self, keep: np.ndarray) -> bool:
+        return any(p.overflow and bool(keep[p.fix_y].any()) for p in self.plans.values())
+
+    def _source(self, frame: np.ndarray, words: np.ndarray, cam: int) -> np.ndarray:
+        """One camera's pixels as the line buffer holds them: RGB + recomputed gray, or gray alone."""
+        base = 4 * cam
+        if not self.options.colour:
+            return np.ascontiguousarray(frame[..., base + 3])
+        if self.options.gray:
+            return gray_of(frame[..., base:base + 3])
+        src = np.ascontiguousarray(words[..., cam]).view(np.uint8).reshape(self.height, self.width, 4)
+        src[..., 3] = gray_of(src[..., :3])
+        return src
+
+    def process(self, frame: np.ndarray, out: Optional[np.ndarray] = None, *, rows: Optional[int] = None) -> ModelResult:
+        """Run one ``(H, W, 8)`` frame.
+
+        ``rows`` (the malformed-input rule, :mod:`.frames`): only the first
+        ``rows`` input lines arrived; output rows that needed later ones are
+        0 and raise no flag.
+        """
         h, w = self.height, self.width
         if frame.shape != (h, w, 8) or frame.dtype != np.uint8:
             raise ValueError(f"the model is set up for ({h}, {w}, 8) uint8 frames, got {frame.shape} {frame.dtype}")
         if out is None:
             out = np.empty_like(frame)
+        overflow = self.lb_overflow
         if self.options.bypass:
             out[...] = frame
         else:
@@ -209,17 +196,20 @@ class RectifyModel:
             out_words = out.view(np.uint32).reshape(h, w, 2) if out.flags.c_contiguous else None
             for cam, plan in self.plans.items():
                 base = 4 * cam
-                if self.options.gray:
-                    res = plan.run(np.ascontiguousarray(frame[..., base + 3]))
-                    out[..., base:base + 4] = res.reshape(h, w, 1)
-                    continue
-                src = np.ascontiguousarray(words[..., cam]).view(np.uint8).reshape(h, w, 4)
-                res = plan.run(src)
-                if out_words is not None:
+                res = plan.run(self._source(frame, words, cam))
+                if res.ndim == 2:
+                    out[..., base:base + 4] = res[..., None]
+                elif out_words is not None:
                     out_words[..., cam] = res.view(np.uint32).reshape(h, w)
                 else:
                     out[..., base:base + 4] = res
+        if rows is not None and rows < h:
+            y = np.arange(h)
+            newest = y if self.options.bypass else newest_row(y, h, self.options.lb_delay)
+            keep = np.asarray(newest < rows)
+            out[~keep] = 0
+            overflow = self._overflow_in(keep)
         row = self.options.debug_row
         if row is not None and 0 <= row < h:
             out[row] = 255
-        return ModelResult(out, lb_overflow=self.lb_overflow)
+        return ModelResult(out, lb_overflow=overflow)

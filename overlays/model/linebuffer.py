@@ -14,8 +14,7 @@ from typing import Iterable, Optional
 
 import numpy as np
 
-from ..spec.rectify import CameraParams
-from .fast import SourceMap
+from .fast import Camera, SourceMap
 
 
 @dataclass(frozen=True)
@@ -28,9 +27,12 @@ class LineBufferFit:
 
 
 def rows_needed(
-    cameras: Iterable[CameraParams], width: int, height: int, maps: Optional[Iterable[SourceMap]] = None
+    cameras: Iterable[Camera], width: int, height: int, maps: Optional[Iterable[SourceMap]] = None
 ) -> LineBufferFit:
-    """Delay and rows the given cameras need together (``maps`` reuses precomputed source maps)."""
+    """Delay and rows the given cameras need together (``maps`` reuses precomputed source maps).
+
+    ``cameras`` are calibrations (converted to registers for this frame size) or register sets.
+    """
     smaps = list(maps) if maps is not None else [SourceMap.compute(p, width, height) for p in cameras]
     y = np.arange(height, dtype=np.int64)
     los, his = zip(*(m.neighbour_rows_needed(width, height) for m in smaps))

@@ -18,6 +18,7 @@ class CoreOptions:
     gray: bool = False  # CONTROL.GRAY
     bypass: bool = False  # CONTROL.BYPASS
     debug_row: Optional[int] = None  # DEBUG_ROW when CONTROL.DEBUG_LINE is set
+    colour: bool = True  # CAPS.COLOUR of the build: False for the gray-only build
 
     def __post_init__(self) -> None:
         if self.lb_rows < 1:
