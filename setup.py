@@ -25,7 +25,8 @@ setup(
     packages=list(SUBPACKAGES),
     package_dir=SUBPACKAGES,
     package_data={
-        "stereocam.overlays": ["*.md"],
+        # rtl/: the rectify core's Verilog, for simulation and synthesis (stereocam.hdl.rtl_dir()).
+        "stereocam.overlays": ["*.md", "rtl/*.v", "rtl/*.vh", "rtl/*.sv"],
         "stereocam.board": ["*.service", "*.yaml"],
         "stereocam.server": ["static/*"],
     },

