@@ -387,6 +387,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
 
+    # stereocam hw ...: the rectify core's RTL (overlays/rtl/); each action adds itself to hsub.
+    from .hw_synth import add_synth_parser
+
+    h = sub.add_parser("hw", help="the rectify core's HDL: synthesis with yosys",
+                       description="Tools for the rectify core's Verilog in overlays/rtl/.")
+    hsub = h.add_subparsers(dest="action", metavar="ACTION")
+    hsub.required = True
+    add_synth_parser(hsub)
+
     _add_server_commands(sub)
     return parser
 
