@@ -66,7 +66,7 @@ def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, **e
     """An overlay object with ``.fabric``, ``.backend``, ``start()``, ``stop()``, ``close()``.
 
     ``emulated_options`` go to :class:`~.emulated.overlay.EmulatedOverlay`
-    (source, fps, clock, lb_rows).
+    (source, fps, clock, build, lb_rows).
     """
     choice = choose(backend, bitstream=bitstream)
     log.info("fabric backend: %s (%s)", choice.backend, choice.reason)

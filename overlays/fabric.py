@@ -112,7 +112,8 @@ class StereoFabric:
             "streaming": self.streaming,
             "frame_size": list(self.frame_size),
             "core": {"frame_count": core.frame_count, "flags": core.flags, "control": core.control,
-                     "lb_rows": self.rectify.lb_rows},
+                     "lb_rows": self.rectify.lb_rows, "max_width": self.rectify.max_width,
+                     "colour": self.rectify.colour},
             "vdma": {
                 "raw_s2mm": list(self.raw_vdma.s2mm.errors()),
                 "proc_s2mm": list(self.proc_vdma.s2mm.errors()),

@@ -319,10 +319,11 @@ def _camera_source(config: Config) -> Any:
 
 def open_configured_overlay(config: Config) -> Any:
     from ..overlays.backend import open_overlay
+    from ..overlays.spec.rectify import BUILDS
 
     bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
     return open_overlay(config.backend, bitstream=bitstream, source=_camera_source(config), fps=config.fps,
-                        clock="realtime")
+                        clock="realtime", build=BUILDS[config.core_build])
 
 
 async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.Event] = None,

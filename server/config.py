@@ -17,6 +17,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Dict, Mapping, Optional, Tuple
 
+from ..overlays.spec.rectify import BUILDS
+
 __all__ = ["Config", "ConfigError", "BACKENDS", "DEFAULT_CAPTURES", "MAX_FPS"]
 
 BACKENDS = ("auto", "pynq", "emulated")
@@ -37,7 +39,8 @@ class Config:
     (emulated cameras: ``synthetic``, the synthetic rig's scene;
     ``checkerboard``, that scene with a 9x6 board of 25 mm squares held in
     front in a new random pose every 1.5 s, for trying calibration; or a
-    folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``calibration``
+    folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``core_build``
+    (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
     calibration on the emulated fabric). Storage: ``captures`` folder,
     ``min_free_mb`` kept free on its disk, ``state_dir`` (where the page's
@@ -57,6 +60,7 @@ class Config:
     bitstream: Optional[str] = None
     source: str = "synthetic"
     fps: float = 60.0
+    core_build: str = "colour"
     calibration: Optional[str] = None
     captures: str = DEFAULT_CAPTURES
     state_dir: Optional[str] = None
@@ -209,6 +213,10 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
     if key == "backend":
         if value not in BACKENDS:
             raise ConfigError(f"{_where(origin)}backend must be one of {', '.join(BACKENDS)}, got {value!r}")
+        return value
+    if key == "core_build":
+        if value not in BUILDS:
+            raise ConfigError(f"{_where(origin)}core_build must be one of {', '.join(BUILDS)}, got {value!r}")
         return value
     if key in ("host", "source", "captures"):
         return _text(origin, key, value, optional=False)

@@ -232,7 +232,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     try:
         config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
-                             bitstream=args.bitstream, source=args.source, fps=args.fps)
+                             bitstream=args.bitstream, source=args.source, fps=args.fps,
+                             core_build=args.core_build)
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:
         raise UserError(str(exc)) from None
@@ -281,6 +282,8 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "squares held up in a new pose every 1.5 s, to try calibration) or a folder of "
                         "recorded pairs to replay")
     s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
+    s.add_argument("--core-build", choices=("colour", "gray"),
+                   help="the rectify core build the emulated fabric has (default colour; see RECTIFY_CORE.md)")
     s.set_defaults(func=cmd_serve)
 
     i = sub.add_parser(

@@ -20,8 +20,12 @@ from stereocam.server import captures as captures_module
 from stereocam.server.routes_api import core_model_setup
 from stereocam.server.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
 
+from stereocam.overlays.emulated.overlay import EmulatedOverlay
+
 from .server_fixtures import (
     SMALL,
+    TEST_FPS,
+    StillSource,
     read_parts,
     start_daemon_fixture,  # noqa: F401
     wait_for_frames,
@@ -214,6 +218,29 @@ async def test_virtual_camera_round_trip_is_returned_shown_and_verified_bit_exac
     async with d.http.put("/api/source", json={"source": "live"}) as resp:
         assert resp.status == 200
     assert d.overlay.fabric.source == "live"
+
+
+async def test_the_daemon_serves_a_gray_build_of_the_core(start_daemon) -> None:
+    """The build is read back from the core (CAPS.COLOUR): views, status and Verify follow it."""
+    from stereocam.overlays.spec.rectify import BUILDS
+
+    overlay = EmulatedOverlay(source=StillSource(SMALL), fps=TEST_FPS, build=BUILDS["gray"])
+    d = await start_daemon(overlay=overlay)
+    async with d.http.get("/api/status") as resp:
+        core = (await resp.json())["core"]
+    assert core["colour"] is False and core["lb_rows"] == BUILDS["gray"].lb_rows
+    left, right = pattern_pair(3)
+    async with d.http.post("/api/virtual-camera", data=pair_form(encode(left), encode(right))) as resp:
+        assert resp.status == 200, await resp.text()
+    frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
+    expected = model_output(d, frame)
+    assert (expected[..., 0] == expected[..., 3]).all() and (expected[..., 6] == expected[..., 7]).all()
+    async with d.http.get("/api/virtual-camera/result/left.png") as resp:
+        shown = decode_png(await resp.read())
+    np.testing.assert_array_equal(shown, expected[..., [2, 1, 0]])
+    assert expected[..., 3].any()
+    async with d.http.post("/api/verify") as resp:
+        assert (await resp.json())["identical"] is True
 
 
 async def test_verify_reports_differences(start_daemon) -> None:

@@ -21,7 +21,7 @@ from typing import Dict, Optional, Protocol, Tuple
 import numpy as np
 
 from ..spec.axis_switch import LIVE, VIRTUAL
-from ..spec.rectify import DEFAULT_LB_ROWS, DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
+from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource, SyntheticRig
 from .clock import FrameClock
 from .ddr import EmulatedDDR
@@ -84,15 +84,15 @@ class EmulatedFabric:
 
     def __init__(
         self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
-        num_fstores: int = NUM_FSTORES, lb_rows: int = DEFAULT_LB_ROWS,
-        max_width: int = DEFAULT_MAX_WIDTH, max_height: int = DEFAULT_MAX_HEIGHT,
+        num_fstores: int = NUM_FSTORES, build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None,
         ddr_size: int = 256 << 20, sensors: Optional[FrameSensors] = None,
     ) -> None:
         self.ddr = EmulatedDDR(size=ddr_size)
         self.vdma_raw = EmulatedVDMA(self.ddr, num_fstores, "vdma_raw")
         self.vdma_proc = EmulatedVDMA(self.ddr, num_fstores, "vdma_proc")
         self.mux = EmulatedAxisSwitch(name="mux")
-        self.core = EmulatedRectifyCore(max_width=max_width, max_height=max_height, lb_rows=lb_rows)
+        self.core = EmulatedRectifyCore(max_width=build.max_width, max_height=build.max_height,
+                                        lb_rows=build.lb_rows if lb_rows is None else lb_rows, colour=build.colour)
         self.num_fstores = num_fstores
         self.source: CameraSource = source if source is not None else SyntheticRig()
         self.sensors: Optional[FrameSensors] = sensors

@@ -7,7 +7,7 @@ from ...drivers.rectify import RectifyCore
 from ..fabric import StereoFabric, bind
 from ..spec.axis_switch import VLNV as SWITCH_VLNV
 from ..spec.overlay import INSTANCES
-from ..spec.rectify import DEFAULT_LB_ROWS
+from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource
 from .fabric import ADDRESS_MAP, WINDOW_SIZE, EmulatedFabric
 from .regblock import EmulationError, RegisterBlock
@@ -24,8 +24,9 @@ class EmulatedOverlay:
     backend = "emulated"
 
     def __init__(self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
-                 lb_rows: int = DEFAULT_LB_ROWS, timeout: float = 1.0) -> None:
-        self.hw = EmulatedFabric(source=source, fps=fps, clock=clock, lb_rows=lb_rows)
+                 build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0) -> None:
+        """``build``: the rectify core's build parameters; ``lb_rows`` overrides its line-buffer rows."""
+        self.hw = EmulatedFabric(source=source, fps=fps, clock=clock, build=build, lb_rows=lb_rows)
         blocks = self.hw.blocks
         self.ip_dict: Dict[str, Dict[str, Any]] = {
             name: {
