@@ -56,7 +56,10 @@ class EmulatedRectifyCore(RegisterBlock):
 
     # -- registers ----------------------------------------------------------------------
     def on_write(self, reg: Register, old: int, written: int) -> None:
-        if reg.name == "CONTROL" and RECTIFY_MAP["CONTROL"].get(written, "APPLY"):
+        control = RECTIFY_MAP["CONTROL"]
+        if reg.name == "CONTROL" and control.get(old, "APPLY") and not control.get(written, "APPLY"):
+            self.set_field("CONTROL", "APPLY", 1)  # writing 0 does not cancel a pending APPLY
+        if reg.name == "CONTROL" and control.get(written, "APPLY"):
             # Between frames (or disabled): latch at once. A frame in flight: at the next frame start.
             if not self.get_field("CONTROL", "ENABLE") or not self.get_field("STATUS", "BUSY"):
                 self._latch()

@@ -8,41 +8,55 @@
 `define RC_CORE_VERSION 131072
 
 // Control registers: byte offsets, and bit positions of their fields
-`define RC_REG_ID 0                         // ro, reset 0x52454354
-`define RC_REG_VERSION 4                    // ro, reset 0x20000
+`define RC_REG_ID 0                         // ro
+`define RC_ID_RESET 1380270932              // reset value
+`define RC_REG_VERSION 4                    // ro
+`define RC_VERSION_RESET 131072             // reset value
 `define RC_VERSION_MINOR 0                  // 16 bit(s)
 `define RC_VERSION_MINOR_W 16
 `define RC_VERSION_MAJOR 16                 // 16 bit(s)
 `define RC_VERSION_MAJOR_W 16
-`define RC_REG_MAX_WIDTH 8                  // ro, reset 0x2f0
-`define RC_REG_MAX_HEIGHT 12                // ro, reset 0x400
-`define RC_REG_LB_ROWS 16                   // ro, reset 0x50
-`define RC_REG_CAPS 20                      // ro, reset 0x1
+`define RC_REG_MAX_WIDTH 8                  // ro
+`define RC_MAX_WIDTH_RESET 752              // reset value
+`define RC_REG_MAX_HEIGHT 12                // ro
+`define RC_MAX_HEIGHT_RESET 1024            // reset value
+`define RC_REG_LB_ROWS 16                   // ro
+`define RC_LB_ROWS_RESET 80                 // reset value
+`define RC_REG_CAPS 20                      // ro
+`define RC_CAPS_RESET 1                     // reset value
 `define RC_CAPS_COLOUR 0                    // 1 bit(s)
-`define RC_REG_CONTROL 32                   // rw, reset 0x0
+`define RC_REG_CONTROL 32                   // rw
+`define RC_CONTROL_RESET 0                  // reset value
 `define RC_CONTROL_ENABLE 0                 // 1 bit(s)
 `define RC_CONTROL_BYPASS 1                 // 1 bit(s)
 `define RC_CONTROL_GRAY 2                   // 1 bit(s)
 `define RC_CONTROL_DEBUG_LINE 3             // 1 bit(s)
 `define RC_CONTROL_APPLY 4                  // 1 bit(s)
-`define RC_REG_STATUS 36                    // ro, reset 0x0
+`define RC_REG_STATUS 36                    // ro
+`define RC_STATUS_RESET 0                   // reset value
 `define RC_STATUS_BUSY 0                    // 1 bit(s)
 `define RC_STATUS_APPLY_PENDING 1           // 1 bit(s)
-`define RC_REG_FLAGS 40                     // w1c, reset 0x0
+`define RC_REG_FLAGS 40                     // w1c
+`define RC_FLAGS_RESET 0                    // reset value
 `define RC_FLAGS_LB_OVERFLOW 0              // 1 bit(s)
 `define RC_FLAGS_SIZE_ERROR 1               // 1 bit(s)
 `define RC_FLAGS_CONFIG_ERROR 2             // 1 bit(s)
-`define RC_REG_FRAME_COUNT 44               // ro, reset 0x0
-`define RC_REG_WIDTH 48                     // rw, reset 0x2f0
+`define RC_REG_FRAME_COUNT 44               // ro
+`define RC_FRAME_COUNT_RESET 0              // reset value
+`define RC_REG_WIDTH 48                     // rw
+`define RC_WIDTH_RESET 752                  // reset value
 `define RC_WIDTH_VALUE 0                    // 16 bit(s)
 `define RC_WIDTH_VALUE_W 16
-`define RC_REG_HEIGHT 52                    // rw, reset 0x1e0
+`define RC_REG_HEIGHT 52                    // rw
+`define RC_HEIGHT_RESET 480                 // reset value
 `define RC_HEIGHT_VALUE 0                   // 16 bit(s)
 `define RC_HEIGHT_VALUE_W 16
-`define RC_REG_LB_DELAY 56                  // rw, reset 0x0
+`define RC_REG_LB_DELAY 56                  // rw
+`define RC_LB_DELAY_RESET 0                 // reset value
 `define RC_LB_DELAY_VALUE 0                 // 16 bit(s)
 `define RC_LB_DELAY_VALUE_W 16
-`define RC_REG_DEBUG_ROW 60                 // rw, reset 0x0
+`define RC_REG_DEBUG_ROW 60                 // rw
+`define RC_DEBUG_ROW_RESET 0                // reset value
 `define RC_DEBUG_ROW_VALUE 0                // 16 bit(s)
 `define RC_DEBUG_ROW_VALUE_W 16
 

@@ -36,7 +36,8 @@ def header() -> str:
     for reg in spec.RECTIFY_MAP:
         if reg.offset >= min(spec.CAMERA_BASE.values()):
             continue
-        _define(lines, f"REG_{reg.name}", reg.offset, f"{reg.access.value}, reset {reg.reset:#x}")
+        _define(lines, f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
+        _define(lines, f"{reg.name}_RESET", reg.reset, "reset value")
         for f in reg.fields:
             _define(lines, f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
             if f.width > 1:
