@@ -6,6 +6,7 @@ The cocotb testbench is ``tb_rc_regs.py``; it reads the build parameters of the 
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -28,12 +29,14 @@ BUILD_CASES: dict[str, Build | None] = {
     "small": Build("small", max_width=64, max_height=48, lb_rows=8, colour=False),
 }
 # Icarus builds in a second and runs every case; a Verilator build takes half a minute, so
-# Verilator runs the defaults (the colour build's numbers) and the gray build.
+# Verilator runs the defaults (the colour build's numbers), and the gray build too with
+# STEREOCAM_COSIM_FULL=1 (./scripts/cosim).
+FULL = os.environ.get("STEREOCAM_COSIM_FULL", "") not in ("", "0")
 SIM_BUILDS = [
     pytest.param(sim, build, id=f"{sim}-{build}")
     for sim in hdl.SIMULATORS
     for build in BUILD_CASES
-    if sim == "icarus" or build in ("default", "gray")
+    if sim == "icarus" or build == "default" or (FULL and build == "gray")
 ]
 
 TB_TESTS = {
