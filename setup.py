@@ -25,8 +25,9 @@ setup(
     packages=list(SUBPACKAGES),
     package_dir=SUBPACKAGES,
     package_data={
-        # rtl/: the rectify core's Verilog, for simulation and synthesis (stereocam.hdl.rtl_dir()).
-        "stereocam.overlays": ["*.md", "rtl/*.v", "rtl/*.vh", "rtl/*.sv"],
+        # rtl/: the rectify core's Verilog, for simulation and synthesis (stereocam.hdl.rtl_dir());
+        # rtl/sim/: the C++ harness that makes it a program (stereocam.rtl_core).
+        "stereocam.overlays": ["*.md", "rtl/*.v", "rtl/*.vh", "rtl/*.sv", "rtl/sim/*.cpp"],
         "stereocam.board": ["*.service", "*.yaml"],
         "stereocam.server": ["static/*"],
     },

@@ -48,9 +48,18 @@ The results (named objects in the JSON, one line each in the text output):
     cameras, all channels); ``ratio`` is against the model. The rows it timed
     are checked against the model's output.
 ``cosim``
-    Hook for co-simulation speed, RTL frames per second under Verilator:
-    :func:`cosim_rate` returns None until the HDL is in the repository, so the
-    JSON says ``"cosim": null`` with a ``cosim_note``.
+    The core's RTL under Verilator (:class:`stereocam.rtl_core.RtlCore`, the real
+    colour build, programmed by the driver with the bench's calibration, streams
+    without gaps) on the bench frames, timed in alternating rounds of its own with
+    the model: ``fps``, ``model_fps`` (the model in those rounds), ``ratio``,
+    ``clocks_per_frame`` (simulated clocks from a frame's first input beat to its
+    last output beat) and ``beats_per_clock`` (output beats per clock: 0.5 is the
+    core's 2 clocks per beat),
+    ``sim_clocks_per_s`` (the simulator's speed) and ``equals_model`` (the RTL's
+    output equals the model's on every bench frame). The first run builds the
+    simulation (~20 s, cached in ``build/hdl/harness/``). ``null`` with a
+    ``cosim_note`` saying what to install when Verilator or its tools are missing
+    (the ``board`` env has no Verilator).
 """
 from __future__ import annotations
 
@@ -75,8 +84,9 @@ if TYPE_CHECKING:  # pragma: no cover
 WIDTH, HEIGHT = 752, 480
 CHANNELS = 8
 FABRIC_LATENCY = 1  # calls: the fabric peer returns the output of the frame sent one call earlier
-COSIM_NOTE = ("RTL frames per second under Verilator, against the model: not measured yet "
-              "(stereocam.bench.cosim_rate() returns None until the core's HDL is in the repository)")
+COSIM_NOTE = ("RTL frames per second under Verilator (the colour build, stereocam.rtl_core.RtlCore), "
+              "against the model on the same frames")
+COSIM_MIN_ROUNDS = 3  # an RTL frame takes about half a second: enough to time, no more
 
 Maps = List[Tuple[np.ndarray, np.ndarray]]
 
@@ -259,13 +269,57 @@ def _sig(x: float, digits: int = 4) -> float:
     return round(x, digits - 1 - math.floor(math.log10(abs(x))))
 
 
-def cosim_rate() -> Optional[float]:
-    """HOOK: co-simulation speed, RTL frames per second of the rectify core under Verilator.
+class CosimRate(NamedTuple):
+    """The RTL under Verilator on the bench frames (see ``cosim`` in the module docstring)."""
 
-    Returns None until the core's HDL and its Verilator build are in the repository; then it
-    should run the bench frames through the simulated RTL and return frames per second.
+    rtl: Timing
+    model: Timing  # timed in the same rounds
+    clocks_per_frame: int  # median over the frames timed
+    equals_model: bool  # on every bench frame it ran (the rounds' frames)
+
+    def to_dict(self) -> Dict[str, object]:
+        return {
+            "fps": _sig(self.rtl.rate),
+            "model_fps": _sig(self.model.rate),
+            "ratio": _sig(self.rtl.rate / self.model.rate),
+            "rounds": self.rtl.rounds,
+            "clocks_per_frame": self.clocks_per_frame,
+            "beats_per_clock": _sig(WIDTH * HEIGHT / self.clocks_per_frame),
+            "sim_clocks_per_s": int(_sig(self.clocks_per_frame * self.rtl.rate)),
+            "equals_model": self.equals_model,
+        }
+
+
+def cosim_rate(left: "CameraParams", right: "CameraParams", peers: FramePeers,
+               seconds: float) -> CosimRate:
+    """The RTL's frame rate on ``peers``' frames, against the model in alternating rounds.
+
+    Raises :class:`stereocam.hdl.ToolMissing` (saying what to install) when Verilator or
+    its tools are missing; the first call builds the simulation program (cached).
     """
-    return None
+    from .drivers.rectify import RectifyCore
+    from .overlays.spec.rectify import BUILDS
+    from .rtl_core import RtlCore
+
+    with RtlCore(BUILDS["colour"], gaps=False) as rtl:
+        driver = RectifyCore(rtl)
+        driver.program(left, right, WIDTH, HEIGHT)
+        driver.enable()
+        outputs: Dict[int, np.ndarray] = {}
+        clocks: List[int] = []
+
+        def run_rtl(i: int) -> Optional[np.ndarray]:
+            out = rtl.process(peers.frame(i))
+            clocks.append(rtl.clocks)
+            if out is not None:
+                outputs[i % len(peers.frames)] = out
+            return out
+
+        timing = _time_rounds({"rtl": run_rtl, "model": peers.run_model}, seconds, COSIM_MIN_ROUNDS)
+    # every frame the RTL emitted (one per call) equals the model's output of that frame
+    equal = len(outputs) == min(len(peers.frames), timing["rtl"].rounds) and all(
+        np.array_equal(out, peers.model.process(peers.frame(i)).frame) for i, out in outputs.items())
+    return CosimRate(timing["rtl"], timing["model"], int(statistics.median(clocks)), equal)
 
 
 def measure(seconds: float = 2.0) -> Dict[str, object]:
@@ -310,7 +364,13 @@ def measure(seconds: float = 2.0) -> Dict[str, object]:
     elapsed = time.perf_counter() - t0
     reference_fps = rows_done / HEIGHT / elapsed
 
-    cosim = cosim_rate()
+    from .hdl import ToolMissing
+
+    cosim_note = COSIM_NOTE
+    try:
+        cosim: Optional[Dict[str, object]] = cosim_rate(left, right, peers, seconds).to_dict()
+    except ToolMissing as exc:
+        cosim, cosim_note = None, f"{COSIM_NOTE}: not measured, {exc}"
     return {
         "frame": [WIDTH, HEIGHT],
         "channels": CHANNELS,
@@ -345,8 +405,8 @@ def measure(seconds: float = 2.0) -> Dict[str, object]:
             "rows_timed": rows_done,
             "equals_model": rows_equal,
         },
-        "cosim": None if cosim is None else {"fps": _sig(cosim), "ratio": _sig(cosim / model_fps)},
-        "cosim_note": COSIM_NOTE,
+        "cosim": cosim,
+        "cosim_note": cosim_note,
     }
 
 
@@ -388,7 +448,11 @@ def text_lines(result: Dict[str, object]) -> List[str]:
     if "cosim" in r:
         cosim, note = r.pop("cosim"), r.pop("cosim_note", "")
         if isinstance(cosim, dict):
-            add("cosim", f"{cosim['fps']} fps: ratio {cosim['ratio']} to the model")
+            c = cosim
+            same = "yes" if c["equals_model"] else "NO"
+            add("cosim", f"{c['fps']} fps: ratio {c['ratio']} to the model ({c['rounds']} rounds); "
+                         f"{c['clocks_per_frame']} clocks per frame ({c['beats_per_clock']} beats per "
+                         f"clock), {c['sim_clocks_per_s']} simulated clocks/s; equal to the model: {same}")
         else:
             add("cosim", f"null: {note}")
     for key, value in r.items():

