@@ -50,7 +50,7 @@ DEFAULT_MAX_HEIGHT = DEFAULT_BUILD.max_height
 DEFAULT_LB_ROWS = DEFAULT_BUILD.lb_rows
 DEFAULT_WIDTH = 752
 DEFAULT_HEIGHT = 480
-SIZE_BITS = 11  # column and row counters: MAX_WIDTH and MAX_HEIGHT are at most 2**SIZE_BITS
+SIZE_BITS = 11  # column and row counters: MAX_WIDTH and MAX_HEIGHT are below 2**SIZE_BITS
 
 # ---- Step 5: interpolation. 5 fractional bits per source coordinate, integer weights (sum 1024),
 # result rounded half up: exactly OpenCV's fixed-point bilinear remap with CV_16SC2 maps.
