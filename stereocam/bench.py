@@ -57,7 +57,7 @@ The results (named objects in the JSON, one line each in the text output):
     core's 2 clocks per beat),
     ``sim_clocks_per_s`` (the simulator's speed) and ``equals_model`` (the RTL's
     output equals the model's on every bench frame). The first run builds the
-    simulation (~20 s, cached in ``build/hdl/harness/``). ``null`` with a
+    simulation (~20 s, cached in ``~/.cache/stereocam/hdl/harness/``). ``null`` with a
     ``cosim_note`` saying what to install when Verilator or its tools are missing
     (the ``board`` env has no Verilator).
 """

@@ -21,7 +21,6 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
-import stereocam
 
 #: The simulators cocotb drives here, by cocotb's runner name.
 SIMULATORS = ("verilator", "icarus")
@@ -132,10 +131,21 @@ def check_tools(sim: str) -> Path:
 
 
 def build_root() -> Path:
-    """``build/hdl`` in the source checkout the package runs from, else in the cwd."""
-    checkout = Path(stereocam.__file__).resolve().parent.parent
-    base = checkout if (checkout / "setup.py").is_file() else Path.cwd()
-    return base / "build" / "hdl"
+    """Where simulator builds and synthesis results are cached: ``$STEREOCAM_HDL_CACHE``, else
+    ``~/.cache/stereocam/hdl`` (``$XDG_CACHE_HOME`` honoured).
+
+    Outside the checkout on purpose: entries are keyed by the content of their sources and
+    the tools' versions, so every clone on a machine (CI clones afresh each run) shares them.
+    """
+    explicit = os.environ.get("STEREOCAM_HDL_CACHE")
+    if explicit:
+        return Path(explicit).expanduser()
+    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(cache).expanduser() / "stereocam" / "hdl"
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _canonical(value: object) -> object:
@@ -146,10 +156,11 @@ def _canonical(value: object) -> object:
     """
     if isinstance(value, Path):
         path = value.resolve()
-        if path.is_dir():
+        if path.is_dir():  # by names relative to it and contents: the same in any clone
             files = sorted(p for p in path.rglob("*") if p.is_file())
-            return {"dir": str(path), "files": [_canonical(p) for p in files]}
-        return {"file": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+            return {"dir": path.name, "files": [{"file": str(p.relative_to(path)), "sha256": _sha256(p)}
+                                                for p in files]}
+        return {"file": path.name, "sha256": _sha256(path)}
     if isinstance(value, Mapping):
         return {str(k): _canonical(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
     if isinstance(value, (list, tuple)):

@@ -207,7 +207,7 @@ def rtl_dir() -> Path:
 
 
 def default_cache_dir() -> Path:
-    """``build/hdl/synth`` beside the other HDL builds (in the checkout, else under the cwd)."""
+    """``synth/`` beside the other HDL builds (:func:`stereocam.hdl.build_root`)."""
     return hdl.build_root() / "synth"
 
 
@@ -435,7 +435,7 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
         description=f"Run yosys synth_xilinx -family xc7 on every *.v in overlays/rtl/ (top {TOP}) with the "
                     f"build's parameters, and print its LUT, LUTRAM, FF, BRAM36 and DSP48E1 beside the "
                     f"paper's Table 1, the build's floor and the {DEVICE}'s totals. Results are cached in "
-                    f"build/hdl/synth/. Exit 0 within the floor, 1 over it, 2 on a tool or input error.")
+                    f"~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, 2 on a tool or input error.")
     s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
                    help="which build's parameters (default gray)")
     s.add_argument("--json", action="store_true", help="print one JSON object on stdout")

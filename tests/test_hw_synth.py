@@ -290,7 +290,7 @@ def test_a_parameter_the_top_lacks_is_named(fake_core: Path, capsys: pytest.Capt
 
 
 # The floor for the whole core (both cameras, line buffers, register block): a build over it fails.
-@pytest.mark.timeout(1800)  # a full yosys run of the core (about a minute); cached in build/hdl/synth after that
+@pytest.mark.timeout(1800)  # a full yosys run of the core (about a minute); cached after that
 @pytest.mark.parametrize("build", ["gray", "colour"])
 def test_rectify_core_fits_its_floor(build: str, capsys: pytest.CaptureFixture[str]) -> None:
     code = run(["hw", "synth", "--build", build, "--json"])

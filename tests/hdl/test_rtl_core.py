@@ -4,7 +4,7 @@ The driver (``drivers/rectify.py: RectifyCore``) programs both the RTL (``RtlCor
 the emulated core (``EmulatedRectifyCore``, the oracle) with the same calibration; the
 same frames then go through both and every output byte, FLAGS, FRAME_COUNT and STATUS
 must agree. Small builds (96x64, 16 buffered rows, colour and gray) keep each test to
-seconds once its program is built (~17 s, cached in ``build/hdl/harness/``); one test runs
+seconds once its program is built (~17 s, cached in ``~/.cache/stereocam/hdl/harness/``); one test runs
 752x480 frames through the real colour build. The small-build tests run with random TVALID
 gaps and TREADY backpressure from seed 1 (``STEREOCAM_RTL_SEED`` chooses another).
 """
