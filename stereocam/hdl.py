@@ -21,7 +21,6 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
-
 #: The simulators cocotb drives here, by cocotb's runner name.
 SIMULATORS = ("verilator", "icarus")
 

@@ -104,7 +104,9 @@ def test_an_edited_header_beside_the_sources_rebuilds(tmp_path: Path) -> None:
     assert again.built and again.build_dir != first.build_dir
 
 
-def test_the_cache_is_shared_by_every_clone_on_the_machine(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+def test_the_cache_is_shared_by_every_clone_on_the_machine(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+) -> None:
     """Outside the checkout, keyed by content: a fresh clone (as CI makes) reuses the builds."""
     monkeypatch.delenv("STEREOCAM_HDL_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
