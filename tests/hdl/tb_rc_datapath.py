@@ -32,6 +32,8 @@ from cocotb.simtime import get_sim_time
 from cocotb.triggers import ClockCycles, FallingEdge, RisingEdge, with_timeout
 from cocotbext.axi import AxiStreamBus, AxiStreamFrame, AxiStreamSink, AxiStreamSource
 
+from ..test_model import random_frame, random_params  # the model tests' calibrations and frames
+
 CLOCK_NS = 10
 FULL = os.environ.get("STEREOCAM_COSIM_FULL") == "1"
 FRAC = 5  # RC_FRAC_BITS
@@ -287,29 +289,8 @@ def fixed_positions(regs: Sequence[Any], width: int, height: int) -> Positions:
     return Positions(tuple(o[0] for o in out), tuple(o[1] for o in out), tuple(o[2].astype(bool) for o in out))
 
 
-def random_calibration(rng: np.random.Generator, w: int, h: int, *, strength: float = 1.0) -> Any:
-    """A plausible camera (intrinsics, distortion, a small rectifying rotation) as CameraParams."""
-    import cv2
-
-    from stereocam.overlays.spec.rectify import CameraParams
-
-    f = rng.uniform(0.6, 1.4) * w
-    K = np.array([[f, 0, w / 2 + rng.uniform(-3, 3)], [0, f * rng.uniform(0.97, 1.03), h / 2 + rng.uniform(-3, 3)], [0, 0, 1]])
-    R, _ = cv2.Rodrigues(rng.normal(0, 0.03 * strength, 3))
-    P = K.copy()
-    P[0, 2] += rng.uniform(-2, 2)
-    P[:2, :2] *= rng.uniform(0.9, 1.1)
-    hinv = K @ np.linalg.inv(P @ R)
-    k = rng.normal(0, [0.2 * strength, 0.05 * strength, 0.003 * strength, 0.003 * strength])
-    return CameraParams(tuple(float(v) for v in hinv.ravel()), K[0, 0], K[1, 1], K[0, 2], K[1, 2], *(float(v) for v in k))
-
-
-def random_frame(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
-    """Random bytes: the gray bytes are not the gray of R, G, B (as a virtual-camera upload may be)."""
-    return rng.integers(0, 256, (h, w, 8), dtype=np.uint8)
-
-
 # ---- bus side -----------------------------------------------------------------------------------
+
 def pause_gen(p: float, rng: random.Random) -> Optional[Iterable[bool]]:
     """Random pauses with probability ``p`` (None: no pauses), in bursts now and then."""
     if p <= 0:
@@ -608,7 +589,7 @@ async def calibrations(dut: SimHandleBase, seed: int) -> None:
 
     tb, rng = await start(dut, 100 + seed)
     w, h = test_size(tb.build)
-    regs = [camera_registers(random_calibration(rng, w, h, strength=2.0), w, h) for _ in range(2)]
+    regs = [camera_registers(random_params(rng, w, h, strength=2.0), w, h) for _ in range(2)]
     pos = fixed_positions(regs, w, h)
     # the smallest delay that never needs a row not yet received (as linebuffer.py computes it)
     need = []
