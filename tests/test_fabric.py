@@ -126,7 +126,7 @@ if os.environ.get("STEREOCAM_TEST_ENV") == "board":
     # over a pynq.Device whose registers and memory are the emulated fabric's.
 
     def test_pynq_bound_fabric_is_bit_exact(calibration) -> None:
-        from stereocam.overlays.emulated.fabric import ADDRESS_MAP
+        from stereocam.overlays.spec.overlay import ADDRESS_MAP
         from stereocam.overlays.emulated.pynq_device import EmulatedPynqDevice
         from stereocam.overlays.pynq_overlay import bind_pynq
 

@@ -8,7 +8,7 @@
 
 Each frame tick of the :class:`FrameClock` moves one frame along every path.
 Software reaches the blocks only through their register windows (at the
-addresses of :data:`ADDRESS_MAP`, as the board's device tree would place
+addresses of :data:`..spec.overlay.ADDRESS_MAP`, as the board's device tree would place
 them) and the DDR allocator, exactly as on the board.
 """
 from __future__ import annotations
@@ -21,6 +21,7 @@ from typing import Dict, Optional, Protocol, Tuple
 import numpy as np
 
 from ..spec.axis_switch import LIVE, VIRTUAL
+from ..spec.overlay import NUM_FSTORES
 from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource, SyntheticRig
 from .clock import FrameClock
@@ -31,16 +32,6 @@ from .switch import EmulatedAxisSwitch
 from .vdma import EmulatedVDMA
 
 log = logging.getLogger(__name__)
-
-# Base addresses of the IP register windows (64 KiB each), as in the overlay's .hwh.
-ADDRESS_MAP: Dict[str, int] = {
-    "vdma_raw": 0x4300_0000,
-    "vdma_proc": 0x4301_0000,
-    "rectify": 0x43C0_0000,
-    "mux": 0x43C1_0000,
-}
-WINDOW_SIZE = 0x1_0000
-NUM_FSTORES = 3
 
 
 class FrameSensors(Protocol):

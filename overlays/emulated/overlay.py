@@ -6,10 +6,10 @@ from typing import Any, Dict, Optional
 from ...drivers.rectify import RectifyCore
 from ..fabric import StereoFabric, bind
 from ..spec.axis_switch import VLNV as SWITCH_VLNV
-from ..spec.overlay import INSTANCES
+from ..spec.overlay import ADDRESS_MAP, INSTANCES, WINDOW_SIZE
 from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource
-from .fabric import ADDRESS_MAP, WINDOW_SIZE, EmulatedFabric
+from .fabric import EmulatedFabric
 from .regblock import EmulationError, RegisterBlock
 
 

@@ -15,6 +15,18 @@ BITSTREAM = "stereocam.bit"  # with stereocam.hwh beside it
 VDMA_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axi_vdma:6.2", "xilinx.com:ip:axi_vdma:6.3")
 SWITCH_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axis_switch:1.1",)
 
+# Base addresses of the IP register windows in the PS7's M_AXI_GP0 range, as the block design
+# (overlays/vivado/block_design.tcl) assigns them and the .hwh reports them; the emulated fabric
+# places its blocks at the same addresses.
+ADDRESS_MAP: Dict[str, int] = {
+    "vdma_raw": 0x4300_0000,
+    "vdma_proc": 0x4301_0000,
+    "rectify": 0x43C0_0000,
+    "mux": 0x43C1_0000,
+}
+WINDOW_SIZE = 0x1_0000  # 64 KiB per IP
+NUM_FSTORES = 3  # frame stores of each VDMA channel (C_NUM_FSTORES)
+
 # instance name -> accepted VLNVs
 INSTANCES: Dict[str, Tuple[str, ...]] = {
     "vdma_raw": VDMA_VLNVS,  # S2MM: raw camera frames to DDR
