@@ -234,6 +234,9 @@ def _stop(proc: "subprocess.Popen[bytes]", stderr: IO[bytes]) -> None:
 class RtlCore:
     """``rectify_core`` under Verilator, driven a frame at a time (see the module docstring).
 
+    ``sources``: the Verilog files to build (default :func:`rtl_sources`), e.g. a copy of
+    the RTL with a fault planted in it.
+
     ``gaps``: the input stream has random TVALID gaps and the output random TREADY
     backpressure (both from ``seed``, so a failure repeats), to exercise the handshakes
     at full speed. ``seed`` None picks one, kept in :attr:`seed`.
@@ -248,11 +251,11 @@ class RtlCore:
     """
 
     def __init__(self, build: Build = DEFAULT_BUILD, *, seed: Optional[int] = None, gaps: bool = False,
-                 jobs: int = 2) -> None:
+                 jobs: int = 2, sources: Optional[Sequence[Path]] = None) -> None:
         self.build = build
         self.seed = seed if seed is not None else random.SystemRandom().randrange(1 << 32)
         self.gaps = gaps
-        self.harness = build_harness(build, jobs=jobs)
+        self.harness = build_harness(build, jobs=jobs, sources=sources)
         self.last = FrameRun()
         self._pending: Optional[List[Tuple[np.ndarray, np.ndarray]]] = None  # an unfinished output frame
         self._lock = threading.Lock()
