@@ -68,6 +68,8 @@ __all__ = ["create_app", "run", "serve", "program_default_calibration", "default
            "STATIC_DIR"]
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
+RTL_NO_SIGNAL_S = 5.0  # no_signal_s at least this with the RTL core (it runs a few frames per second)
+RTL_TIMEOUT_S = 30.0  # driver waits with the RTL core: a frame of simulation takes a large part of a second
 Setup = Callable[[web.Application], None]
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
@@ -157,6 +159,9 @@ def create_app(
     extensions: Sequence[Setup] = (),
 ) -> web.Application:
     """The daemon's application for ``overlay`` (see the module doc); nothing runs until it starts."""
+    if getattr(overlay, "core_kind", None) == "rtl" and config.no_signal_s < RTL_NO_SIGNAL_S:
+        # A simulated core delivers a few frames per second: a frame 0.5 s old is not a lost signal.
+        config = config.replace(no_signal_s=RTL_NO_SIGNAL_S)
     metrics = Metrics()
     app = web.Application(
         middlewares=[_json_errors(metrics),
@@ -179,7 +184,8 @@ def create_app(
     app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
     app[CAPTURES] = captures if captures is not None else CaptureStore(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
-    app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed)
+    rtl = getattr(overlay, "core_kind", None) == "rtl"
+    app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
     app[CALIBRATION] = calibration or CalibrationState(lb_rows=fabric.rectify.lb_rows)
     app[EXTENSIONS] = Extensions()
 
@@ -317,13 +323,51 @@ def _camera_source(config: Config) -> Any:
     return ReplaySource(Path(config.source).expanduser())
 
 
+def open_rtl_core(build: Any, rtl_dir: Optional[str] = None) -> Any:
+    """The rectify core's RTL (or the copy in ``rtl_dir``) compiled for ``build``; ServeError if it cannot be."""
+    from ..hdl import ToolMissing
+    from ..rtl_core import RtlCore, RtlError, rtl_sources
+
+    sources = None
+    if rtl_dir is not None:
+        folder = Path(rtl_dir).expanduser()
+        sources = sorted([*folder.glob("*.v"), *folder.glob("*.vh")])
+        if not (folder / "rectify_core.v").is_file():
+            raise ServeError(f"--rtl-dir {folder}: no rectify_core.v there; give a copy of overlays/rtl")
+    where = rtl_dir or str(rtl_sources()[0].parent)
+    log.info("rectify core: the RTL in %s under Verilator (%s build; the first build takes about a minute, "
+             "then it is cached)", where, build.name)
+    try:
+        return RtlCore(build, sources=sources)
+    except ToolMissing as exc:
+        raise ServeError(f"--core rtl: {exc}") from None
+    except RtlError as exc:
+        raise ServeError(f"--core rtl: the RTL in {where} did not build: {exc}") from None
+
+
 def open_configured_overlay(config: Config) -> Any:
     from ..overlays.backend import open_overlay
     from ..overlays.spec.rectify import BUILDS
 
     bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
-    return open_overlay(config.backend, bitstream=bitstream, source=_camera_source(config), fps=config.fps,
-                        clock="realtime", build=BUILDS[config.core_build])
+    build = BUILDS[config.core_build]
+    if config.core == "model":
+        return open_overlay(config.backend, bitstream=bitstream, source=_camera_source(config), fps=config.fps,
+                            clock="realtime", build=build)
+    if config.backend == "pynq":
+        raise ServeError("--core rtl simulates the core's RTL on the emulated fabric; the pynq backend runs "
+                         "the board's own core: use --backend emulated (or auto) with --core rtl")
+    from ..overlays.backend import Choice
+
+    core = open_rtl_core(build, config.rtl_dir)
+    try:
+        overlay = open_overlay("emulated", source=_camera_source(config), fps=config.fps, clock="realtime",
+                               build=build, core=core, core_kind="rtl", timeout=RTL_TIMEOUT_S)
+    except BaseException:
+        core.close()
+        raise
+    overlay.choice = Choice("emulated", "--core rtl: the rectify core is its RTL under Verilator")
+    return overlay
 
 
 async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.Event] = None,

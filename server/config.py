@@ -19,9 +19,10 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 from ..overlays.spec.rectify import BUILDS
 
-__all__ = ["Config", "ConfigError", "BACKENDS", "DEFAULT_CAPTURES", "MAX_FPS"]
+__all__ = ["Config", "ConfigError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "MAX_FPS"]
 
 BACKENDS = ("auto", "pynq", "emulated")
+CORES = ("model", "rtl")  # what stands behind the emulated fabric's rectify core
 MAX_FPS = 120.0
 DEFAULT_CAPTURES = "~/.local/share/stereocam/captures"
 
@@ -40,7 +41,9 @@ class Config:
     ``checkerboard``, that scene with a 9x6 board of 25 mm squares held in
     front in a new random pose every 1.5 s, for trying calibration; or a
     folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``core_build``
-    (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``calibration``
+    (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``core`` (what
+    computes the emulated fabric's rectify core: ``model``, the numpy model, or ``rtl``, the
+    core's Verilog compiled with Verilator; ``rtl_dir`` builds another copy of the RTL), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
     calibration on the emulated fabric). Storage: ``captures`` folder,
     ``min_free_mb`` kept free on its disk, ``state_dir`` (where the page's
@@ -61,6 +64,8 @@ class Config:
     source: str = "synthetic"
     fps: float = 60.0
     core_build: str = "colour"
+    core: str = "model"
+    rtl_dir: Optional[str] = None
     calibration: Optional[str] = None
     captures: str = DEFAULT_CAPTURES
     state_dir: Optional[str] = None
@@ -218,9 +223,13 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
         if value not in BUILDS:
             raise ConfigError(f"{_where(origin)}core_build must be one of {', '.join(BUILDS)}, got {value!r}")
         return value
+    if key == "core":
+        if value not in CORES:
+            raise ConfigError(f"{_where(origin)}core must be one of {', '.join(CORES)}, got {value!r}")
+        return value
     if key in ("host", "source", "captures"):
         return _text(origin, key, value, optional=False)
-    if key in ("bitstream", "calibration", "state_dir"):
+    if key in ("bitstream", "calibration", "state_dir", "rtl_dir"):
         return _text(origin, key, value, optional=True)
     if key == "access_token":
         token = _text(origin, key, value, optional=True)

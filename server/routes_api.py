@@ -132,7 +132,7 @@ class VirtualCamera:
         """Mux to virtual, frame down MM2S, wait until the channel reads it; the FRAME_COUNT then."""
         self.fabric.select("virtual")
         self.fabric.send_virtual(frame)
-        self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3)))
+        self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3), self.round_trip_timeout / 2))
         return int(self.pipeline.frame_count())
 
     def _live_blocking(self) -> None:
@@ -237,6 +237,7 @@ async def status_handler(request: web.Request) -> web.Response:
         "frames": pipeline.frames,
         "drops": pipeline.drops,
         "core": hw.get("core"),
+        "core_impl": getattr(overlay, "core_kind", "hardware"),
         "vdma": hw.get("vdma"),
         "calibration": app[CALIBRATION].to_json(),
         "virtual_camera": app[VIRTUAL].to_json(),

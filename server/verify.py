@@ -21,8 +21,8 @@ client's).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Dict, Optional, Tuple
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -33,6 +33,7 @@ from .errors import ApiError
 __all__ = ["VerifyError", "VerifyReport", "ChannelStats", "compare", "difference_image"]
 
 _CAMERAS = (("left", pixel.LEFT), ("right", pixel.RIGHT))
+EXAMPLES = 10  # differing pixels a report lists
 
 
 class VerifyError(ApiError, ValueError):
@@ -69,6 +70,10 @@ class VerifyReport:
     ``first_difference`` is None when identical, else the first differing
     pixel in raster order: ``{"x", "y", "expected": [8 values],
     "actual": [8 values]}`` (channel order of ``pixel.CHANNELS``).
+    ``regions``: per camera, the smallest rectangle holding its differing
+    pixels (``{"x0", "y0", "x1", "y1"}``, inclusive) or None; ``examples``:
+    the first :data:`EXAMPLES` differing pixels in raster order, shaped like
+    ``first_difference``, so a script sees where to look without the image.
     """
 
     identical: bool
@@ -78,6 +83,8 @@ class VerifyReport:
     cameras: Dict[str, ChannelStats]
     channels: Dict[str, ChannelStats]
     first_difference: Optional[Dict[str, Any]]
+    regions: Dict[str, Optional[Dict[str, int]]] = field(default_factory=dict)
+    examples: List[Dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> Dict[str, Any]:
         """A JSON-ready dict (PSNR of identical data is ``null``)::
@@ -86,13 +93,17 @@ class VerifyReport:
              "differing": 12, "share": 3.3e-05, "max_difference": 1, "psnr_db": 97.1,
              "cameras": {"left": {...}, "right": {...}},
              "channels": {"L_R": {"differing", "share", "max_difference", "psnr_db"}, ...},
-             "first_difference": {"x": 5, "y": 0, "expected": [...], "actual": [...]}}
+             "first_difference": {"x": 5, "y": 0, "expected": [...], "actual": [...]},
+             "regions": {"left": {"x0": 5, "y0": 0, "x1": 40, "y1": 9}, "right": None},
+             "examples": [{"x": 5, "y": 0, "expected": [...], "actual": [...]}, ...]}
         """
         out: Dict[str, Any] = {"identical": self.identical, "width": self.width, "height": self.height}
         out.update(self.overall.to_json())
         out["cameras"] = {name: s.to_json() for name, s in self.cameras.items()}
         out["channels"] = {name: s.to_json() for name, s in self.channels.items()}
         out["first_difference"] = self.first_difference
+        out["regions"] = {name: None if r is None else dict(r) for name, r in self.regions.items()}
+        out["examples"] = [dict(e) for e in self.examples]
         return out
 
 
@@ -157,7 +168,7 @@ def compare(expected: np.ndarray, actual: np.ndarray) -> VerifyReport:
             identical=True, width=w, height=h, overall=same,
             cameras={name: same for name, _ in _CAMERAS},
             channels={name: same for name in pixel.CHANNELS},
-            first_difference=None,
+            first_difference=None, regions={name: None for name, _ in _CAMERAS},
         )
     diff = _absdiff(expected, actual)
     hists = np.stack([np.bincount(diff[..., c].ravel(), minlength=256) for c in range(diff.shape[2])])
@@ -168,17 +179,26 @@ def compare(expected: np.ndarray, actual: np.ndarray) -> VerifyReport:
         name: _stats(diff[..., side], hists[side], pixels) for name, side in _CAMERAS
     }
     overall = _stats(diff, hists, pixels)
-    first = int(np.argmax(diff.max(axis=2).ravel() > 0))
-    y, x = divmod(first, w)
-    first_difference = {
-        "x": x, "y": y,
-        "expected": [int(v) for v in expected[y, x]],
-        "actual": [int(v) for v in actual[y, x]],
-    }
+    flat = np.flatnonzero(diff.max(axis=2).ravel())
+    examples = []
+    for index in flat[:EXAMPLES]:
+        y, x = divmod(int(index), w)
+        examples.append({"x": x, "y": y, "expected": [int(v) for v in expected[y, x]],
+                         "actual": [int(v) for v in actual[y, x]]})
     return VerifyReport(
         identical=False, width=w, height=h, overall=overall, cameras=cameras, channels=channels,
-        first_difference=first_difference,
+        first_difference=examples[0], regions={name: _region(diff[..., side]) for name, side in _CAMERAS},
+        examples=examples,
     )
+
+
+def _region(diff: np.ndarray) -> Optional[Dict[str, int]]:
+    """The inclusive bounding box of the pixels where ``diff`` (H, W, k) is not zero, or None."""
+    mask = diff.max(axis=2) > 0
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return None
+    return {"x0": int(cols[0]), "y0": int(rows[0]), "x1": int(cols[-1]), "y1": int(rows[-1])}
 
 
 def difference_image(expected: np.ndarray, actual: np.ndarray) -> np.ndarray:

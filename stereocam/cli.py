@@ -10,7 +10,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import List, Optional, Sequence
+from typing import Any, List, Optional, Sequence
 
 import numpy as np
 
@@ -115,7 +115,10 @@ def cmd_rectify(args: argparse.Namespace) -> int:
     fit = cal.fit
     options = CoreOptions(lb_rows=args.lb_rows, lb_delay=fit.delay, gray=gray)
     frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
-    out = RectifyModel(cal.left, cal.right, w, h, options).process(frame).frame
+    if args.core == "rtl":
+        out = _rectify_rtl(cal, frame, lb_rows=args.lb_rows, gray=gray)
+    else:
+        out = RectifyModel(cal.left, cal.right, w, h, options).process(frame).frame
     outdir = Path(args.output)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
@@ -124,10 +127,50 @@ def cmd_rectify(args: argparse.Namespace) -> int:
     for name, rgby in (("left", out[..., pixel.LEFT]), ("right", out[..., pixel.RIGHT])):
         _write_png(outdir / f"{name}.png", rgby[..., pixel.Y] if gray else np.ascontiguousarray(rgby[..., :3]))
     print(
-        f"wrote {outdir / 'left.png'} and {outdir / 'right.png'} ({w}x{h} {'gray' if gray else 'colour'}); "
+        f"wrote {outdir / 'left.png'} and {outdir / 'right.png'} ({w}x{h} {'gray' if gray else 'colour'}, "
+        f"{'the RTL under Verilator' if args.core == 'rtl' else 'the model'}); "
         f"line buffer: {fit.rows} of {args.lb_rows} rows needed (delay {fit.delay})"
     )
     return 0
+
+
+RTL_TIMEOUT_S = 60.0  # register waits against the simulated core (a frame takes a large part of a second)
+
+
+def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> np.ndarray:
+    """``frame`` through the core's RTL under Verilator, programmed by the driver as on the board.
+
+    The RTL is built (once, then cached) with the default build's parameters, widened to
+    the image and with ``lb_rows`` rows, the bitstream the model stands for.
+    """
+    import dataclasses
+
+    from .drivers.mmio import DriverError
+    from .drivers.rectify import RectifyCore
+    from .hdl import ToolMissing
+    from .overlays.model.config import ConfigError
+    from .overlays.spec.rectify import DEFAULT_BUILD, SIZE_BITS
+    from .rtl_core import RtlCore, RtlError
+
+    h, w = frame.shape[:2]
+    if max(w, h) >= 1 << SIZE_BITS:
+        raise UserError(f"{w}x{h}: the core's RTL takes images below {1 << SIZE_BITS} pixels each way")
+    build = dataclasses.replace(DEFAULT_BUILD, name="rectify", max_width=max(DEFAULT_BUILD.max_width, w),
+                                max_height=max(DEFAULT_BUILD.max_height, h), lb_rows=lb_rows)
+    try:
+        with RtlCore(build) as core:
+            driver = RectifyCore(core, timeout=RTL_TIMEOUT_S)
+            driver.program(cal.left, cal.right, w, h)
+            driver.set_mode(enable=True, gray=gray)
+            out = core.process(frame)
+    except ToolMissing as exc:
+        raise UserError(f"--core rtl: {exc}") from None
+    except (RtlError, DriverError, ConfigError) as exc:
+        raise UserError(f"--core rtl: {exc}") from None
+    if out is None or out.shape != frame.shape:
+        raise UserError(f"--core rtl: the RTL core returned {'no frame' if out is None else out.shape} "
+                        f"for a {w}x{h} frame; see STATUS and FLAGS (a bug in the RTL)")
+    return out
 
 
 class _ProgressDisplay:
@@ -233,7 +276,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
                              bitstream=args.bitstream, source=args.source, fps=args.fps,
-                             core_build=args.core_build)
+                             core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir)
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:
         raise UserError(str(exc)) from None
@@ -284,6 +327,11 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
     s.add_argument("--core-build", choices=("colour", "gray"),
                    help="the rectify core build the emulated fabric has (default colour; see RECTIFY_CORE.md)")
+    s.add_argument("--core", choices=("model", "rtl"),
+                   help="what computes the emulated fabric's rectify core: model (default, numpy) or rtl "
+                        "(the core's Verilog under Verilator; slower, a few frames per second)")
+    s.add_argument("--rtl-dir", metavar="DIR",
+                   help="with --core rtl: build this copy of overlays/rtl instead (e.g. one being changed)")
     s.set_defaults(func=cmd_serve)
 
     i = sub.add_parser(
@@ -315,8 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    p = sub.add_parser("rectify", help="run the core's model on an image pair",
-                       description="Rectify and undistort LEFT and RIGHT with the core's bit-exact model.")
+    p = sub.add_parser("rectify", help="run the core (its model, or its RTL) on an image pair",
+                       description="Rectify and undistort LEFT and RIGHT with the core's bit-exact model "
+                                   "(or, with --core rtl, its Verilog under Verilator).")
     p.add_argument("--calibration", required=True, metavar="CAL",
                    help="a stereocam calibration.yaml, a MATLAB stereoParameters .mat, or two files "
                         "separated by a comma: intrinsics.yml,extrinsics.yml (OpenCV stereo_calib) or "
@@ -324,6 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="writes OUTDIR/left.png and OUTDIR/right.png")
     p.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
                    help=f"line-buffer rows of the bitstream to model (default {DEFAULT_LB_ROWS})")
+    p.add_argument("--core", choices=("model", "rtl"), default="model",
+                   help="model (default): the bit-exact numpy model; rtl: the core's Verilog under Verilator "
+                        "(built once and cached; the output is the same byte for byte)")
     p.add_argument("left")
     p.add_argument("right")
     p.set_defaults(func=cmd_rectify)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereocam.overlays.spec import pixel
-from stereocam.server.verify import ChannelStats, VerifyError, compare, difference_image
+from stereocam.server.verify import EXAMPLES, ChannelStats, VerifyError, compare, difference_image
 
 W, H = 40, 30
 
@@ -91,6 +91,23 @@ def test_first_difference_is_in_raster_order() -> None:
     b[9, 0, 0] ^= 1
     assert compare(a, b).first_difference["x"] == 2  # type: ignore[index]
     assert compare(a, b).first_difference["y"] == 5  # type: ignore[index]
+
+
+def test_regions_and_examples_say_where_the_frames_differ() -> None:
+    a = frame(7)
+    b = a.copy()
+    for y, x in [(3, 17), (12, 4), (8, 25)]:  # left camera only: the right camera has no region
+        b[y, x, 1] ^= 4
+    report = compare(a, b)
+    assert report.regions == {"left": {"x0": 4, "y0": 3, "x1": 25, "y1": 12}, "right": None}
+    assert [(e["x"], e["y"]) for e in report.examples] == [(17, 3), (25, 8), (4, 12)]
+    assert report.examples[1]["actual"] == b[8, 25].tolist() and report.examples[0] == report.first_difference
+    c = a.copy()
+    c[..., 4] ^= 1  # every pixel of the right camera: the examples stop at EXAMPLES
+    many = compare(a, c)
+    assert len(many.examples) == EXAMPLES and many.regions["right"] == {
+        "x0": 0, "y0": 0, "x1": a.shape[1] - 1, "y1": a.shape[0] - 1}
+    assert compare(a, a.copy()).to_json()["regions"] == {"left": None, "right": None}
 
 
 def test_compare_does_not_modify_its_inputs() -> None:

@@ -48,6 +48,22 @@ class FrameSensors(Protocol):
     def end_frame(self, index: int, frame: np.ndarray) -> None: ...
 
 
+class StreamCore(Protocol):
+    """What stands in the rectify core's place: a register window plus whole frames in and out.
+
+    :class:`.rectify.EmulatedRectifyCore` (the model) is the default;
+    ``stereocam.rtl_core.RtlCore`` (the RTL under Verilator) is the other, so
+    the same drivers and stream paths run in front of the core's HDL.
+    ``process`` returns the output frame, or None when the core emits none.
+    """
+
+    def read(self, offset: int, length: int = 4) -> int: ...
+
+    def write(self, offset: int, value: int) -> None: ...
+
+    def process(self, frame: np.ndarray) -> Optional[np.ndarray]: ...
+
+
 @dataclass
 class FabricCounters:
     """What happened on the stream paths, for tests and status pages."""
@@ -69,21 +85,24 @@ class EmulatedFabric:
     ``clock="stepped"`` makes :meth:`step` the only way frames move (tests,
     benchmarks); ``"realtime"`` runs a thread at ``fps`` once :meth:`start`
     is called. ``source`` defaults to a :class:`SyntheticRig`; the fabric
-    closes it on :meth:`close`. ``sensors`` (optional, settable later) are
+    closes it on :meth:`close`. ``core`` replaces the model of the rectify
+    core (e.g. with the RTL, ``stereocam.rtl_core.RtlCore``, built for ``build``);
+    the fabric closes it too. ``sensors`` (optional, settable later) are
     ticked around every camera frame (:class:`FrameSensors`).
     """
 
     def __init__(
         self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
         num_fstores: int = NUM_FSTORES, build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None,
-        ddr_size: int = 256 << 20, sensors: Optional[FrameSensors] = None,
+        ddr_size: int = 256 << 20, sensors: Optional[FrameSensors] = None, core: Optional[StreamCore] = None,
     ) -> None:
         self.ddr = EmulatedDDR(size=ddr_size)
         self.vdma_raw = EmulatedVDMA(self.ddr, num_fstores, "vdma_raw")
         self.vdma_proc = EmulatedVDMA(self.ddr, num_fstores, "vdma_proc")
         self.mux = EmulatedAxisSwitch(name="mux")
-        self.core = EmulatedRectifyCore(max_width=build.max_width, max_height=build.max_height,
-                                        lb_rows=build.lb_rows if lb_rows is None else lb_rows, colour=build.colour)
+        self.core: StreamCore = core if core is not None else EmulatedRectifyCore(
+            max_width=build.max_width, max_height=build.max_height,
+            lb_rows=build.lb_rows if lb_rows is None else lb_rows, colour=build.colour)
         self.num_fstores = num_fstores
         self.source: CameraSource = source if source is not None else SyntheticRig()
         self.sensors: Optional[FrameSensors] = sensors
@@ -93,7 +112,7 @@ class EmulatedFabric:
         self.clock = FrameClock(fps, self.tick, mode=clock, name="emulated-fabric")
 
     @property
-    def blocks(self) -> Dict[str, RegisterBlock]:
+    def blocks(self) -> Dict[str, "RegisterBlock | StreamCore"]:
         return {"vdma_raw": self.vdma_raw, "vdma_proc": self.vdma_proc, "rectify": self.core, "mux": self.mux}
 
     @property
@@ -147,3 +166,6 @@ class EmulatedFabric:
     def close(self) -> None:
         self.clock.stop()
         self.source.close()
+        close_core = getattr(self.core, "close", None)
+        if close_core is not None:
+            close_core()

@@ -9,7 +9,7 @@ from ..spec.axis_switch import VLNV as SWITCH_VLNV
 from ..spec.overlay import ADDRESS_MAP, INSTANCES, WINDOW_SIZE
 from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource
-from .fabric import EmulatedFabric
+from .fabric import EmulatedFabric, StreamCore
 from .regblock import EmulationError, RegisterBlock
 
 
@@ -24,9 +24,15 @@ class EmulatedOverlay:
     backend = "emulated"
 
     def __init__(self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
-                 build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0) -> None:
-        """``build``: the rectify core's build parameters; ``lb_rows`` overrides its line-buffer rows."""
-        self.hw = EmulatedFabric(source=source, fps=fps, clock=clock, build=build, lb_rows=lb_rows)
+                 build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0,
+                 core: Optional[StreamCore] = None, core_kind: str = "model") -> None:
+        """``build``: the rectify core's build parameters; ``lb_rows`` overrides its line-buffer rows.
+
+        ``core``: what stands in the rectify core's place instead of the model (the RTL, built
+        for ``build``); ``core_kind`` names it in the daemon's status ("model" or "rtl").
+        """
+        self.core_kind = core_kind
+        self.hw = EmulatedFabric(source=source, fps=fps, clock=clock, build=build, lb_rows=lb_rows, core=core)
         blocks = self.hw.blocks
         self.ip_dict: Dict[str, Dict[str, Any]] = {
             name: {
@@ -39,7 +45,7 @@ class EmulatedOverlay:
         }
         by_address = {ADDRESS_MAP[name]: block for name, block in blocks.items()}
 
-        def open_window(address: int, length: int) -> RegisterBlock:
+        def open_window(address: int, length: int) -> "RegisterBlock | StreamCore":
             try:
                 return by_address[address]
             except KeyError:

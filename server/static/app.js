@@ -254,6 +254,7 @@
     const rows = [];
     const add = (key, label, value, cls) => rows.push([key, label, value, cls]);
     add("backend", "backend", fmt(st.backend) + (st.backend_reason ? " (" + st.backend_reason + ")" : ""));
+    if (st.core_impl) add("core_impl", "rectify core", st.core_impl === "rtl" ? "RTL (Verilator)" : fmt(st.core_impl));
     add("source", "source", fmt(st.source) + (st.mux && st.mux !== st.source ? " (mux: " + fmt(st.mux) + ")" : ""));
     if (st.signal !== undefined) add("signal", "signal", st.signal ? "yes" : "NO SIGNAL", st.signal ? "" : "bad");
     if (st.last_frame && typeof st.last_frame === "object") {
@@ -463,6 +464,15 @@
     for (const [name, c] of Object.entries(res.channels || {})) row(name, c, c.differing ? "bad" : "");
     row("all", res, "total");
     tbody.replaceChildren(frag);
+    const where = $("verify-where");
+    const parts = [];
+    for (const [cam, r] of Object.entries(res.regions || {})) {
+      if (r) parts.push(cam + " camera: x " + r.x0 + "–" + r.x1 + ", y " + r.y0 + "–" + r.y1);
+    }
+    const first = res.first_difference;
+    if (first) parts.unshift("first at (" + first.x + ", " + first.y + ")");
+    where.textContent = parts.length ? "differences: " + parts.join("; ") : "";
+    where.hidden = !parts.length;
     box.hidden = false;
     return loadImage($("verify-difference"), bust("/api/verify/difference.png"));
   }
