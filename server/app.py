@@ -68,6 +68,7 @@ __all__ = ["create_app", "run", "serve", "program_default_calibration", "default
            "STATIC_DIR"]
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
+SOURCES = ("synthetic", "checkerboard")  # the emulated cameras' built-in scenes; anything else is a folder
 RTL_NO_SIGNAL_S = 5.0  # no_signal_s at least this with the RTL core (it runs a few frames per second)
 RTL_TIMEOUT_S = 30.0  # driver waits with the RTL core: a frame of simulation takes a large part of a second
 Setup = Callable[[web.Application], None]
@@ -318,9 +319,17 @@ def _camera_source(config: Config) -> Any:
         from ..overlays.emulated.targets import CheckerboardTarget
 
         return CheckerboardTarget()  # the rig with a 9x6 board (25 mm squares) held in a new pose every 1.5 s
-    from ..overlays.emulated.cameras import ReplaySource
+    from ..overlays.emulated.cameras import ReplayError, ReplaySource
 
-    return ReplaySource(Path(config.source).expanduser())
+    try:
+        return ReplaySource(Path(config.source).expanduser())
+    except ReplayError as exc:
+        import difflib
+
+        close = difflib.get_close_matches(config.source, SOURCES, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ServeError(f"--source {config.source!r}: {hint}give {' or '.join(SOURCES)}, or a folder of "
+                         f"recorded pairs ({exc})") from None
 
 
 def open_rtl_core(build: Any, rtl_dir: Optional[str] = None) -> Any:

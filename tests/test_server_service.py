@@ -258,6 +258,15 @@ def test_serve_notifies_systemd_and_stops_on_sigterm_within_two_seconds(tmp_path
     assert "Traceback" not in log.read_text()
 
 
+def test_serve_names_a_source_typo_in_one_line(tmp_path) -> None:
+    with stereocam("serve", "--backend", "emulated", "--port", "0", "--captures", str(tmp_path / "c"),
+                   "--source", "synthtic") as proc:
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert err.startswith("stereocam serve: error: --source 'synthtic': did you mean 'synthetic'? ")
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
 def test_serve_refuses_a_port_in_use(tmp_path) -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
