@@ -5,7 +5,8 @@ paper's six flows need (capture raw frames, push a virtual-camera frame,
 read rectified frames, switch the mux back to live) using drivers only, so
 the same code runs on the board and on the emulated fabric. It is built by
 :func:`bind` from an ``ip_dict`` (pynq's format) plus a way to open register
-windows and an allocator.
+windows and an allocator, or by :func:`from_drivers` from drivers that pynq
+has already bound to the overlay's IP.
 """
 from __future__ import annotations
 
@@ -152,3 +153,34 @@ def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, i
         backend=backend,
         frame_size=frame_size,
     )
+
+
+# The driver class each instance of INSTANCES needs, for overlays whose drivers are bound elsewhere (pynq).
+DRIVER_TYPES: Dict[str, type] = {"vdma_raw": VDMA, "vdma_proc": VDMA, "mux": AxisSwitch, "rectify": RectifyCore}
+
+
+def require_instances(ip_dict: Mapping[str, Mapping[str, Any]]) -> None:
+    """Refuse an overlay that lacks an instance or has the wrong IP under a name (the checks of :func:`bind`)."""
+    for name, vlnvs in INSTANCES.items():
+        desc = ip_dict.get(name)
+        if desc is None:
+            raise UnsupportedIP(f"the overlay has no IP named {name!r}; found {', '.join(sorted(ip_dict)) or 'none'}")
+        if desc.get("type") not in vlnvs:
+            raise UnsupportedIP(f"IP {name!r} is {desc.get('type')!r}, expected {' or '.join(vlnvs)}")
+
+
+def from_drivers(drivers: Mapping[str, Any], allocate: Allocator, *, backend: str,
+                 frame_size: Tuple[int, int]) -> StereoFabric:
+    """A :class:`StereoFabric` over drivers already bound, by instance name (e.g. by pynq's overlay).
+
+    The fabric uses these very objects (it does not open windows of its own).
+    Refuses a missing instance or a driver of the wrong class.
+    """
+    for name, cls in DRIVER_TYPES.items():
+        driver = drivers.get(name)
+        if driver is None:
+            raise UnsupportedIP(f"no driver bound to {name!r}; bound: {', '.join(sorted(drivers)) or 'none'}")
+        if not isinstance(driver, cls):
+            raise UnsupportedIP(f"{name!r} is bound to {type(driver).__name__}, not a {cls.__name__} driver")
+    return StereoFabric(raw_vdma=drivers["vdma_raw"], proc_vdma=drivers["vdma_proc"], mux=drivers["mux"],
+                        rectify=drivers["rectify"], allocate=allocate, backend=backend, frame_size=frame_size)

@@ -15,6 +15,16 @@ the real IP on the board.
   each wait advances the emulated frame clock (the ``tick`` callable) until
   the IP's interrupt line is high, at most ``max_ticks`` frames, then raises
   :class:`InterruptTimeout` instead of hanging.
+* Bitstreams: ``pynq.Overlay(bit, device=dev)`` works as on the board's
+  ``EmbeddedDevice``: the ``.hwh`` beside the ``.bit`` is read by pynq's own
+  metadata parser, and a download records the loaded bitstream in pynq's
+  PL state file (``global_pl_state_.json``: name, hash, timestamp), here
+  under ``state_dir``, with the FPGA manager's ``state``/``flags`` beside it
+  (``state_dir/fpga0``), before "programming". The emulated IP answer only
+  while the PL holds a design with them at their addresses: after a
+  download of another design every register access raises :class:`BusHang`
+  (on the board it would hang the AXI bus), and :attr:`bus_accesses` counts
+  every attempt, so tests can show that nothing touched the bus.
 
 pynq is imported lazily, here only: importing this module needs no pynq;
 using :class:`EmulatedPynqDevice` or :func:`pynq_axi_vdma` does. pynq's
@@ -24,22 +34,33 @@ not support the CPU Architecture") are silenced for that import only.
 
 from __future__ import annotations
 
+import datetime
+import json
 import warnings
+from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import numpy as np
 
+from ..spec.overlay import INSTANCES
 from ..spec.vdma import VLNV as VDMA_VLNV
 from .ddr import EmulatedDDR
 from .regblock import EmulationError, RegisterBlock
 from .vdma import EmulatedVDMA
 
-__all__ = ["EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma", "import_pynq"]
+__all__ = ["BusHang", "EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma", "import_pynq"]
 # ``EmulatedPynqDevice`` is also public; it is made on first access (module ``__getattr__``).
 
 
 class InterruptTimeout(EmulationError):
     """An interrupt never rose although the frame clock advanced ``max_ticks`` frames."""
+
+
+class BusHang(EmulationError):
+    """A register access while the PL holds no design with IP at that address (the board's bus would hang)."""
+
+
+STATE_FILE = "global_pl_state_.json"  # pynq's PL state file for device tag "" (pynq.pl_server.global_state)
 
 
 def import_pynq() -> Any:
@@ -105,7 +126,14 @@ def _device_class() -> type:
         each block occupies its register map's size. ``tick`` advances the
         emulated fabric by one frame (see :func:`loopback_tick`). Not
         registered with pynq's device probing: pass it explicitly
-        (``description["device"]``, ``MMIO(..., device=dev)``, ``target=``).
+        (``description["device"]``, ``MMIO(..., device=dev)``, ``target=``,
+        ``Overlay(..., device=dev)``).
+
+        ``programmed``: the blocks answer from the start, as if their design
+        had been loaded before (False: a fresh board, where every access is
+        a :class:`BusHang` until a design with them is downloaded).
+        ``state_dir``: where pynq's PL state file and the FPGA manager's
+        files are kept (None: downloads record nothing).
         """
 
         def __init__(
@@ -116,8 +144,11 @@ def _device_class() -> type:
             tick: Callable[[], None],
             max_ticks: int = 64,
             tag: str = "stereocam-emulated",
+            programmed: bool = True,
+            state_dir: Optional[Path] = None,
         ) -> None:
             super().__init__(tag)
+            self.name = tag
             self.capabilities = {"REGISTER_RW": True, "MEMORY_MAPPED": False, "CALLABLE": False}
             self.ddr = ddr
             self.tick = tick
@@ -135,6 +166,14 @@ def _device_class() -> type:
             self.interrupt_pins: Dict[str, Any] = {}
             self.interrupt_controllers: Dict[str, Any] = {}
             self.hierarchy_dict: Dict[str, Any] = {}
+            self.state_dir = state_dir
+            self.mapped = programmed  # the blocks answer at their addresses
+            self.pl_design: Optional[str] = "loaded before" if programmed else None
+            self.bus_accesses = 0
+            self.downloads: List[str] = []
+            if state_dir is not None:
+                self.fpga_manager.mkdir(parents=True, exist_ok=True)
+                self._fpga_manager_files("operating" if programmed else "unknown")
 
         @property
         def default_memory(self) -> EmulatedDDR:
@@ -145,6 +184,10 @@ def _device_class() -> type:
 
         # -- REGISTER_RW capability ---------------------------------------------------------
         def _block_at(self, address: int, length: int) -> Tuple[RegisterBlock, int]:
+            self.bus_accesses += 1
+            if not self.mapped:
+                raise BusHang(f"register access at {address:#010x} while the PL holds "
+                              f"{self.pl_design or 'no design'}: on the board this hangs the AXI bus")
             for base, size, _, block in self._windows:
                 if base <= address and address + length <= base + size:
                     return block, address - base
@@ -181,6 +224,8 @@ def _device_class() -> type:
                 "parameters": {},
                 "state": None,
             }
+            if name in INSTANCES:
+                desc["type"] = INSTANCES[name][-1]
             if isinstance(block, EmulatedVDMA):
                 desc["type"] = VDMA_VLNV[-1]
                 desc["parameters"] = {
@@ -194,6 +239,92 @@ def _device_class() -> type:
 
         def interrupt(self, name: str, line: Callable[[], bool]) -> EmulatedInterrupt:
             return EmulatedInterrupt(name, self.tick, line, self.max_ticks)
+
+        # -- bitstreams ------------------------------------------------------------------------
+        @property
+        def state_file(self) -> Path:
+            """pynq's record of the loaded bitstream (on the board: in pynq's ``pl_server`` folder)."""
+            if self.state_dir is None:
+                raise EmulationError("this emulated device keeps no PL state (give state_dir)")
+            return self.state_dir / STATE_FILE
+
+        @property
+        def fpga_manager(self) -> Path:
+            """The stand-in for ``/sys/class/fpga_manager/fpga0`` (files ``state`` and ``flags``)."""
+            if self.state_dir is None:
+                raise EmulationError("this emulated device has no FPGA manager (give state_dir)")
+            return self.state_dir / "fpga0"
+
+        def _fpga_manager_files(self, state: str) -> None:
+            (self.fpga_manager / "state").write_text(state + "\n")
+            (self.fpga_manager / "flags").write_text("0\n")
+
+        def recorded(self) -> Optional[Dict[str, Any]]:
+            """pynq's PL state as the file holds it (None: no file)."""
+            if self.state_dir is None or not self.state_file.is_file():
+                return None
+            record: Dict[str, Any] = json.loads(self.state_file.read_text())
+            return record
+
+        def get_bitfile_metadata(self, bitfile_name: str, partial: bool = False) -> Any:
+            """pynq's parser of the ``.hwh`` beside ``bitfile_name``, as ``EmbeddedDevice`` makes it.
+
+            The emulated PS has no clock registers: the parser's ``clock_dict``
+            is emptied, so ``Overlay.download`` sets no PL clock. As on the
+            board, the metadata of the bitstream pynq records as loaded is
+            marked as cached, and its download records nothing new.
+            """
+            # the very parser EmbeddedDevice makes for a .bit with a .hwh (pynqmetadata's, imported there)
+            from pynq.pl_server.embedded_device import Metadata, RuntimeMetadataParser, bit2bin
+            from pynq.pl_server.global_state import bitstream_hash
+
+            bit = Path(bitfile_name)
+            hwh = bit.with_suffix(".hwh")
+            if not hwh.is_file():
+                raise EmulationError(f"no {hwh.name} beside {bit}: pynq reads the overlay's IP from it")
+            parser = RuntimeMetadataParser(Metadata(input=str(hwh)))
+            parser.bin_data = bit2bin(bit.read_bytes())  # pynq's .bit header check
+            parser.clock_dict = {}
+            recorded = self.recorded()
+            if recorded is not None and recorded.get("bitfile_hash") == bitstream_hash(str(bit)):
+                parser._from_cache = True
+            return parser
+
+        def download(self, bitstream: Any, parser: Any = None) -> None:
+            """Program the emulated PL with ``bitstream``, as ``EmbeddedDevice.download`` programs the board's.
+
+            Clears a PL state left from before a power cycle (FPGA manager
+            state ``unknown``), records the bitstream in pynq's PL state
+            (unless pynq took its metadata from the cache: the same bitstream
+            as recorded, even if that record was just cleared), then
+            maps the blocks if the design has each of them, by name, type
+            and address, and unmaps them otherwise. The blocks keep their
+            register state across a download (the board's would reset).
+            """
+            from pynq.pl_server.global_state import GlobalState, bitstream_hash
+
+            if parser is None:
+                parser = self.get_bitfile_metadata(bitstream.bitfile_name)
+            if self.state_dir is not None and (self.fpga_manager / "state").read_text().startswith("unknown"):
+                self.state_file.unlink(missing_ok=True)  # pynq's cold-boot check (in EmbeddedDevice.shutdown)
+            if self.state_dir is not None and not getattr(parser, "_from_cache", False):
+                t = datetime.datetime.now()  # pynq's timestamp format
+                stamp = f"{t.year}/{t.month}/{t.day} {t.hour}:{t.minute}:{t.second} +{t.microsecond}"
+                state = GlobalState(bitfile_name=str(bitstream.bitfile_name), active_name=self.name,
+                                    timestamp=stamp, bitfile_hash=bitstream_hash(str(bitstream.bitfile_name)))
+                dump = getattr(state, "model_dump_json", None) or state.json  # pydantic 2 or 1
+                self.state_file.write_text(dump())
+            design = parser.ip_dict
+            self.mapped = all(
+                name in design and design[name].get("phys_addr") == base
+                and (name not in INSTANCES or design[name].get("type") in INSTANCES[name])
+                for name, (base, _) in self.blocks.items()
+            )
+            self.pl_design = str(bitstream.bitfile_name)
+            self.downloads.append(self.pl_design)
+            if self.state_dir is not None:
+                self._fpga_manager_files("operating")
+            super().post_download(bitstream, parser, self.name)
 
     _classes["EmulatedPynqDevice"] = EmulatedPynqDevice
     return EmulatedPynqDevice
