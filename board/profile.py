@@ -18,10 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
-import yaml
-
 from ..drivers.mt9v034 import SETTINGS_FIELDS, SYNC_MODES, SensorSettings
 from ..overlays.spec import mt9v034 as spec
+from ..safe_yaml import YamlRefused, load
 
 __all__ = ["BoardProfile", "ProfileError", "DEFAULT_PROFILE", "load_profile", "profile_from_dict"]
 
@@ -82,12 +81,9 @@ def load_profile(path: Union[str, "os.PathLike[str]", None] = None) -> BoardProf
     except (OSError, UnicodeDecodeError) as exc:
         raise ProfileError(f"cannot read board profile {p}: {exc}") from None
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ProfileError(f"board profile {p} is not valid YAML{where}: {problem}") from None
+        data = load(text)
+    except YamlRefused as exc:
+        raise ProfileError(f"board profile {p}: {exc}") from None
     return profile_from_dict(data, source=str(p))
 
 

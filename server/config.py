@@ -123,15 +123,12 @@ class Config:
             except json.JSONDecodeError as exc:
                 raise ConfigError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
         else:
-            import yaml
+            from ..safe_yaml import YamlRefused, load
 
             try:
-                data = yaml.safe_load(text)
-            except yaml.YAMLError as exc:
-                mark = getattr(exc, "problem_mark", None)
-                at = f" at line {mark.line + 1}" if mark is not None else ""
-                problem = getattr(exc, "problem", None) or "parse error"
-                raise ConfigError(f"{p}: not valid YAML ({problem}{at})") from None
+                data = load(text)
+            except YamlRefused as exc:
+                raise ConfigError(f"{p}: {exc}") from None
         if data is None:
             data = {}
         return cls.from_mapping(data, origin=str(p))

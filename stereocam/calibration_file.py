@@ -109,6 +109,8 @@ SHAPES: Dict[str, Tuple[int, ...]] = {
 # rounding in the last bits (another LAPACK inverts P*R); an edit does not.
 REL_TOL = 1e-9
 ABS_TOL = 1e-12
+# A calibration with figures for 100 pairs is about 100 KB; anything far larger is not one.
+MAX_FILE_CHARS = 1 << 20
 
 PathLike = Union[str, Path]
 
@@ -265,7 +267,8 @@ class Calibration:
     def core_config(self) -> CoreConfig:
         """The register set to program (both parameter blocks, WIDTH, HEIGHT, LB_DELAY)."""
         w, h = self.image_size
-        return CoreConfig(camera_registers(self.left, w, h), camera_registers(self.right, w, h), w, h, self.fit.delay)
+        return CoreConfig(camera_registers(self.left, w, h), camera_registers(self.right, w, h), w, h,
+                          self.fit.delay)
 
     def check_fits(self, lb_rows: int) -> None:
         """Raise :class:`LineBufferTooSmall` if a bitstream of ``lb_rows`` rows cannot run this."""
@@ -492,15 +495,12 @@ def parse_yaml(
     be present and equal to what the model gives. Does not check the
     line-buffer fit against a bitstream (see :meth:`Calibration.check_fits`).
     """
-    import yaml
+    from .safe_yaml import YamlRefused, load
 
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise CalibrationFileError(f"{where}: not valid YAML{at} ({problem})") from None
+        data = load(text, max_chars=MAX_FILE_CHARS)
+    except YamlRefused as exc:
+        raise CalibrationFileError(f"{where}: {exc}") from None
     required = (
         TOP_REQUIRED if not derive_missing else tuple(f for f in TOP_REQUIRED if f not in ("id", "core"))
     )

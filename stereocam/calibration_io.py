@@ -441,14 +441,16 @@ def _ros_matrix(path: Path, data: Dict[str, object], name: str, shape: Tuple[int
 
 
 def _read_ros(path: Path) -> Dict[str, object]:
-    import yaml
+    from .safe_yaml import YamlRefused, load
 
     path = Path(path)
     if not path.is_file():
         raise CalibrationFileError(f"{path}: no such file")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        data = load(path.read_text(encoding="utf-8"))
+    except YamlRefused as exc:
+        raise CalibrationFileError(f"{path}: {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
         raise CalibrationFileError(f"{path}: not a YAML file ({str(exc).splitlines()[0]})") from None
     if not isinstance(data, dict):
         raise CalibrationFileError(f"{path}: not a ROS camera_info file (no mapping at the top)")

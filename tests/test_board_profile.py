@@ -91,7 +91,7 @@ def test_profile_files(tmp_path: Path) -> None:
         load_profile(tmp_path / "nope.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: x\ni2c: [unclosed\n", encoding="utf-8")
-    with pytest.raises(ProfileError, match=r"bad\.yaml is not valid YAML at line 3, column 1"):
+    with pytest.raises(ProfileError, match=r"bad\.yaml: not valid YAML: line 3, column 1"):
         load_profile(bad)
     empty = tmp_path / "empty.yaml"
     empty.write_text("# nothing\n", encoding="utf-8")

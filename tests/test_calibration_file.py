@@ -216,7 +216,7 @@ def test_register_range_frame_size_and_line_buffer_are_checked_on_load(tmp_path,
         load_calibration(path, lb_rows=40)
     assert load_calibration(path, lb_rows=63).rows_needed == 63
     with pytest.raises(
-        CalibrationFileError, match=r"not valid YAML at line 3 \(could not find expected ':'\)"
+        CalibrationFileError, match=r"not valid YAML: line 3, column 1: could not find expected ':'"
     ):
         parse_yaml("schema_version: 1\nmodel {\nid: 1\n")
     with pytest.raises(CalibrationFileError, match="is for 640x480 images, not 752x480"):

@@ -126,7 +126,8 @@ def _nan(text: str) -> str:
     raise AssertionError("no D1 line")
 
 
-@pytest.mark.parametrize("case", ["broken", "nan", "frame_size", "line_buffer", "not_calibration", "empty"])
+@pytest.mark.parametrize("case", ["broken", "nan", "frame_size", "line_buffer", "not_calibration", "empty",
+                                  "alias_bomb", "deep"])
 async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_path, case) -> None:
     daemon = await start_daemon(extensions=EXT)
     path = tmp_path / "calibration.yaml"
@@ -150,6 +151,12 @@ async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_
         text, status_code, words = strong.to_yaml(), 422, "line-buffer rows"
     elif case == "not_calibration":
         text, status_code, words = "hello: world\n", 400, "schema_version"
+    elif case == "alias_bomb":  # a valid calibration whose quality section holds a billion laughs
+        bomb = "".join(f"  l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 9) if i else 'lol'}]\n"
+                       for i in range(10))
+        text, status_code, words = good.to_yaml() + "bomb:\n" + bomb, 400, "aliases"
+    elif case == "deep":
+        text, status_code, words = good.to_yaml() + "deep: " + "[" * 5000 + "]" * 5000 + "\n", 400, "nested"
     else:
         text, status_code, words = "  \n", 400, "empty"
     async with daemon.http.put("/api/calibration", data=text, headers=YAML) as r:
