@@ -20,6 +20,8 @@ from stereocam.overlays.emulated.cameras import (
     undistort_normalized,
 )
 from stereocam.overlays.emulated.targets import board_corners, board_image, board_size_m
+from stereocam.overlays.model import camera_in as camera_model
+from stereocam.overlays.spec import camera_in as camera_spec
 from stereocam.overlays.spec.pixel import gray_of, pack, rgby
 from stereocam.stereo import StereoModel
 
@@ -92,11 +94,17 @@ def test_gray_channel_is_exactly_the_demosaic_gray(rig: SyntheticRig) -> None:
     assert not np.array_equal(frame[..., 0], frame[..., 1])  # colour
 
 
-def test_gray_rig_fills_all_channels_with_gray() -> None:
-    frame = SyntheticRig(size=(188, 120), colour=False).read(0, 0.0)
-    for c in (1, 2, 3):
-        assert np.array_equal(frame[..., c], frame[..., 0])
-        assert np.array_equal(frame[..., 4 + c], frame[..., 4])
+def test_gray_rig_is_a_gray_world_through_the_bayer_filter() -> None:
+    """A gray scene seen by the colour sensors: no colour cast, colour fringes only at fine detail."""
+    rig = SyntheticRig(size=(188, 120), colour=False)
+    frame = rig.read(0, 0.0)
+    assert np.array_equal(frame, camera_model.demosaic(*rig.raw))
+    for c in (1, 2, 4, 5, 6):
+        assert abs(float(frame[..., c].mean()) - float(frame[..., 0].mean())) < 1.0
+    # every camera sample is the gray radiance: a flat gray world gives R = G = B = Y exactly
+    flat = SyntheticRig(size=(188, 120), colour=False)
+    flat.set_sensor(0, test_pattern=np.full((120, 188), 77, np.uint8))
+    assert np.all(flat.read(0, 0.0)[..., :4] == 77)
 
 
 def test_rig_frames_move_but_are_deterministic(rig: SyntheticRig, small_rig: SyntheticRig) -> None:
@@ -121,9 +129,67 @@ def test_a_still_rig_ignores_time(small_rig: SyntheticRig) -> None:
 
 
 def test_fast_rendering_equals_full_rendering(small_rig: SyntheticRig) -> None:
+    """Redoing only the moving region (and the demosaic's one pixel of reach) is exact."""
     for t in (0.0, 1.7, 5.2):
-        full = [small_rig._sensor(small_rig._radiance(cam, t)[0], cam, 0) for cam in (0, 1)]
-        assert np.array_equal(small_rig.read(0, t), pack(rgby(full[0]), rgby(full[1])))
+        full = [camera_model.demosaic_camera(small_rig._sensor(small_rig._radiance(cam, t)[0], cam, 0))
+                for cam in (0, 1)]
+        assert np.array_equal(small_rig.read(0, t), pack(full[0], full[1]))
+
+
+# -- the Bayer path: what the camera input IP outputs for the sensors' samples --
+
+def test_rig_frames_are_the_camera_input_model_of_their_bayer_samples(small_rig: SyntheticRig) -> None:
+    """Every frame is model.demosaic of the 10-bit mosaic the two sensors read out (the RTL's output)."""
+    for t in (0.0, 2.3):
+        frame = small_rig.read(1, t)
+        left, right = small_rig.raw
+        assert left is not None and right is not None
+        assert left.dtype == np.uint16 and left.shape == (120, 188) and int(left.max()) <= 1023
+        assert np.array_equal(frame, camera_model.demosaic(left, right))
+    # the mosaic samples each pixel's own colour: where a red sample sits, it is 4 x the 8-bit red level
+    r_col, r_row = camera_model.phase_cell(camera_spec.BAYER_PHASE)
+    red = left[r_row::2, r_col::2].astype(int)
+    assert abs(red.mean() / 4 - frame[r_row::2, r_col::2, 0].mean()) < 1.0
+
+
+def test_sensor_gain_flips_and_noise_stay_on_the_bayer_path() -> None:
+    rig = SyntheticRig(size=(188, 120), motion=False)
+    plain = rig.read(0, 0.0)
+    for kw in ({"gain": 1.5}, {"flip_h": True}, {"flip_v": True, "flip_h": True}, {"noise": 2.0}):
+        rig.set_sensor(1, **kw)  # type: ignore[arg-type]
+        frame = rig.read(3, 0.0)
+        assert np.array_equal(frame, camera_model.demosaic(*rig.raw)), kw
+        rig.set_sensor(1)
+        rig.set_sensor(1, noise=0.0)
+    # an even-sized flipped read-out keeps the first pixel's colour (spec.camera_in.cfa_phase), so the
+    # mirrored image has the right colours: it differs from the mirrored frame only by resampling
+    rig.set_sensor(0, flip_h=True, flip_v=True)
+    flipped = rig.read(4, 0.0).astype(int)
+    means, flipped_means = plain[..., :3].mean(axis=(0, 1)), flipped[..., :3].mean(axis=(0, 1))
+    assert abs(means[0] - means[2]) > 3  # the scene is tinted: swapped R and B would show
+    assert np.abs(flipped_means - means).max() < 1.0
+    assert np.array_equal(flipped[..., 1], plain[::-1, ::-1, 1])  # green sites map onto green sites
+    assert np.abs(flipped[..., :3] - plain[::-1, ::-1, :3]).mean() < 12  # R, B: one pixel over
+    assert np.array_equal(flipped[..., 4:], plain[..., 4:])
+
+
+def test_test_patterns_go_through_the_demosaic() -> None:
+    rig = SyntheticRig(size=(188, 120), motion=False)
+    ramp = np.tile((np.arange(188) * 256 // 188).astype(np.uint8), (120, 1))
+    rig.set_sensor(0, test_pattern=ramp, flip_h=True)  # patterns are not flipped
+    frame = rig.read(0, 0.0)
+    assert np.array_equal(frame[..., :4], camera_model.demosaic_camera(ramp.astype(np.uint16) << 2))
+    assert np.abs(frame[..., 3].astype(int) - ramp).max() <= 1
+    assert rig.raw[0] is None and rig.raw[1] is not None
+
+
+def test_replayed_frames_are_not_mosaicked_again(tmp_path: Path) -> None:
+    """Recordings are the IP's output already: they play back exactly as recorded."""
+    img = np.random.default_rng(3).integers(0, 256, (24, 32, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / "left0.png"), img[..., ::-1])
+    cv2.imwrite(str(tmp_path / "right0.png"), img)
+    frame = ReplaySource(tmp_path).read(0)
+    assert np.array_equal(frame[..., :3], img) and np.array_equal(frame[..., 4:7], img[..., ::-1])
 
 
 def test_sensor_noise_is_seeded_by_the_frame_index() -> None:

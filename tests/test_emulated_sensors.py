@@ -19,6 +19,7 @@ from stereocam.overlays.emulated.fabric import EmulatedFabric
 from stereocam.overlays.emulated.i2c import EmulatedI2CBus
 from stereocam.overlays.emulated.regblock import EmulationError
 from stereocam.overlays.emulated.sensors import EmulatedMT9V034, EmulatedSensorPair, pattern_image
+from stereocam.overlays.model.camera_in import demosaic, demosaic_camera
 from stereocam.overlays.spec import mt9v034 as spec
 
 SIZE = (188, 120)
@@ -150,16 +151,26 @@ def test_gain_raises_the_noise(rig: SyntheticRig, profile: BoardProfile) -> None
 def test_flips_flip(rig: SyntheticRig, started: Tuple[EmulatedSensorPair, StereoSensors]) -> None:
     pair, sensors = started
     plain = frame(pair, rig)
+
+    def mirrored(f: np.ndarray, want: np.ndarray, cams: slice) -> None:
+        """``f`` is the camera input's output for the flipped read-out: the mirror image, resampled by the CFA."""
+        assert np.array_equal(f, demosaic(*rig.raw))
+        got, ref = f[..., cams].astype(int), want[..., cams].astype(int)
+        assert np.abs(got - ref).mean() < 0.5 * np.abs(got - plain[..., cams]).mean()
+        assert np.abs(got.mean(axis=(0, 1)) - ref.mean(axis=(0, 1))).max() < 1.0
+
     assert sensors.apply({"flip_h": True}, camera="left")["left"]["flip_h"] is True  # type: ignore[index]
     f = frame(pair, rig)
-    assert np.array_equal(f[..., LEFT], plain[:, ::-1, LEFT])
+    mirrored(f, plain[:, ::-1], LEFT)
     assert np.array_equal(f[..., RIGHT], plain[..., RIGHT])
     sensors.apply({"flip_h": False, "flip_v": True})
     f = frame(pair, rig)
-    assert np.array_equal(f[..., LEFT], plain[::-1, :, LEFT])
-    assert np.array_equal(f[..., RIGHT], plain[::-1, :, RIGHT])
+    mirrored(f, plain[::-1], LEFT)
+    mirrored(f, plain[::-1], RIGHT)
     sensors.apply({"flip_h": True})  # flip_v stays
-    assert np.array_equal(frame(pair, rig), plain[::-1, ::-1])
+    f = frame(pair, rig)
+    mirrored(f, plain[::-1, ::-1], slice(0, 8))
+    assert np.array_equal(f[..., [1, 5]], plain[::-1, ::-1][..., [1, 5]])  # green lands on green
 
 
 def test_test_pattern_replaces_the_scene(rig: SyntheticRig,
@@ -171,8 +182,9 @@ def test_test_pattern_replaces_the_scene(rig: SyntheticRig,
     f = frame(pair, rig)
     ramp = pattern_image("gray_vertical", SIZE)
     assert ramp[0, 0] == 0 and ramp[0, -1] == 254 and np.all(np.diff(ramp[0].astype(int)) >= 0)
-    for c in range(4, 8):  # gray, unaffected by gain and flips (made after readout)
-        assert np.array_equal(f[..., c], ramp)
+    # gray, unaffected by gain and flips (made after readout), through the camera input's demosaic
+    assert np.array_equal(f[..., RIGHT], demosaic_camera(ramp.astype(np.uint16) << 2))
+    assert np.abs(f[..., 7].astype(int) - ramp).max() <= 1
     assert np.array_equal(f[..., LEFT], scene[..., LEFT])
     sensors.apply({"test_pattern": "plain"})
     f = frame(pair, rig)

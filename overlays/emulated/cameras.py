@@ -9,9 +9,15 @@ channels 0..3, right RGBY in 4..7, gray made exactly as
 camera model (pinhole + Brown-Conrady k1, k2, p1, p2, and the stereo pose of
 :attr:`SyntheticRig.model`): rectifying its frames with that model gives
 rectified frames, and a calibration computed from
-:meth:`SyntheticRig.render_plane_views` must give that model back.
+:meth:`SyntheticRig.render_plane_views` must give that model back. Like the
+board's MT9V034s, each camera samples the scene through a Bayer filter into
+10-bit samples (:attr:`SyntheticRig.raw` keeps the last ones), and the frame
+is what the camera input IP makes of them (:mod:`..model.camera_in`, the
+model the RTL is bit-exact to).
 
-:class:`ReplaySource` plays back recorded frame pairs from a folder.
+:class:`ReplaySource` plays back recorded frame pairs from a folder. Its
+recordings are frames the IP already demosaiced (captures of the stream):
+they are played as they are, not mosaicked again.
 
 Pixel convention (OpenCV's, and the rectify core's): the centre of pixel
 ``(column u, row v)`` is at image coordinates ``(u, v)``.
@@ -30,6 +36,8 @@ import cv2
 import numpy as np
 
 from ...stereo import StereoModel
+from ..model import camera_in as camera_model
+from ..spec import camera_in as camera_spec
 from ..spec.pixel import gray_of, pack, rgby
 
 __all__ = [
@@ -357,10 +365,13 @@ class _CameraScene:
 class _Sensor:
     """Per-camera sensor response and readout.
 
-    DN = gain * exposure * radiance + offset + gain * noise, rounded and
-    clipped to 0..255; then the readout flips (``flip_h`` mirrors columns,
-    ``flip_v`` rows), or ``pattern`` (an (H, W) uint8 gray image) replaces
-    the picture. Set through :meth:`SyntheticRig.set_sensor`.
+    Each pixel sees the radiance of its Bayer filter's colour; its 10-bit
+    sample is 4 x (gain * exposure * radiance + offset + gain * noise),
+    rounded and clipped to 0..1023 (radiance is in 8-bit DN, so unit gain
+    renders the scene at the brightness the 8-bit rig always had). The
+    readout flips (``flip_h`` mirrors columns, ``flip_v`` rows), or
+    ``pattern`` (an (H, W) uint8 gray image, sent as 4 x its values)
+    replaces the samples. Set through :meth:`SyntheticRig.set_sensor`.
     """
 
     gain: float = 1.0  # analog gain: scales the signal and the read noise
@@ -370,14 +381,19 @@ class _Sensor:
     flip_h: bool = False
     flip_v: bool = False
     pattern: Optional[np.ndarray] = None
+    pattern_rgby: Optional[np.ndarray] = None  # the IP's output for the pattern's samples
+    # Bayer phases in the unflipped image (what the array sees): the filter's, and the one the IP
+    # demosaics with, seen through the flips (:meth:`SyntheticRig._phases`)
+    phase_array: str = camera_spec.BAYER_PHASE
+    phase_ip: str = camera_spec.BAYER_PHASE
 
     @property
     def scale(self) -> float:
         return self.gain * self.exposure
 
     @property
-    def key(self) -> Tuple[float, float]:
-        return (self.scale, self.offset)
+    def key(self) -> Tuple[float, float, str, str]:
+        return (self.scale, self.offset, self.phase_array, self.phase_ip)
 
 
 class SyntheticRig:
@@ -395,10 +411,15 @@ class SyntheticRig:
     Rendering: each raw pixel's ray is computed once through the exact
     inverse distortion; a frame intersects those rays with the planes, samples
     float radiance textures with bilinear ``cv2.remap`` and passes through a
-    per-camera sensor stage (gain, offset, noise, quantisation to 8 bits).
-    Only the region the moving planes can reach is re-rendered per frame.
-    :meth:`set_sensor` sets a camera's exposure, gain, flips and test
-    pattern (what the emulated MT9V034 sensors do once per frame).
+    per-camera sensor stage (Bayer filter, gain, offset, noise, 10-bit
+    samples) and the camera input IP's model (demosaic to 8-bit RGB and
+    gray). Only the region the moving planes can reach, plus the one-pixel
+    reach of the demosaic, is re-rendered per frame. :meth:`set_sensor` sets
+    a camera's exposure, gain, flips and test pattern (what the emulated
+    MT9V034 sensors do once per frame). Flips follow the MT9V034 family's
+    read-out (``spec.camera_in.cfa_phase``): the first pixel read keeps its
+    colour when the flipped size is even, so the IP's fixed Bayer phase fits
+    (an odd-sized flipped rig shows what the board would: swapped colours).
 
     ``read`` returns a new, writable frame owned by the caller. Calls from
     several threads are safe (they are serialised).
@@ -438,8 +459,10 @@ class SyntheticRig:
         self._rays: Dict[Tuple[int, int], _Rays] = {}  # (camera, supersample) -> rays
         self._cams = [self._prepare(cam) for cam in (0, 1)]
         self._static_frame: Optional[np.ndarray] = None
-        self._static_key: Optional[Tuple[Tuple[float, float], ...]] = None
+        self._static_raw: List[np.ndarray] = []  # per camera: 10-bit samples of the static scene (unflipped)
+        self._static_key: Optional[Tuple[Tuple[float, float, str, str], ...]] = None
         self._still: Optional[np.ndarray] = None  # motion=False: the one frame
+        self._raw: List[Optional[np.ndarray]] = [None, None]  # the last frame's samples, unflipped
 
     # -- the CameraSource protocol ---------------------------------------
 
@@ -496,9 +519,51 @@ class SyntheticRig:
         with self._lock:
             s = self._sensors[camera]
             s.gain, s.exposure = gain, exposure_scale
-            s.flip_h, s.flip_v, s.pattern = bool(flip_h), bool(flip_v), test_pattern
+            s.flip_h, s.flip_v = bool(flip_h), bool(flip_v)
+            s.phase_array, s.phase_ip = self._phases(s.flip_h, s.flip_v)
+            if test_pattern is None:
+                s.pattern = s.pattern_rgby = None
+            elif test_pattern is not s.pattern:  # the sensors hand the same pattern every frame
+                s.pattern = test_pattern
+                s.pattern_rgby = camera_model.demosaic_camera(test_pattern.astype(np.uint16) << 2)
             if noise is not None:
                 s.noise = float(noise)
+
+    def _phases(self, flip_h: bool, flip_v: bool) -> Tuple[str, str]:
+        """Bayer phases in the unflipped image: the filter's, and the IP's demosaic's seen through the flips.
+
+        The sensor reads the rig's frame as the default window (COLUMN_START,
+        ROW_START at their reset values) of the rig's size; its read-out
+        phase is ``cfa_phase`` of that, the IP demosaics with BAYER_PHASE.
+        Rendering unflipped, mosaicking and demosaicking with these phases
+        and then flipping gives exactly the IP's output for the flipped read-out
+        (the demosaic is mirror-symmetric).
+        """
+        w, h = self._size
+        readout = camera_spec.cfa_phase(camera_spec.DEFAULT_COLUMN_START, camera_spec.DEFAULT_ROW_START, w, h,
+                                        column_flip=flip_h, row_flip=flip_v)
+        return (camera_model.flipped_phase(readout, w, h, flip_h, flip_v),
+                camera_model.flipped_phase(camera_spec.BAYER_PHASE, w, h, flip_h, flip_v))
+
+    @property
+    def raw(self) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+        """The 10-bit Bayer samples (uint16, read-out order: flips applied) each camera sent for the last
+        frame read, or None for a camera showing a test pattern or before the first read.
+
+        ``camera_model.demosaic(*rig.raw)`` is that frame (without test patterns).
+        Read-only views, valid until the next ``read``.
+        """
+        with self._lock:
+            out: List[Optional[np.ndarray]] = []
+            for cam, s in enumerate(self._sensors):
+                raw = self._raw[cam]
+                if raw is None or s.pattern is not None:
+                    out.append(None)
+                    continue
+                view = raw[::-1 if s.flip_v else 1, ::-1 if s.flip_h else 1]
+                view.setflags(write=False)
+                out.append(view)
+            return out[0], out[1]
 
     def _read(self, index: int, t: float) -> np.ndarray:
         if any(s.noise > 0 and s.pattern is None for s in self._sensors):
@@ -506,7 +571,10 @@ class SyntheticRig:
             frame = np.empty((h, w, 8), np.uint8)
             for cam in (0, 1):
                 if self._sensors[cam].pattern is None:
-                    self._write_rgby(frame, cam, self._sensor(self._radiance(cam, t)[0], cam, index))
+                    raw = self._sensor(self._radiance(cam, t)[0], cam, index)
+                    self._raw[cam] = raw
+                    rgby_ = camera_model.demosaic_camera(raw, self._sensors[cam].phase_ip)
+                    self._write_rgby(frame, cam, rgby_)
             return self._readout(frame)
         if not self.motion:
             if self._still is None or self._static_key != self._sensor_key():
@@ -520,8 +588,8 @@ class SyntheticRig:
             if s.pattern is None and not (s.flip_h or s.flip_v):
                 continue
             view = frame[..., 4 * cam:4 * cam + 4]
-            if s.pattern is not None:
-                view[...] = s.pattern[..., None]
+            if s.pattern_rgby is not None:
+                view[...] = s.pattern_rgby
             else:  # numpy copies overlapping operands first
                 view[...] = view[::-1 if s.flip_v else 1, ::-1 if s.flip_h else 1]
         return frame
@@ -536,6 +604,8 @@ class SyntheticRig:
             self._pixel_grid.clear()
             self._noise_bank.clear()
             self._static_frame = self._still = None
+            self._static_raw = []
+            self._raw = [None, None]
 
     def __enter__(self) -> "SyntheticRig":
         return self
@@ -656,22 +726,30 @@ class SyntheticRig:
         rad[scene.region], depth[scene.region] = self._moving_radiance(cam, t)
         return rad, depth
 
-    def _sensor(self, radiance: np.ndarray, cam: int, index: int) -> np.ndarray:
-        """Camera ``cam``'s 8-bit image of ``radiance``: gain, offset, noise (seeded by ``index``), rounding.
+    def _sensor(self, radiance: np.ndarray, cam: int, index: int,
+                origin: Tuple[int, int] = (0, 0)) -> np.ndarray:
+        """Camera ``cam``'s 10-bit samples (uint16) of ``radiance`` (unflipped, an image whose pixel (0, 0)
+        is pixel ``origin`` = (row, column) of the frame): the Bayer filter picks each pixel's colour
+        (gray radiance passes as it is), then gain, offset, noise (seeded by ``index``), rounding.
 
         ``radiance`` is a whole image when there is noise. Without noise the
         stage is pointwise, so the fast path applies it to parts of images.
-        Rounds to nearest, ties to even (OpenCV's saturate_cast, numpy's rint).
+        Rounds to nearest, ties to even (numpy's rint), clips to 0..1023.
         """
         sensor = self._sensors[cam]
+        if radiance.ndim == 3:
+            radiance = camera_model.mosaic(radiance, camera_model.shifted_phase(sensor.phase_array, *origin))
+        four = np.float32(1 << (camera_spec.RAW_BITS - 8))  # 8-bit DN -> 10-bit samples
         if sensor.noise > 0:
             noise = self._noise_field(cam, index, radiance.shape)
-            x = cv2.addWeighted(radiance, sensor.scale, noise, sensor.noise * sensor.gain, sensor.offset)
-            return cv2.convertScaleAbs(np.maximum(x, 0.0, out=x))  # clip at 0, round, saturate at 255
-        if sensor.scale >= 0 and sensor.offset >= 0:  # radiance >= 0, so |x| == x
-            return cv2.convertScaleAbs(radiance, alpha=sensor.scale, beta=sensor.offset)
-        scaled = radiance * np.float32(sensor.scale) + np.float32(sensor.offset)
-        return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
+            x = cv2.addWeighted(radiance, four * sensor.scale, noise, four * sensor.noise * sensor.gain,
+                                four * sensor.offset)
+        else:
+            x = radiance * np.float32(four * sensor.scale)
+            x += np.float32(four * sensor.offset)
+        np.rint(x, out=x)
+        np.clip(x, 0, camera_model.RAW_MAX, out=x)
+        return x.astype(np.uint16)
 
     def _noise_field(self, cam: int, index: int, shape: Tuple[int, ...]) -> np.ndarray:
         """Unit Gaussian noise of ``shape`` for frame ``index``: a randomly placed, signed crop of a bank.
@@ -694,31 +772,41 @@ class SyntheticRig:
             raise ValueError(f"noise for a {shape} image from a rig of frame size {self._size}")
         return crop
 
-    def _sensor_key(self) -> Tuple[Tuple[float, float], ...]:
+    def _sensor_key(self) -> Tuple[Tuple[float, float, str, str], ...]:
         return tuple(s.key for s in self._sensors)
 
     def _write_rgby(self, out: np.ndarray, cam: int, image: np.ndarray) -> None:
-        """Write a camera's 8-bit RGB (or gray) ``image`` as RGBY into ``out`` (a view of (H', W', 8))."""
+        """Write a camera's ``(H', W', 4)`` RGBY ``image`` into ``out`` (a view of (H', W', 8))."""
         base = 4 * cam
-        if image.ndim == 2:
-            pairs = [0, base, 0, base + 1, 0, base + 2, 0, base + 3]
-            cv2.mixChannels([image], [out], pairs)
-        else:  # mixChannels writes into the view in place: 4x faster than numpy's strided channel copies
-            cv2.mixChannels([image, gray_of(image)], [out], [0, base, 1, base + 1, 2, base + 2, 3, base + 3])
+        # mixChannels writes into the view in place: 4x faster than numpy's strided channel copies
+        cv2.mixChannels([image], [out], [0, base, 1, base + 1, 2, base + 2, 3, base + 3])
 
     def _render_fast(self, t: float) -> np.ndarray:
-        """Noiseless rendering: the quantised static frame, with only the moving regions redone."""
+        """Noiseless rendering: the static frame, with only the moving regions (and the demosaic's one pixel
+        of reach around them) redone from their new samples."""
         if self._static_frame is None or self._static_key != self._sensor_key():
             w, h = self._size
             frame = np.empty((h, w, 8), np.uint8)
+            self._static_raw = []
             for cam in (0, 1):
-                self._write_rgby(frame, cam, self._sensor(self._cams[cam].static_radiance, cam, 0))
+                raw = self._sensor(self._cams[cam].static_radiance, cam, 0)
+                self._static_raw.append(raw)
+                self._write_rgby(frame, cam, camera_model.demosaic_camera(raw, self._sensors[cam].phase_ip))
             self._static_frame, self._static_key, self._still = frame, self._sensor_key(), None
         out = self._static_frame.copy()
+        h, w = out.shape[:2]
         for cam in (0, 1):
-            region = self._cams[cam].region
-            if region[0].stop > region[0].start:
-                self._write_rgby(out[region], cam, self._sensor(self._moving_radiance(cam, t)[0], cam, 0))
+            rows, cols = self._cams[cam].region
+            raw = self._static_raw[cam]
+            if rows.stop > rows.start:
+                raw = raw.copy()
+                moving = self._moving_radiance(cam, t)[0]
+                raw[rows, cols] = self._sensor(moving, cam, 0, (rows.start, cols.start))
+                near = (slice(max(rows.start - 1, 0), min(rows.stop + 1, h)),
+                        slice(max(cols.start - 1, 0), min(cols.stop + 1, w)))
+                phase = self._sensors[cam].phase_ip
+                self._write_rgby(out[near], cam, camera_model.demosaic_window(raw, near[0], near[1], phase))
+            self._raw[cam] = raw
         return out
 
     # -- calibration targets ---------------------------------------------
@@ -728,7 +816,7 @@ class SyntheticRig:
         pose_t: Union[np.ndarray, Sequence[float]], *, background: Union[float, str] = 128.0, t: float = 0.0,
         supersample: int = 2,
     ) -> Tuple[np.ndarray, np.ndarray]:
-        """Both cameras' 8-bit gray views of a flat printed target, through the true distortion.
+        """Both cameras' 8-bit gray views of a flat printed target, through the true distortion and Bayer.
 
         ``pattern_image`` (gray or RGB uint8) is printed over
         ``pattern_size_m = (width, height)`` metres; pattern coordinates are
@@ -740,8 +828,13 @@ class SyntheticRig:
         :attr:`model`'s R, T. ``background`` is a gray level (0..255) or
         ``"scene"`` (the rig's scene at time ``t``, which may hide the
         target). Each pixel averages ``supersample``\\ :sup:`2` samples (the
-        first call at a new supersampling computes those rays: ~0.5 s).
-        Returns new ``(H, W)`` uint8 arrays (left, right).
+        first call at a new supersampling computes those rays: ~0.5 s). The
+        gray radiance is sampled as each camera's 10-bit Bayer samples
+        (:meth:`set_sensor`'s gain and exposure; unflipped, like the rest of
+        this view) and demosaicked by the IP's model: the views are the
+        gray (Y) channel of what the IP emits for them, so a calibration sees
+        the demosaic's slight blur. Returns new ``(H, W)`` uint8 arrays (left,
+        right).
         """
         pattern = np.asarray(pattern_image)
         if pattern.dtype != np.uint8 or pattern.shape[2:] not in ((), (3,)) or pattern.ndim < 2:
@@ -795,7 +888,9 @@ class SyntheticRig:
             else:
                 img = np.where(on, img, np.float32(background))
             img = img.reshape(h, n, w, n).mean(axis=(1, 3), dtype=np.float32)
-            views.append(self._sensor(img, cam, 0))
+            raw = self._sensor(img, cam, 0)
+            rgby_ = camera_model.demosaic_camera(raw, self._sensors[cam].phase_ip)
+            views.append(np.ascontiguousarray(rgby_[..., 3]))
         return views[0], views[1]
 
 

@@ -25,8 +25,7 @@ from stereocam.server.views import VIEWS
 from stereocam.stereo import StereoModel, core_cameras, rectify
 
 from ..sample import SampleCalibration, calibrate_sample, pair_paths, write_opencv_files
-from ..server_fixtures import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture  # noqa: F401
-from ..server_fixtures import wait_for_frames
+from ..server_fixtures import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture, wait_for_frames  # noqa: F401
 from ..test_server_api import decode_png, encode, model_output, pair_form, pattern_pair
 
 # A first run builds the RTL (and the faulty copy) with Verilator: a minute each on a busy machine.
