@@ -27,7 +27,11 @@ setup(
     package_data={
         # rtl/: the rectify core's Verilog, for simulation and synthesis (stereocam.hdl.rtl_dir());
         # rtl/sim/: the C++ harness that makes it a program (stereocam.rtl_core).
-        "stereocam.overlays": ["*.md", "rtl/*.v", "rtl/*.vh", "rtl/*.sv", "rtl/sim/*.cpp"],
+        # rtl/camera/: the camera input IP; vivado/: the overlay's build scripts; *.bit, *.hwh: a built
+        # overlay installed where --backend pynq looks first.
+        "stereocam.overlays": ["*.md", "rtl/*.v", "rtl/*.vh", "rtl/*.sv", "rtl/*.md", "rtl/sim/*.cpp",
+                               "rtl/camera/*.v", "rtl/camera/*.vh", "rtl/camera/*.md",
+                               "vivado/*.tcl", "vivado/*.xdc", "vivado/*.sh", "vivado/*.md", "*.bit", "*.hwh"],
         "stereocam.board": ["*.service", "*.yaml"],
         "stereocam.server": ["static/*"],
     },
