@@ -308,6 +308,12 @@ def test_plane_views_background_and_validation(small_rig: SyntheticRig) -> None:
     far = small_rig.render_plane_views(target, (0.2, 0.2), R, (-0.1, -0.1, 5.0), background="scene",
                                        supersample=1)
     assert far[0][60, 94] != 200  # behind the wall: hidden by the scene
+    full = small_rig.render_plane_views(target, (0.2, 0.2), R, (-0.1, -0.1, 0.5), background=30, supersample=1,
+                                        rgby=True)  # the IP's whole output: Y is the gray view
+    assert full[0].shape == left.shape + (4,)
+    assert np.array_equal(full[0][..., 3], left) and np.array_equal(full[1][..., 3], right)
+    edge = full[0][:, 80:110].astype(int)  # where the print meets the background the CFA shows in R, G, B
+    assert (edge[..., 0] != edge[..., 2]).any() and edge[60, 14, 0] == 200
     for kwargs, match in (
         (dict(background="sky"), "background"), (dict(background=300), "0..255"),
         (dict(supersample=9), "supersample"),

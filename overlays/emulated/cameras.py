@@ -814,7 +814,7 @@ class SyntheticRig:
     def render_plane_views(
         self, pattern_image: np.ndarray, pattern_size_m: Tuple[float, float], pose_R: np.ndarray,
         pose_t: Union[np.ndarray, Sequence[float]], *, background: Union[float, str] = 128.0, t: float = 0.0,
-        supersample: int = 2,
+        supersample: int = 2, rgby: bool = False,
     ) -> Tuple[np.ndarray, np.ndarray]:
         """Both cameras' 8-bit gray views of a flat printed target, through the true distortion and Bayer.
 
@@ -834,7 +834,8 @@ class SyntheticRig:
         this view) and demosaicked by the IP's model: the views are the
         gray (Y) channel of what the IP emits for them, so a calibration sees
         the demosaic's slight blur. Returns new ``(H, W)`` uint8 arrays (left,
-        right).
+        right), or with ``rgby`` the whole ``(H, W, 4)`` R, G, B, Y output of the IP
+        (what a live frame of the target carries).
         """
         pattern = np.asarray(pattern_image)
         if pattern.dtype != np.uint8 or pattern.shape[2:] not in ((), (3,)) or pattern.ndim < 2:
@@ -862,10 +863,11 @@ class SyntheticRig:
             if self._closed:
                 raise SourceClosedError("this SyntheticRig is closed: make a new one")
             src = pattern.astype(np.float32)
-            return self._plane_views(src, (pw, ph), Rp, tp, background, float(t), supersample)
+            return self._plane_views(src, (pw, ph), Rp, tp, background, float(t), supersample, rgby)
 
     def _plane_views(self, src: np.ndarray, size_m: Tuple[float, float], Rp: np.ndarray, tp: np.ndarray,
-                     background: Union[float, str], t: float, n: int) -> Tuple[np.ndarray, np.ndarray]:
+                     background: Union[float, str], t: float, n: int,
+                     rgby: bool = False) -> Tuple[np.ndarray, np.ndarray]:
         rows, cols = src.shape
         pw, ph = size_m
         w, h = self._size
@@ -890,7 +892,7 @@ class SyntheticRig:
             img = img.reshape(h, n, w, n).mean(axis=(1, 3), dtype=np.float32)
             raw = self._sensor(img, cam, 0)
             rgby_ = camera_model.demosaic_camera(raw, self._sensors[cam].phase_ip)
-            views.append(np.ascontiguousarray(rgby_[..., 3]))
+            views.append(np.ascontiguousarray(rgby_ if rgby else rgby_[..., 3]))
         return views[0], views[1]
 
 

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from ...stereo import StereoModel
-from ..spec.pixel import pack, rgby
+from ..spec.pixel import pack
 from .cameras import SourceClosedError, SyntheticRig
 
 __all__ = [
@@ -279,9 +279,9 @@ class CheckerboardTarget:
                 R, tp = self.pose(k)
                 left, right = rig.render_plane_views(
                     self._board, self._size_m, R, tp, background="scene", t=k * self.hold_s,
-                    supersample=self.supersample,
+                    supersample=self.supersample, rgby=True,
                 )
-                frame = pack(rgby(left), rgby(right))
+                frame = pack(left, right)  # the camera input's R, G, B and Y for the target's Bayer samples
                 self._cache[key] = frame
                 while len(self._cache) > self._CACHE_SIZE:
                     self._cache.popitem(last=False)
