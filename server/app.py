@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, AsyncIterator, Awaitable, Callable, List, Optional, Sequence
 
 from aiohttp import web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from .captures import CaptureStore
 from .config import Config
@@ -104,6 +105,23 @@ def _message(exc: web.HTTPException, request: web.Request) -> str:
     return exc.reason
 
 
+class _BadRequestLines(logging.Filter):
+    """aiohttp logs a malformed request line or header with a traceback: make it one warning line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            record.msg = "refused a malformed request (%s %s): %s"
+            record.args = (exc.code, type(exc).__name__, str(exc.message).splitlines()[0][:200])
+            record.exc_info = None
+            record.exc_text = None
+            record.levelno, record.levelname = logging.WARNING, "WARNING"
+        return True
+
+
+BAD_REQUEST_LINES = _BadRequestLines()
+
+
 def _json_errors(metrics: Metrics) -> "Middleware":
     @web.middleware
     async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
@@ -117,6 +135,10 @@ def _json_errors(metrics: Metrics) -> "Middleware":
             return json_error(exc.status, _message(exc, request), **keep)
         except (asyncio.CancelledError, ConnectionError):
             raise
+        except HttpProcessingError as exc:  # a malformed body found while reading it (e.g. a part header)
+            status = exc.code if 400 <= exc.code < 500 else 400
+            metrics.request(status)
+            return json_error(status, f"malformed request: {str(exc.message).splitlines()[0][:200]}")
         except Exception as exc:
             log.exception("%s %s failed", request.method, request.path)
             metrics.error(f"{request.method} {request.path}: {type(exc).__name__}: {exc}", "http")
@@ -388,6 +410,7 @@ async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.
     """
     loop = asyncio.get_running_loop()
     stop = stop or asyncio.Event()
+    logging.getLogger("aiohttp.server").addFilter(BAD_REQUEST_LINES)  # a set: adding twice keeps one
     runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=0.5)
     await runner.setup()
     try:

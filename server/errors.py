@@ -1,7 +1,8 @@
 """The one base of errors the daemon's building blocks raise for a user to read."""
 from __future__ import annotations
 
-from typing import Dict, Optional
+import json
+from typing import Any, Dict, Optional, Union
 
 
 class ApiError(Exception):
@@ -17,3 +18,16 @@ class ApiError(Exception):
 
     def to_json(self) -> Dict[str, str]:
         return {"error": self.message}
+
+
+def parse_json(data: Union[str, bytes]) -> Any:
+    """``json.loads`` whose every failure is a ``ValueError`` (so a caller's ``except ValueError`` is a 400).
+
+    ``json.loads`` raises ``RecursionError`` on deeply nested arrays, which would end
+    as a 500 with a traceback; bytes that are not UTF-8 raise ``UnicodeDecodeError``,
+    itself a ``ValueError``.
+    """
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None

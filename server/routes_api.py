@@ -8,7 +8,6 @@ with a 4xx/5xx status, and a refused request changes nothing.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import mimetypes
 import os
@@ -21,13 +20,14 @@ from typing import Any, Callable, Dict, Optional, Tuple, TypeVar
 import numpy as np
 from aiohttp import BodyPartReader, web
 
+from ..drivers.mmio import DriverError
 from ..overlays.model.fast import RectifyModel
 from ..overlays.model.result import CoreOptions
 from ..overlays.spec import pixel
 from ..overlays.spec.rectify import RECTIFY_MAP
 from .captures import CaptureError, CaptureStore
 from .encoders import BroadcastClosed, png_for
-from .errors import ApiError
+from .errors import ApiError, parse_json
 from .pipeline import COUNT_MOD, FrameSet, SourceState
 from .state import (
     CALIBRATION,
@@ -181,7 +181,22 @@ class VirtualCamera:
             self.source = "live"
 
     async def select(self, executor: Any, source: str) -> None:
-        """Flow 6 (live) or back to the last virtual input (virtual; a black frame if there is none yet)."""
+        """Flow 6 (live) or back to the last virtual input (virtual; a black frame if there is none yet).
+
+        A mux that does not take the change (its commit times out) is an ApiError 503 naming
+        the source the status then shows; nothing else changes.
+        """
+        try:
+            await self._select(executor, source)
+        except DriverError as exc:
+            try:
+                now = self.fabric.source
+            except DriverError:
+                now = "unknown"
+            raise ApiError(f"the mux did not switch to {source} ({exc}); the fabric's source is {now}: "
+                           "try again, or see /api/status", status=503) from None
+
+    async def _select(self, executor: Any, source: str) -> None:
         async with self.lock:
             if source == "live":
                 await self._back_to_live(executor)
@@ -259,7 +274,7 @@ async def _json_body(request: web.Request) -> Any:
         given = request.content_type or "nothing"
         raise ApiError(f"send JSON (Content-Type: application/json), not {given}", status=415)
     try:
-        return json.loads(await request.read())
+        return parse_json(await request.read())
     except web.HTTPRequestEntityTooLarge:
         raise
     except (ValueError, UnicodeDecodeError):

@@ -19,7 +19,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +30,7 @@ from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
 from ..calibration_io import CalibrationFileError, atomic_write_text
 from ..overlays.model.config import ConfigError
 from ..overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
+from .errors import parse_json
 from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
 
 log = logging.getLogger(__name__)
@@ -140,7 +140,7 @@ async def _body_text(request: web.Request) -> str:
     raw = await request.read()
     if ctype == "application/json":
         try:
-            doc = json.loads(raw.decode("utf-8"))
+            doc = parse_json(raw.decode("utf-8"))
         except (UnicodeDecodeError, ValueError) as exc:
             raise web.HTTPBadRequest(text=f"the body is not valid JSON ({exc})") from None
         if not isinstance(doc, dict) or not isinstance(doc.get("yaml"), str) or set(doc) != {"yaml"}:

@@ -21,7 +21,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -48,7 +47,7 @@ from .calibration_pairs import (
     save_settings,
 )
 from .captures import CaptureError, CaptureStore
-from .errors import ApiError
+from .errors import ApiError, parse_json
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
 from .state import CONFIG, EXECUTORS, FEED, METRICS, OVERLAY
@@ -116,7 +115,7 @@ async def _json(request: web.Request, *, empty_ok: bool = False) -> Any:
             return {}
         raise PanelError("send a JSON object as the body", status=400)
     try:
-        return json.loads(raw.decode("utf-8"))
+        return parse_json(raw.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
         raise PanelError(f"the body is not valid JSON ({exc})", status=400) from None
 

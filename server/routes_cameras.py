@@ -16,7 +16,6 @@ call and every :data:`REFRESH_S` seconds, so they never block the loop.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import threading
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from typing import Any, AsyncIterator, Callable, Dict, Iterable, List, Optional
 from aiohttp import web
 
 from ..drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
+from .errors import parse_json
 from .state import EXECUTORS, EXTENSIONS, OVERLAY
 from .streams import json_error
 
@@ -202,7 +202,7 @@ async def put_cameras(request: web.Request) -> web.Response:
         given = request.content_type or "nothing"
         return json_error(415, f"send JSON (Content-Type: application/json), not {given}")
     try:
-        body = json.loads(await request.read())
+        body = parse_json(await request.read())
     except (ValueError, UnicodeDecodeError):
         return json_error(400, "the body is not valid JSON: send an object such as "
                                '{"exposure_us": 5000, "gain": 2.0, "camera": "both"}')

@@ -85,7 +85,8 @@ def guard(*, access_token: Optional[str], max_body: int) -> "Middleware":
                                          "an Origin header")
         if changing and expected is not None:
             given = _token_of(request)
-            if given is None or not hmac.compare_digest(given.encode("utf-8"), expected):
+            # Header bytes that are not UTF-8 arrive as surrogates: compare them as the bytes sent.
+            if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
                 raise web.HTTPUnauthorized(
                     headers={"WWW-Authenticate": 'Bearer realm="stereocam"'},
                     text=f"{request.method} {request.path} needs the access token: send "

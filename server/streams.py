@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from .config import MAX_FPS
 from .encoders import BOUNDARY, BroadcastClosed, Encoded, EncoderKey, encoded_for, png_for
+from .errors import parse_json
 from .pipeline import FrameSet
 from .state import CONFIG, ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, STREAMS
 from .views import GRAY_VIEWS, RAW_VIEWS, VIEWS
@@ -346,7 +346,7 @@ async def ws_handler(request: web.Request) -> web.StreamResponse:
 
 def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
     try:
-        doc = json.loads(text)
+        doc = parse_json(text)
     except ValueError:
         raise BadParams(400, 'not JSON: send {"views": ["rect_left", ...], "fps": N}') from None
     if not isinstance(doc, dict):
