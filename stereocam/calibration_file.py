@@ -152,6 +152,49 @@ def calibration_id(model: StereoModel, rect: Rectification) -> str:
     return hashlib.sha256(text.encode("ascii")).hexdigest()[:ID_LENGTH]
 
 
+ROTATION_TOL = 1e-6  # |R^T R - I| and |det R - 1| of a rotation written with 17 significant digits
+RECTIFY_TOL = 1e-3  # R2 R R1^T against I: rectifications from other tools agree to about 1e-9
+MAX_BASELINE = 1e6  # in the file's units (m, mm or squares): a million of them is no stereo rig
+
+
+def _check_rotation(where: str, name: str, R: np.ndarray) -> None:
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOL or abs(np.linalg.det(R) - 1.0) > ROTATION_TOL:
+        raise CalibrationFileError(f"{where}: {name} is not a rotation matrix (R^T R must be I and det R 1); "
+                                   "the file is not a valid calibration")
+
+
+def check_physical(model: StereoModel, rect: Rectification, alpha: Optional[float], where: str) -> None:
+    """Refuse numbers no stereo rig has: the register check alone let zero matrices and 1e308 through.
+
+    Positive focal lengths, rotations that are rotations, a baseline that is neither zero nor
+    astronomical, rectifying rotations that agree with the model's R (R2 R R1^T = I), projection
+    matrices of the rectified pair, and alpha in [0, 1].
+    """
+    for name, K in (("model.K1", model.K1), ("model.K2", model.K2)):
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise CalibrationFileError(f"{where}: {name} has focal lengths {K[0, 0]:g}, {K[1, 1]:g}: "
+                                       "both must be > 0")
+    for name, R in (("model.R", model.R), ("rectification.R1", rect.R1), ("rectification.R2", rect.R2)):
+        _check_rotation(where, name, R)
+    largest = float(np.abs(model.T).max())  # before the norm, which overflows for 1e308
+    baseline = float(np.linalg.norm(model.T)) if largest <= MAX_BASELINE else largest
+    if not 0 < baseline <= MAX_BASELINE:
+        raise CalibrationFileError(f"{where}: model.T gives a baseline of {baseline:g}: a stereo rig's "
+                                   f"cameras are apart, by at most {MAX_BASELINE:g} units")
+    if np.abs(rect.R2 @ model.R @ rect.R1.T - np.eye(3)).max() > RECTIFY_TOL:
+        raise CalibrationFileError(f"{where}: rectification R1, R2 do not match model.R (R2 R R1^T must be "
+                                   "I): the rectification is of another rig; rectify again")
+    for name, P in (("rectification.P1", rect.P1), ("rectification.P2", rect.P2)):
+        if not (P[0, 0] > 0 and P[1, 1] > 0) or not np.array_equal(P[2], [0.0, 0.0, 1.0, 0.0]):
+            raise CalibrationFileError(f"{where}: {name} is not the projection of a rectified camera "
+                                       "([[f, 0, cx, Tx f], [0, f, cy, 0], [0, 0, 1, 0]])")
+    if not np.any(rect.Q):
+        raise CalibrationFileError(f"{where}: rectification.Q is all zeros: rectify again")
+    if alpha is not None and not 0.0 <= alpha <= 1.0:
+        raise CalibrationFileError(f"{where}: rectification.alpha is {alpha:g}: it must be from 0 (only "
+                                   "valid pixels) to 1 (every source pixel)")
+
+
 def _check_intrinsics(where: str, name: str, K: np.ndarray) -> None:
     if K[0, 1] != 0.0 or K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0 or K[2, 2] != 1.0:
         raise CalibrationFileError(
@@ -225,6 +268,7 @@ class Calibration:
             _check_intrinsics(where, name, getattr(model, name))
         if tuple(rect.image_size) != tuple(model.image_size):
             raise CalibrationFileError(f"{where}: the rectification is for another image size than the model")
+        check_physical(model, rect, alpha, where)
         w, h = model.image_size
         check_frame_size(w, h, max_width, max_height)
         try:
@@ -507,7 +551,7 @@ def parse_yaml(
     if not isinstance(data, dict) or "schema_version" not in data:
         raise CalibrationFileError(f"{where}: not a stereocam calibration file (no schema_version)")
     version = data["schema_version"]
-    if version != SCHEMA_VERSION:
+    if version != SCHEMA_VERSION or isinstance(version, bool):  # true == 1 in Python, not in the schema
         if isinstance(version, int) and not isinstance(version, bool) and version > SCHEMA_VERSION:
             raise CalibrationFileError(
                 f"{where}: schema_version {version} is newer than this stereocam reads ({SCHEMA_VERSION}): "

@@ -16,7 +16,12 @@ import scipy.io
 import yaml
 
 from stereocam.calibration_file import (
-    PARAM_NAMES, Calibration, calibration_id, f64_to_words, load_calibration, parse_yaml,
+    PARAM_NAMES,
+    Calibration,
+    calibration_id,
+    f64_to_words,
+    load_calibration,
+    parse_yaml,
 )
 from stereocam.calibration_io import CalibrationFileError
 from stereocam.cli import main
@@ -566,3 +571,57 @@ def test_loaded_calibration_feeds_the_core(written) -> None:
     assert cal.model.baseline == pytest.approx(3.338 * 0.025, rel=0.01)
     copied = copy.deepcopy(cal)
     assert copied == cal
+
+
+def _edited(path: Path, change) -> str:
+    """The file at ``path`` with ``change(doc)`` applied, its derived core and id dropped (a hand edit)."""
+    doc = yaml.safe_load(path.read_text())
+    change(doc)
+    doc.pop("core", None)
+    doc.pop("id", None)
+    return yaml.safe_dump(doc)
+
+
+def _set(section: str, name: str, value: Any):
+    def change(doc: Dict[str, Any]) -> None:
+        doc[section][name] = json.loads(json.dumps(value))  # fresh lists: safe_dump would write aliases
+    return change
+
+
+@pytest.mark.parametrize("change,message", [
+    (_set("model", "R", [[0.0] * 3] * 3), "model.R is not a rotation matrix"),
+    (_set("model", "R", [[1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]]), "model.R is not a rotation matrix"),
+    (_set("rectification", "R1", [[2.0, 0, 0], [0, 2.0, 0], [0, 0, 2.0]]),
+     "rectification.R1 is not a rotation"),
+    (_set("model", "T", [0.0, 0.0, 0.0]), "baseline of 0"),
+    (_set("model", "T", [1e308, 0.0, 0.0]), "baseline of 1e+308"),
+    (_set("model", "K1", [[-700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]]),
+     "model.K1 has focal lengths -700"),
+    (_set("rectification", "Q", [[0.0] * 4] * 4), "rectification.Q is all zeros"),
+    (_set("rectification", "alpha", 5), "rectification.alpha is 5"),
+    (_set("rectification", "alpha", -1), "rectification.alpha is -1"),
+    (_set("rectification", "P2", [[700.0, 0, 320, -70], [0, 700.0, 240, 0], [0, 0, 2.0, 0]]),
+     "rectification.P2 is not the projection"),
+])
+def test_physically_meaningless_calibrations_are_refused(written, change, message) -> None:
+    """Numbers that fit the registers but describe no stereo rig (issue 10, item 4)."""
+    text = _edited(written, change)
+    with pytest.raises(CalibrationFileError, match=re.escape(message)):
+        parse_yaml(text, where="cal", derive_missing=True)
+    assert parse_yaml(_edited(written, lambda doc: None), where="cal", derive_missing=True)  # unchanged: fine
+
+
+def test_a_rectification_of_another_rig_is_refused(written) -> None:
+    def rotate(doc: Dict[str, Any]) -> None:  # turn the right camera 3 degrees behind the rectification's back
+        R = np.array(doc["model"]["R"]) @ cv2.Rodrigues(np.array([0.0, np.radians(3), 0.0]))[0]
+        doc["model"]["R"] = R.tolist()
+
+    with pytest.raises(CalibrationFileError, match=r"R1, R2 do not match model.R"):
+        parse_yaml(_edited(written, rotate), where="cal", derive_missing=True)
+
+
+def test_schema_version_true_is_not_1(written) -> None:
+    text = written.read_text().replace("schema_version: 1", "schema_version: true", 1)
+    assert text != written.read_text()
+    with pytest.raises(CalibrationFileError, match="schema_version must be 1, is True"):
+        parse_yaml(text, where="cal")

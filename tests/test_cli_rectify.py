@@ -99,7 +99,7 @@ def read_yml(path: Path) -> dict:
     ("k3", "D1 has k3 = 0.1 (or a higher term) but the core models only k1, k2, p1, p2"),
     ("missing", "missing R2"),
     ("nan", "P1 has values that are not finite numbers"),
-    ("singular", "is singular"),
+    ("singular", "rectification.P1 is not the projection of a rectified camera"),
     ("out_of_range", "left FX = 1e+06 is outside the register's range"),
     ("malformed", "not an OpenCV YAML/XML file"),
     ("no_file", "no such file"),

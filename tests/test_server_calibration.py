@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import yaml
 
 from stereocam.bench import bench_calibration
 from stereocam.calibration_file import Calibration, load_calibration
@@ -127,7 +128,7 @@ def _nan(text: str) -> str:
 
 
 @pytest.mark.parametrize("case", ["broken", "nan", "frame_size", "line_buffer", "not_calibration", "empty",
-                                  "alias_bomb", "deep"])
+                                  "alias_bomb", "deep", "zero_baseline"])
 async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_path, case) -> None:
     daemon = await start_daemon(extensions=EXT)
     path = tmp_path / "calibration.yaml"
@@ -155,6 +156,11 @@ async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_
         bomb = "".join(f"  l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 9) if i else 'lol'}]\n"
                        for i in range(10))
         text, status_code, words = good.to_yaml() + "bomb:\n" + bomb, 400, "aliases"
+    elif case == "zero_baseline":  # fits every register, describes no stereo rig
+        doc = yaml.safe_load(good.to_yaml())
+        doc["model"]["T"] = [0.0, 0.0, 0.0]
+        del doc["core"], doc["id"]
+        text, status_code, words = yaml.safe_dump(doc), 400, "baseline of 0"
     elif case == "deep":
         text, status_code, words = good.to_yaml() + "deep: " + "[" * 5000 + "]" * 5000 + "\n", 400, "nested"
     else:
