@@ -38,7 +38,7 @@ from .metrics import setup_routes as setup_ops_routes
 from .pipeline import Pipeline
 from .routes_api import VirtualCamera
 from .routes_api import setup_routes as setup_api_routes
-from .security import guard
+from .security import allowed_host_names, guard
 from .state import (
     CALIBRATION,
     CAPTURES,
@@ -188,7 +188,9 @@ def create_app(
     metrics = Metrics()
     app = web.Application(
         middlewares=[_json_errors(metrics),
-                     guard(access_token=config.access_token, max_body=config.max_upload_bytes)],
+                     guard(access_token=config.access_token, max_body=config.max_upload_bytes,
+                           allowed_hosts=allowed_host_names(config.host, config.allowed_hosts),
+                           protect=config.protect)],
         client_max_size=config.max_upload_bytes,
     )
     fabric = overlay.fabric

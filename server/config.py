@@ -54,7 +54,11 @@ class Config:
     ``default_quality`` (when the query gives none), ``disparity_fps``,
     ``no_signal_s`` (no frame for that long shows the no-signal frame),
     ``encode_threads``. Safety: ``access_token`` (when set, every
-    state-changing request needs it), ``max_upload_bytes``.
+    state-changing request needs it, and with ``protect: all``, the default,
+    every stream, snapshot, capture and status read too; ``protect: control``
+    leaves reads open), ``allowed_hosts`` (names besides loopback, the
+    listening host and, on 0.0.0.0, the machine's own, that a request's Host
+    may carry: the DNS-rebinding guard), ``max_upload_bytes``.
     """
 
     host: str = "127.0.0.1"
@@ -78,6 +82,8 @@ class Config:
     no_signal_s: float = 0.5
     encode_threads: int = 2
     access_token: Optional[str] = None
+    protect: str = "all"
+    allowed_hosts: Tuple[str, ...] = ()
     max_upload_bytes: int = 16 * 1024 * 1024
     extra: Mapping[str, Any] = field(default_factory=dict)  # sections owned by extensions (issues 4, 5)
 
@@ -233,6 +239,22 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
         if token is not None and (len(token) < 8 or any(c.isspace() for c in token)):
             raise ConfigError(f"{_where(origin)}access_token must be at least 8 characters without spaces")
         return token
+    if key == "protect":
+        if value not in ("all", "control"):
+            raise ConfigError(f"{_where(origin)}protect must be all or control, got {value!r}")
+        return value
+    if key == "allowed_hosts":
+        if isinstance(value, str):
+            value = [value]
+
+        def name_ok(v: Any) -> bool:
+            text = v.strip() if isinstance(v, str) else ""
+            return bool(text) and not any(c.isspace() or c in "/:@" for c in text)
+
+        if not isinstance(value, (list, tuple)) or not all(name_ok(v) for v in value):
+            raise ConfigError(f"{_where(origin)}allowed_hosts must be a list of host names "
+                              f"(no ports or spaces), got {value!r}")
+        return tuple(v.strip().lower() for v in value)
     if key == "extra":
         if not isinstance(value, Mapping):
             raise ConfigError(f"{_where(origin)}extra must be a mapping of extension sections, got {value!r}")

@@ -15,11 +15,22 @@ the body:
 - A declared ``Content-Length`` over ``max_upload_bytes`` gets 413 at once;
   bodies without one are cut by aiohttp's ``client_max_size`` and the
   upload reader.
+- Every request's ``Host`` must be one of the daemon's names (421
+  otherwise): DNS rebinding points an attacker's name at this address, so
+  the browser sends the attacker's name; an IP literal cannot be rebound
+  and is always accepted. See :func:`allowed_host_names`.
+- ``protect="all"`` (the default): with a token, reads need it too: the
+  page, its scripts and ``/healthz`` stay open, every stream, snapshot,
+  capture, status and ``/ws`` wants the token as a header, the
+  ``stereocam_token`` cookie the page sets, or ``?token=`` (for players
+  that cannot send headers). ``protect="control"``: only changes need it.
 """
 from __future__ import annotations
 
 import hmac
-from typing import TYPE_CHECKING, Awaitable, Callable, Optional
+import ipaddress
+import socket
+from typing import TYPE_CHECKING, Awaitable, Callable, FrozenSet, Iterable, Optional
 from urllib.parse import urlsplit
 
 from aiohttp import web
@@ -27,9 +38,39 @@ from aiohttp import web
 if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
 
-__all__ = ["guard", "same_origin", "STATE_CHANGING"]
+__all__ = ["guard", "same_origin", "STATE_CHANGING", "allowed_host_names", "PROTECT", "TOKEN_COOKIE"]
 
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+PROTECT = ("all", "control")  # what the access token guards
+TOKEN_COOKIE = "stereocam_token"
+OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico"})  # no camera data, no settings
+OPEN_PREFIXES = ("/static/",)
+LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+WILDCARDS = frozenset({"0.0.0.0", "::", ""})
+
+
+def allowed_host_names(host: str, extra: Iterable[str] = ()) -> FrozenSet[str]:
+    """The names a request's ``Host`` may carry: loopback, the listening host, ``extra``, the machine's names.
+
+    Listening on every interface (``0.0.0.0``, as the board's service does) adds this
+    machine's host name, its ``.local`` (mDNS) name and its fully qualified name; its
+    addresses need no listing (IP literals are always accepted).
+    """
+    names = set(LOOPBACK_NAMES) | {n.strip().lower().rstrip(".") for n in extra if n.strip()}
+    if host not in WILDCARDS:
+        names.add(host.lower())
+    else:
+        hostname = socket.gethostname().lower()
+        names |= {hostname, f"{hostname}.local", socket.getfqdn().lower()}
+    return frozenset(names)
+
+
+def _is_ip(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name.strip("[]"))
+    except ValueError:
+        return False
+    return True
 _DEFAULT_PORTS = {"http": 80, "https": 443, "ws": 80, "wss": 443}
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
@@ -62,21 +103,56 @@ def same_origin(request: web.Request) -> bool:
     return theirs is not None and theirs == ours
 
 
-def _token_of(request: web.Request) -> Optional[str]:
+def _token_of(request: web.Request, *, reads: bool = False) -> Optional[str]:
+    """The token a request carries: a header; for reads also the page's cookie or ``?token=``."""
     auth = request.headers.get("Authorization", "")
     if auth[:7].lower() == "bearer ":
         return auth[7:].strip()
-    return request.headers.get("X-Stereocam-Token")
+    header = request.headers.get("X-Stereocam-Token")
+    if header is not None or not reads:
+        return header
+    return request.cookies.get(TOKEN_COOKIE) or request.query.get("token")
 
 
-def guard(*, access_token: Optional[str], max_body: int) -> "Middleware":
-    """The safety middleware for a daemon with these settings (errors are raised as HTTP exceptions)."""
+def _host_allowed(request: web.Request, names: FrozenSet[str]) -> bool:
+    host = request.headers.get("Host")
+    if host is None:  # HTTP/1.0 without Host: no browser sends that
+        return True
+    parts = _split_host("http", host)
+    if parts is None:
+        return False
+    name = parts[1].rstrip(".")
+    return name in names or _is_ip(name)
+
+
+def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional[FrozenSet[str]] = None,
+          protect: str = "all") -> "Middleware":
+    """The safety middleware for a daemon with these settings (errors are raised as HTTP exceptions).
+
+    ``allowed_hosts``: the names :func:`allowed_host_names` gives (None: loopback names only).
+    """
     expected = access_token.encode("utf-8") if access_token else None
+    names = allowed_hosts if allowed_hosts is not None else LOOPBACK_NAMES
+    if protect not in PROTECT:
+        raise ValueError(f"protect must be one of {', '.join(PROTECT)}, not {protect!r}")
 
     @web.middleware
     async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
+        if not _host_allowed(request, names):
+            raise web.HTTPMisdirectedRequest(
+                text=f"refused: Host {request.headers.get('Host', '')[:80]!r} is not a name of this daemon "
+                     "(a page that renamed this address, or a new name: add it to allowed_hosts)")
         changing = request.method in STATE_CHANGING
         upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+        if (expected is not None and protect == "all" and not changing and request.path not in OPEN_PATHS
+                and not request.path.startswith(OPEN_PREFIXES)):
+            given = _token_of(request, reads=True)
+            if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
+                raise web.HTTPUnauthorized(
+                    headers={"WWW-Authenticate": 'Bearer realm="stereocam"'},
+                    text=f"{request.path} needs the access token: open the page as /?token=<token>, or send "
+                         "'Authorization: Bearer <token>' or add ?token=<token> to the URL"
+                         + (" (the token sent is wrong)" if given is not None else ""))
         if (changing or upgrade) and not same_origin(request):
             origin = request.headers.get("Origin", "a cross-site page")
             raise web.HTTPForbidden(reason="cross-origin request refused",

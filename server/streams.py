@@ -170,7 +170,7 @@ def parse_params(view: str, query: Any, *, default_fps: float, default_quality: 
     """Validate a view name and the ``fps``, ``quality`` and ``gray`` query parameters (404 / 400)."""
     if view not in VIEWS:
         raise BadParams(404, f"unknown view {view[:40]!r}: the views are {', '.join(VIEWS)}")
-    unknown = [k for k in query if k not in ("fps", "quality", "gray")]
+    unknown = [k for k in query if k not in ("fps", "quality", "gray", "token")]  # token: for security.py
     if unknown:
         raise BadParams(400, f"unknown query parameter {unknown[0][:40]!r}: use fps, quality and gray")
     fps: float = default_fps

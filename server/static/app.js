@@ -10,7 +10,8 @@
 //
 // Access token: when the daemon has `access_token` set, open the page as
 // /?token=SECRET once. The token is stored in localStorage ("stereocam.token") and
-// sent as "Authorization: Bearer SECRET" on POST/PUT/DELETE; /?token= (empty) forgets it.
+// sent as "Authorization: Bearer SECRET" on POST/PUT/DELETE and as the stereocam_token
+// cookie on everything else; /?token= (empty) forgets it.
 //
 // Errors: every failed API call shows the daemon's {"error": ...} text in #messages;
 // nothing is swallowed.
@@ -45,6 +46,10 @@
     try { return localStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
   }
   const TOKEN = readToken();
+  // Streams, snapshots and the WebSocket cannot carry a header: with `protect: all` the daemon
+  // reads the token from this cookie (same site only, so a page of another origin never sends it).
+  document.cookie = "stereocam_token=" + (TOKEN ? encodeURIComponent(TOKEN) + "; max-age=31536000"
+                                                : "; max-age=0") + "; path=/; SameSite=Strict";
 
   // ---- messages -------------------------------------------------------------------
   let messageSeq = 0;
