@@ -181,7 +181,11 @@ class VirtualCamera:
             self.source = "live"
 
     async def select(self, executor: Any, source: str) -> None:
-        """Flow 6 (live) or back to the last virtual input (virtual; a black frame if there is none yet).
+        """Flow 6 (live) or back to the last virtual input (virtual).
+
+        Virtual before any input is refused (ApiError 409), the source staying live: the mux
+        would feed the core nothing, and the views would show live raw frames beside black
+        rectified ones under a header saying virtual.
 
         A mux that does not take the change (its commit times out) is an ApiError 503 naming
         the source the status then shows; nothing else changes.
@@ -201,12 +205,9 @@ class VirtualCamera:
             if source == "live":
                 await self._back_to_live(executor)
                 return
-            loop = asyncio.get_running_loop()
             if self.input is None:
-                await loop.run_in_executor(executor, self.fabric.select, "virtual")
-                self.pipeline.set_source(SourceState("virtual", None, 0))
-                self.source = "virtual"
-                return
+                raise ApiError("the virtual camera has no input yet: upload a pair (POST /api/virtual-camera) "
+                               "or send a capture to it first; the source stays live", status=409)
             frame = self.input
         await self.send(executor, frame, self.origin or "upload")
 

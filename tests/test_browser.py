@@ -141,9 +141,15 @@ def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, 
     with urllib.request.urlopen(base + href, timeout=10) as resp:
         assert resp.status == 200 and resp.read(2) == b"PK"
 
-    # 4. Virtual camera (flow 4): switch, upload the pair, see the fabric's output.
-    page.get_by_test_id("source-virtual").check()
-    _wait_status_source(page, "virtual")
+    # 4. Virtual camera (flow 4): without an input the switch says what to do and stays live;
+    # uploading the pair switches to it and shows the fabric's output.
+    page.get_by_test_id("source-virtual").click()  # not check(): the radio goes back to live
+    expect(page.get_by_test_id("message-error").filter(has_text="no input yet")).to_be_visible()
+    expect(page.get_by_test_id("source-live")).to_be_checked()
+    _wait_status_source(page, "live")
+    for button in page.locator("[data-testid=message-error] button").all():
+        button.click()
+    assert _errors(page) == []
     rect_before = int(page.get_attribute("#view-rect_left", "data-received") or 0)
     page.get_by_test_id("upload-left").set_input_files(str(left_png))
     page.get_by_test_id("upload-right").set_input_files(str(right_png))

@@ -147,7 +147,18 @@ async def test_source_get_and_put(start_daemon) -> None:
     d = await start_daemon()
     async with d.http.get("/api/source") as resp:
         assert await resp.json() == {"source": "live"}
-    async with d.http.put("/api/source", json={"source": "virtual"}) as resp:
+    async with d.http.put("/api/source", json={"source": "virtual"}) as resp:  # nothing to show yet
+        assert resp.status == 409 and "no input yet" in (await resp.json())["error"]
+    assert d.overlay.fabric.source == "live"
+    async with d.http.get("/api/status") as resp:
+        status = await resp.json()
+    assert status["source"] == status["mux"] == "live"
+    left, right = pattern_pair(6)
+    async with d.http.post("/api/virtual-camera", data=pair_form(encode(left), encode(right))) as resp:
+        assert resp.status == 200
+    async with d.http.put("/api/source", json={"source": "live"}) as resp:
+        assert await resp.json() == {"source": "live"}
+    async with d.http.put("/api/source", json={"source": "virtual"}) as resp:  # back to that input
         assert resp.status == 200 and await resp.json() == {"source": "virtual"}
     assert d.overlay.fabric.source == "virtual"
     async with d.http.put("/api/source", json={"source": "live"}) as resp:

@@ -92,10 +92,10 @@ async def test_a_mux_that_does_not_commit_is_a_503_and_the_daemon_carries_on(sta
     d = await start_daemon()
     d.overlay.hw.mux.hang_update = True
     try:
-        async with d.http.put("/api/source", json={"source": "virtual"}) as r:
+        async with d.http.put("/api/source", json={"source": "live"}) as r:
             body = await r.json()
         assert r.status == 503, body
-        assert body["error"].startswith("the mux did not switch to virtual (") and "\n" not in body["error"]
+        assert body["error"].startswith("the mux did not switch to live (") and "\n" not in body["error"]
     finally:
         d.overlay.hw.mux.hang_update = False
     async with d.http.put("/api/source", json={"source": "live"}) as r:
