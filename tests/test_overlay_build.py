@@ -29,7 +29,7 @@ from stereocam.overlays import backend
 from stereocam.overlays.emulated.fabric import EmulatedFabric, StreamCore
 from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
 from stereocam.overlays.fabric import bind
-from stereocam.overlays.spec import axis_switch, camera_in, mt9v034, overlay, pixel, rectify, vdma
+from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 VIVADO_DIR = REPO_ROOT / "overlays" / "vivado"
@@ -45,8 +45,6 @@ CHANNELS = {  # VDMA channel -> (include parameter, stream interface, memory int
 }
 STREAM_WIDTH = {"S2MM": "c_s_axis_s2mm_tdata_width", "MM2S": "c_m_axis_mm2s_tdata_width"}
 USE_FSYNC_TUSER = "2"  # PG020 "Fsync Options": c_use_s2mm_fsync 2 = "s2mm tuser" (start of frame on TUSER)
-# Clocks per beat of the rectify core, measured by tests/hdl/test_rectify_core_rtl.py (no spec constant yet).
-CORE_CLOCKS_PER_BEAT = 2
 
 
 # ---- a small Tcl reader -----------------------------------------------------------------------------
@@ -359,13 +357,16 @@ def test_every_instance_the_drivers_bind_is_in_the_design_with_an_accepted_vlnv(
     assert bd.cells["mux"] == axis_switch.VLNV
     assert bd.cells["rectify"] == rectify.VLNV
     assert bd.cells[camera_in.INSTANCE] == camera_in.VLNV
+    for gate in frame_gate.INSTANCES:
+        assert bd.cells[gate] == frame_gate.VLNV, gate
 
 
 def test_the_packaged_ip_are_the_cores_the_design_instantiates(packaged: Dict[str, PackagedIP],
                                                                bd: BlockDesign) -> None:
-    assert set(packaged) == {rectify.VLNV, camera_in.VLNV}
+    assert set(packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
     assert packaged[rectify.VLNV].top == "rectify_core"
     assert packaged[camera_in.VLNV].top == camera_in.TOP
+    assert packaged[frame_gate.VLNV].top == frame_gate.TOP
     user_cells = {vlnv for vlnv in bd.cells.values() if not vlnv.startswith("xilinx.com:")}
     assert user_cells == set(packaged)
 
@@ -394,6 +395,9 @@ def test_every_verilog_parameter_of_each_top_is_a_user_parameter(packaged: Dict[
     assert set(packaged[rectify.VLNV].params) == set(module.parameters)
     cam = packaged[camera_in.VLNV].params
     assert {name: default for name, (default, _, _) in cam.items()} == camera_in.PARAMETERS
+    module = verilog_module((RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text(), frame_gate.TOP)
+    assert module is not None
+    assert set(packaged[frame_gate.VLNV].params) == set(module.parameters) == set(frame_gate.PARAMETERS)
 
 
 def test_camera_parameters_in_the_design_are_the_spec_defaults(bd: BlockDesign,
@@ -408,6 +412,35 @@ def test_camera_parameters_in_the_design_are_the_spec_defaults(bd: BlockDesign,
     if "BAYER_PHASE" in camera_in.PARAMETERS:
         phases = len(camera_in.CFA_PHASES)
         assert params["BAYER_PHASE"][1:] == (0, phases - 1), "every phase must be buildable"
+
+
+def test_frame_gate_parameters_are_the_spec_defaults(bd: BlockDesign,
+                                                     packaged: Dict[str, PackagedIP]) -> None:
+    params = packaged[frame_gate.VLNV].params
+    assert {name: default for name, (default, _, _) in params.items()} == frame_gate.PARAMETERS
+    assert params["DEPTH"][1:] == frame_gate.DEPTH_RANGE
+    for gate in frame_gate.INSTANCES:
+        assert {k: int(v) for k, v in bd.config[gate].items()} == frame_gate.PARAMETERS, gate
+        # a line passes a gate only if it fits (the gate forwards whole lines only)
+        depth = int(bd.config[gate]["DEPTH"])
+        assert depth >= int(bd.config[camera_in.INSTANCE]["MAX_WIDTH"]), gate
+
+
+def test_frame_gate_interfaces_are_the_spec_ports(packaged: Dict[str, PackagedIP]) -> None:
+    ip = packaged[frame_gate.VLNV]
+    clock, reset, busifs = ip.clock
+    assert frame_gate.PORTS[clock] == frame_gate.PORTS[reset] == ("input", 1)
+    assert set(ip.interfaces) == {clock, reset, *busifs}
+    assert sorted(busifs) == ["m_axis", "s_axis"]
+    for busif in busifs:
+        out = "output" if busif == "m_axis" else "input"
+        assert frame_gate.PORTS[f"{busif}_tdata"] == (out, pixel.BYTES_PER_PIXEL * 8)
+        assert frame_gate.PORTS[f"{busif}_tready"][0] == ("input" if out == "output" else "output")
+        assert {f"{busif}_{s}" for s in ("tvalid", "tuser", "tlast")} <= set(frame_gate.PORTS)
+    module = verilog_module((RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text(), frame_gate.TOP)
+    assert module is not None
+    assert {name: (d, w) for name, (d, w) in module.ports.items()} == frame_gate.PORTS
+    assert not ip.windows and not ip.free_clocks
 
 
 def test_rectify_interfaces_match_the_rtl_ports(packaged: Dict[str, PackagedIP]) -> None:
@@ -508,20 +541,53 @@ def test_mux_is_a_control_register_switch_of_the_spec_size(bd: BlockDesign) -> N
     assert "CTRL" in axis_switch.AXIS_SWITCH_MAP and cfg["ROUTING_MODE"] == "1"
 
 
-def test_streams_run_camera_to_both_paths_and_through_the_mux(bd: BlockDesign) -> None:
-    live = f"mux/S{axis_switch.LIVE:02d}_AXIS"
-    virtual = f"mux/S{axis_switch.VIRTUAL:02d}_AXIS"
-    assert bd.connected(virtual) == {"vdma_proc/M_AXIS_MM2S"}
-    assert bd.connected(f"mux/M{0:02d}_AXIS") == {"rectify/s_axis"}
-    assert bd.connected("rectify/m_axis") == {"vdma_proc/S_AXIS_S2MM"}
+STREAM_MASTER = re.compile(r"(^m_axis$|^M\d\d_AXIS$|^M_AXIS_)")  # our cores, broadcaster/switch, VDMA
+
+
+def stream_edges(bd: BlockDesign) -> Set[Tuple[str, str]]:
+    """The design's AXI4-Stream connections as (master pin, slave pin)."""
+    edges = set()
+    for a, b in bd.intf_nets:
+        masters = [p for p in (a, b) if STREAM_MASTER.search(p.split("/")[1])]
+        slaves = [p for p in (a, b) if re.search(r"(^s_axis$|^S\d\d_AXIS$|^S_AXIS)", p.split("/")[1])]
+        if masters or slaves:
+            assert len(masters) == len(slaves) == 1, f"{a} -- {b}: not one stream master and one slave"
+            edges.add((masters[0], slaves[0]))
+    return edges
+
+
+def test_stream_graph_is_camera_to_gates_to_raw_vdma_and_mux(bd: BlockDesign) -> None:
+    """Every stream connection, exactly: camera_in -> broadcaster; M00 -> gate_raw -> vdma_raw S2MM;
+    M01 -> gate_live -> mux live input; virtual camera -> mux; mux -> rectify -> vdma_proc S2MM."""
     (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
     split = split_in.split("/")[0]
     assert bd.cells[split].startswith("xilinx.com:ip:axis_broadcaster:")
-    outputs = {f"{split}/M{i:02d}_AXIS" for i in range(int(bd.config[split]["NUM_MI"]))}
-    assert set().union(*(bd.connected(o) for o in outputs)) == {"vdma_raw/S_AXIS_S2MM", live}
+    assert int(bd.config[split]["NUM_MI"]) == len(frame_gate.INSTANCES)
+    expected = {
+        (f"{camera_in.INSTANCE}/m_axis", f"{split}/S_AXIS"),
+        *((f"{split}/M{i:02d}_AXIS", f"{gate}/s_axis") for i, gate in enumerate(frame_gate.INSTANCES)),
+        (f"{frame_gate.GATE_RAW}/m_axis", "vdma_raw/S_AXIS_S2MM"),
+        (f"{frame_gate.GATE_LIVE}/m_axis", f"mux/S{axis_switch.LIVE:02d}_AXIS"),
+        ("vdma_proc/M_AXIS_MM2S", f"mux/S{axis_switch.VIRTUAL:02d}_AXIS"),
+        ("mux/M00_AXIS", "rectify/s_axis"),
+        ("rectify/m_axis", "vdma_proc/S_AXIS_S2MM"),
+    }
+    assert stream_edges(bd) == expected
+    assert frame_gate.INSTANCES[0] == frame_gate.GATE_RAW and frame_gate.INSTANCES[1] == frame_gate.GATE_LIVE
     cfg = bd.config[split]
     assert int(cfg["S_TDATA_NUM_BYTES"]) == int(cfg["M_TDATA_NUM_BYTES"]) == pixel.BYTES_PER_PIXEL
     assert cfg["S_TUSER_WIDTH"] == cfg["M_TUSER_WIDTH"] == "1" and cfg["HAS_TLAST"] == "1"
+
+
+def test_nothing_downstream_can_hold_the_broadcaster(bd: BlockDesign) -> None:
+    """A broadcaster passes a beat only when every output takes it: each output must be a frame gate,
+    whose s_axis_tready is tied high in its RTL (never logic that could fall)."""
+    (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
+    split = split_in.split("/")[0]
+    consumers = [slave for master, slave in stream_edges(bd) if master.startswith(f"{split}/")]
+    assert consumers and all(bd.cells[c.split("/")[0]] == frame_gate.VLNV for c in consumers), consumers
+    text = (RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text()
+    assert re.findall(r"^\s*assign\s+s_axis_tready\s*=\s*(.+?);", text, re.M) == ["1'b1"]
 
 
 # ---- memory, interrupts, clocks, resets ------------------------------------------------------------------
@@ -544,17 +610,19 @@ def test_every_vdma_channel_reaches_ddr_through_hp0(bd: BlockDesign) -> None:
     assert bd.config[PS7]["PCW_USE_S_AXI_HP0"] == "1"
 
 
-def test_every_vdma_interrupt_reaches_irq_f2p(bd: BlockDesign) -> None:
-    introuts = [f"{name}/{ch.lower()}_introut"
-                for name in ("vdma_raw", "vdma_proc") for ch in vdma_channels(bd, name)]
+def test_every_vdma_interrupt_reaches_irq_f2p_in_the_spec_order(bd: BlockDesign) -> None:
+    introuts = {f"{name}/{ch.lower()}_introut"
+                for name in ("vdma_raw", "vdma_proc") for ch in vdma_channels(bd, name)}
+    assert introuts == {f"{cell}/{pin}" for cell, pin in overlay.INTERRUPTS}
     concat = [name for name, vlnv in bd.cells.items() if vlnv.startswith("xilinx.com:ip:xlconcat:")]
     assert len(concat) == 1
     inputs = []
-    for pin in introuts:
-        (other,) = [p for p in bd.net_of(pin) if p != pin]
+    for cell, pin in overlay.INTERRUPTS:
+        (other,) = [p for p in bd.net_of(f"{cell}/{pin}") if p != f"{cell}/{pin}"]
         assert other.startswith(concat[0] + "/In"), pin
         inputs.append(int(other.rsplit("In", 1)[1]))
-    assert sorted(inputs) == list(range(int(bd.config[concat[0]]["NUM_PORTS"])))
+    assert inputs == list(range(len(overlay.INTERRUPTS))), "In0.. in the order of overlay.INTERRUPTS"
+    assert int(bd.config[concat[0]]["NUM_PORTS"]) == len(overlay.INTERRUPTS)
     assert set(bd.net_of(f"{concat[0]}/dout")) == {f"{concat[0]}/dout", f"{PS7}/IRQ_F2P"}
     assert bd.config[PS7]["PCW_USE_FABRIC_INTERRUPT"] == "1" and bd.config[PS7]["PCW_IRQ_F2P_INTR"] == "1"
 
@@ -562,7 +630,10 @@ def test_every_vdma_interrupt_reaches_irq_f2p(bd: BlockDesign) -> None:
 def test_one_clock_runs_every_interface(bd: BlockDesign, variables: Dict[str, str]) -> None:
     clock = bd.net_of(f"{PS7}/FCLK_CLK0")
     expected = {f"{PS7}/M_AXI_GP0_ACLK", f"{PS7}/S_AXI_HP0_ACLK", "rectify/aclk",
-                f"{camera_in.INSTANCE}/aclk", "mux/aclk", "mux/s_axi_ctrl_aclk"}
+                f"{camera_in.INSTANCE}/aclk", "mux/aclk", "mux/s_axi_ctrl_aclk",
+                *(f"{gate}/aclk" for gate in frame_gate.INSTANCES)}
+    (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
+    expected.add(f"{split_in.split('/')[0]}/aclk")
     for name in ("vdma_raw", "vdma_proc"):
         expected.add(f"{name}/s_axi_lite_aclk")
         for ch in vdma_channels(bd, name):
@@ -571,12 +642,13 @@ def test_one_clock_runs_every_interface(bd: BlockDesign, variables: Dict[str, st
             expected.add(f"{name}/{'s_axis_s2mm' if ch == 'S2MM' else 'm_axis_mm2s'}_aclk")
     assert expected <= set(clock), expected - set(clock)
     assert bd.config[PS7]["PCW_FPGA0_PERIPHERAL_FREQMHZ"] == variables["STEREOCAM_FCLK0_MHZ"]
+    assert float(variables["STEREOCAM_FCLK0_MHZ"]) * 1e6 == overlay.FABRIC_CLOCK_HZ
     assert bd.config[PS7]["PCW_USE_M_AXI_GP0"] == "1"
 
 
-def test_the_stream_clock_keeps_up_with_the_cameras(variables: Dict[str, str]) -> None:
-    aclk = float(variables["STEREOCAM_FCLK0_MHZ"]) * 1e6
-    assert aclk / CORE_CLOCKS_PER_BEAT >= mt9v034.PIXEL_CLOCK_HZ, "the core: a beat per pixel clock in a line"
+def test_the_stream_clock_keeps_up_with_the_cameras() -> None:
+    aclk = overlay.FABRIC_CLOCK_HZ
+    assert aclk / rectify.CLOCKS_PER_BEAT >= mt9v034.PIXEL_CLOCK_HZ, "the core: a beat per pixel clock"
     # camera_in: aclk >= pclk * (WIDTH + LINE_OVERHEAD_CLOCKS) / (WIDTH + horizontal blanking), blanking >= 0
     width = camera_in.PARAMETERS["MAX_WIDTH"]
     overhead = getattr(camera_in, "LINE_OVERHEAD_CLOCKS", 0)
@@ -588,7 +660,7 @@ def test_every_core_reset_is_the_peripheral_reset(bd: BlockDesign) -> None:
     assert len(resets) == 1
     pins = set(resets[0])
     assert {"rectify/aresetn", f"{camera_in.INSTANCE}/aresetn", "mux/aresetn", "vdma_raw/axi_resetn",
-            "vdma_proc/axi_resetn"} <= pins
+            "vdma_proc/axi_resetn", *(f"{gate}/aresetn" for gate in frame_gate.INSTANCES)} <= pins
 
 
 # ---- addresses -------------------------------------------------------------------------------------------
@@ -696,6 +768,9 @@ def test_readme_states_the_address_map_and_that_nothing_was_built(variables: Dic
     for name, base in overlay.ADDRESS_MAP.items():
         assert re.search(rf"`{name}`.*0x{base:08X}", text, re.I), f"README: {name} at 0x{base:08X}"
     assert "has not yet been built or run on a board" in text
+    assert frame_gate.VLNV in text
+    for gate in frame_gate.INSTANCES:
+        assert f"`{gate}`" in text, f"README does not describe {gate}"
     assert "placeholder" in text and "FILL_IN" in text
     for script in (*SCRIPTS, "build.sh", "stereocam.xdc"):
         assert f"`{script}`" in text, f"README does not describe {script}"
@@ -862,7 +937,7 @@ def rtl_copy(tmp_path: Path) -> Path:
         if path.is_file():
             (rtl / path.name).symlink_to(path)
     cams = sorted((RTL_DIR / "camera").glob("*.v")) if (RTL_DIR / "camera").is_dir() else []
-    for path in cams:
+    for path in [*cams, *sorted((RTL_DIR / "camera").glob("*.vh"))]:
         (rtl / "camera" / path.name).symlink_to(path)
     if not cams:
         (rtl / "camera" / "camera_in.v").write_text(f"module {camera_in.TOP}; endmodule\n")
@@ -896,12 +971,15 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
                   argv=["-out", str(out), "--proj", str(proj), "-xdc", str(xdc), "-jobs", "1"])
     assert run.error == ""
     # the packaged IP
-    assert run.projects() == ["pkg_rectify", "pkg_camera_in", variables["STEREOCAM_BD_NAME"]]
-    packaged_rtl = {Path(p).name for p in tcl_list(run.of("add_files")[0][-1])}
-    assert packaged_rtl == {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh")}
+    assert run.projects() == ["pkg_rectify", "pkg_camera_in", "pkg_frame_gate",
+                              variables["STEREOCAM_BD_NAME"]]
+    packaged_rtl = [{Path(p).name for p in tcl_list(c[-1])} for c in run.of("add_files")[:3]]
+    assert packaged_rtl[0] == {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh")}
+    camera = {p.name for p in (RTL_DIR / "camera").iterdir() if p.suffix in (".v", ".vh")}
+    assert packaged_rtl[1] == camera - {f"{frame_gate.TOP}.v"}, "camera_in: its own top, ci_*.v, headers"
+    assert packaged_rtl[2] == set(frame_gate.SOURCES)
     names = [c[1] for c in run.of("set_property") if c[0] in ("name", "version") and c[-1] == "core"]
-    assert names == ["rectify", "2.0", "camera_in", "1.0"] == [*rectify.VLNV.split(":")[2:],
-                                                                *camera_in.VLNV.split(":")[2:]]
+    assert names == [part for ip in (rectify, camera_in, frame_gate) for part in ip.VLNV.split(":")[2:]]
     # the block design as the text says
     assert {c[-1]: c[c.index("-vlnv") + 1] for c in run.of("create_bd_cell")} == bd.cells
     recorded: Dict[str, Dict[str, str]] = {}
@@ -973,3 +1051,10 @@ def test_package_ip_refuses_a_missing_camera_rtl(tmp_path: Path, rtl_copy: Path)
     assert run.variables["STEREOCAM_IP_REPO"] == str(tmp_path / "repo")
     assert run.projects() == ["pkg_rectify"], "the rectify core was packaged before"
 
+
+def test_package_ip_refuses_a_missing_frame_gate_rtl(tmp_path: Path, rtl_copy: Path) -> None:
+    (rtl_copy / "camera" / f"{frame_gate.TOP}.v").unlink()
+    run = run_tcl(VIVADO_DIR / "package_ip.tcl", tmp_path, argv=[str(tmp_path / "repo")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
+    assert f"no {frame_gate.TOP}.v in" in run.error and "frame_gate IP cannot be packaged" in run.error
+    assert run.projects() == ["pkg_rectify", "pkg_camera_in"], "the other cores were packaged before"

@@ -34,3 +34,15 @@ INSTANCES: Dict[str, Tuple[str, ...]] = {
     "mux": SWITCH_VLNVS,  # SI0 live cameras, SI1 virtual camera -> rectify core
     "rectify": (RECTIFY_VLNV,),
 }
+
+#: The one fabric clock (the PS7's FCLK_CLK0): AXI4-Lite registers, every stream, the HP port.
+#: overlays/vivado/settings.tcl sets it in MHz (STEREOCAM_FCLK0_MHZ); a test checks they agree.
+FABRIC_CLOCK_HZ = 100_000_000
+
+#: The interrupt lines into the PS7's IRQ_F2P, in order (the xlconcat's In0 first, IRQ_F2P[0]):
+#: (cell, pin). Their interrupt numbers follow this order; the .hwh reports them to pynq.
+INTERRUPTS: Tuple[Tuple[str, str], ...] = (
+    ("vdma_raw", "s2mm_introut"),
+    ("vdma_proc", "mm2s_introut"),
+    ("vdma_proc", "s2mm_introut"),
+)

@@ -51,6 +51,9 @@ DEFAULT_LB_ROWS = DEFAULT_BUILD.lb_rows
 DEFAULT_WIDTH = 752
 DEFAULT_HEIGHT = 480
 SIZE_BITS = 11  # column and row counters: MAX_WIDTH and MAX_HEIGHT are below 2**SIZE_BITS
+#: Clocks per beat on the stream ports: the coordinate engine serves the two cameras on alternate
+#: clocks (RECTIFY_CORE.md, "Latency and rates"; measured by tests/hdl/test_rectify_core_rtl.py).
+CLOCKS_PER_BEAT = 2
 
 # ---- Step 5: interpolation. 5 fractional bits per source coordinate, integer weights (sum 1024),
 # result rounded half up: exactly OpenCV's fixed-point bilinear remap with CV_16SC2 maps.

@@ -1,8 +1,9 @@
 # block_design.tcl: the stereocam overlay's block design (SYSTEM.md, "The fabric"), for xc7z020clg400-1.
 #
-#  cam0/cam1 pins -> camera_in -> camera_split -+-> vdma_raw S2MM ---------------------------> HP0 (DDR)
-#                                               +-> mux S00 -+
-#  DDR (HP0) -> vdma_proc MM2S ---------------------> mux S01 -+-> mux M00 -> rectify -> vdma_proc S2MM -> HP0
+#  cam0/cam1 pins -> camera_in -> camera_split -+-> gate_raw  -> vdma_raw S2MM ----------------> HP0 (DDR)
+#                                               +-> gate_live -> mux S00 -+
+#  DDR (HP0) -> vdma_proc MM2S ---------------------------------> mux S01 -+-> mux M00 -> rectify
+#                                                                                 -> vdma_proc S2MM -> HP0
 #
 # Sourced by build.tcl into an open project whose IP catalogue holds the packaged cores (package_ip.tcl).
 # Written in the style of Vivado's write_bd_tcl (PYNQ's boards/*/base/base.tcl): one cell per
@@ -59,7 +60,7 @@ set_property -dict [list \
     CONFIG.NUM_MI {1} \
 ] [get_bd_cells axi_mem]
 
-# ---- The camera input IP (overlays/spec/camera_in.py) and the split of its stream --------------------
+# ---- The camera input IP (overlays/spec/camera_in.py), the split of its stream and the frame gates ----
 
 create_bd_cell -type ip -vlnv stereocam:user:camera_in:1.0 camera_in
 set_property -dict [list \
@@ -69,8 +70,8 @@ set_property -dict [list \
 
 # One 64-bit beat per pixel position of both cameras (overlays/spec/pixel.py), TUSER = start of frame,
 # TLAST = end of line, to both vdma_raw and the mux's live input. A broadcaster passes a beat only
-# when every output takes it (PG085): while the mux routes the virtual camera, or the rectify core
-# holds its input, the raw path waits too.
+# when every output takes it (PG085), so each output goes through a frame gate, which always takes
+# it: neither path can hold the other or the cameras.
 create_bd_cell -type ip -vlnv xilinx.com:ip:axis_broadcaster:1.1 camera_split
 set_property -dict [list \
     CONFIG.NUM_MI {2} \
@@ -82,6 +83,19 @@ set_property -dict [list \
     CONFIG.HAS_TKEEP {0} \
     CONFIG.HAS_TSTRB {0} \
 ] [get_bd_cells camera_split]
+
+# The frame gates (overlays/spec/frame_gate.py): s_axis_tready always high; each forwards whole frames
+# (or, after a stall longer than its FIFO absorbs, a frame's first whole lines) and drops whole frames
+# while its consumer does not take them. gate_raw: M00 -> vdma_raw; gate_live: M01 -> mux S00.
+create_bd_cell -type ip -vlnv stereocam:user:frame_gate:1.0 gate_raw
+set_property -dict [list \
+    CONFIG.DEPTH {1024} \
+] [get_bd_cells gate_raw]
+
+create_bd_cell -type ip -vlnv stereocam:user:frame_gate:1.0 gate_live
+set_property -dict [list \
+    CONFIG.DEPTH {1024} \
+] [get_bd_cells gate_live]
 
 # ---- VDMAs (PG020): register direct mode, 64-bit streams, start of frame on TUSER ----------------------
 # c_use_s2mm_fsync 2 = "s2mm tuser": an S2MM frame starts at the beat with TUSER set.
@@ -185,8 +199,10 @@ connect_bd_net [get_bd_ports cam1_frame_valid] [get_bd_pins camera_in/cam1_frame
 
 # ---- Streams -----------------------------------------------------------------------------------------
 connect_bd_intf_net [get_bd_intf_pins camera_in/m_axis] [get_bd_intf_pins camera_split/S_AXIS]
-connect_bd_intf_net [get_bd_intf_pins camera_split/M00_AXIS] [get_bd_intf_pins vdma_raw/S_AXIS_S2MM]
-connect_bd_intf_net [get_bd_intf_pins camera_split/M01_AXIS] [get_bd_intf_pins mux/S00_AXIS]
+connect_bd_intf_net [get_bd_intf_pins camera_split/M00_AXIS] [get_bd_intf_pins gate_raw/s_axis]
+connect_bd_intf_net [get_bd_intf_pins gate_raw/m_axis] [get_bd_intf_pins vdma_raw/S_AXIS_S2MM]
+connect_bd_intf_net [get_bd_intf_pins camera_split/M01_AXIS] [get_bd_intf_pins gate_live/s_axis]
+connect_bd_intf_net [get_bd_intf_pins gate_live/m_axis] [get_bd_intf_pins mux/S00_AXIS]
 connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXIS_MM2S] [get_bd_intf_pins mux/S01_AXIS]
 connect_bd_intf_net [get_bd_intf_pins mux/M00_AXIS] [get_bd_intf_pins rectify/s_axis]
 connect_bd_intf_net [get_bd_intf_pins rectify/m_axis] [get_bd_intf_pins vdma_proc/S_AXIS_S2MM]
@@ -224,6 +240,8 @@ connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
     [get_bd_pins axi_mem/aclk] \
     [get_bd_pins camera_in/aclk] \
     [get_bd_pins camera_split/aclk] \
+    [get_bd_pins gate_raw/aclk] \
+    [get_bd_pins gate_live/aclk] \
     [get_bd_pins vdma_raw/s_axi_lite_aclk] \
     [get_bd_pins vdma_raw/m_axi_s2mm_aclk] \
     [get_bd_pins vdma_raw/s_axis_s2mm_aclk] \
@@ -249,6 +267,8 @@ connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
     [get_bd_pins axi_ctrl/M03_ARESETN] \
     [get_bd_pins camera_in/aresetn] \
     [get_bd_pins camera_split/aresetn] \
+    [get_bd_pins gate_raw/aresetn] \
+    [get_bd_pins gate_live/aresetn] \
     [get_bd_pins vdma_raw/axi_resetn] \
     [get_bd_pins vdma_proc/axi_resetn] \
     [get_bd_pins mux/aresetn] \

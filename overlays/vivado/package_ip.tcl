@@ -2,12 +2,14 @@
 #
 #   stereocam:user:rectify:2.0     overlays/rtl/rectify_core.v, rc_*.v, rectify_spec.vh
 #                                  (overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
-#   stereocam:user:camera_in:1.0   overlays/rtl/camera/*.v (overlays/spec/camera_in.py: VLNV, TOP, PORTS,
-#                                  PARAMETERS)
+#   stereocam:user:camera_in:1.0   overlays/rtl/camera/camera_in.v, ci_*.v, *.vh (overlays/spec/camera_in.py:
+#                                  VLNV, TOP, PORTS, PARAMETERS)
+#   stereocam:user:frame_gate:1.0  overlays/rtl/camera/frame_gate.v, ci_ram.v, ci_ofifo.v
+#                                  (overlays/spec/frame_gate.py: VLNV, TOP, SOURCES, PORTS, PARAMETERS)
 #
 # Each IP is packaged from a throw-away project of its own (Vivado holds one project at a time, so
 # build.tcl sources this file before it creates the overlay's project). The cores land in
-# $STEREOCAM_IP_REPO/rectify and $STEREOCAM_IP_REPO/camera_in, with their sources copied in.
+# $STEREOCAM_IP_REPO/rectify, .../camera_in and .../frame_gate, with their sources copied in.
 #
 # Sourced by build.tcl, which sets STEREOCAM_IP_REPO and STEREOCAM_IP_BUILD; alone:
 #   vivado -mode batch -source overlays/vivado/package_ip.tcl -tclargs <ip_repo_dir>
@@ -145,11 +147,15 @@ stereocam_save_core $core
 
 # ---- stereocam:user:camera_in:1.0 (overlays/spec/camera_in.py: VLNV) ---------------------------------
 
+# camera_in.v and its ci_*.v modules; the folder's other top (frame_gate.v) is an IP of its own.
 set camera_dir [file join $STEREOCAM_RTL_DIR camera]
-set camera_sources [lsort [glob -nocomplain -directory $camera_dir *.v *.vh]]
-if {[llength [lsearch -all -glob $camera_sources *.v]] == 0} {
-    error "stereocam: no camera input RTL (*.v) in $camera_dir: the camera_in IP cannot be packaged"
+if {![file exists [file join $camera_dir camera_in.v]]} {
+    error "stereocam: no camera input RTL (camera_in.v) in $camera_dir: the camera_in IP cannot be packaged"
 }
+set camera_sources [concat \
+    [list [file join $camera_dir camera_in.v]] \
+    [lsort [glob -nocomplain -directory $camera_dir ci_*.v]] \
+    [lsort [glob -nocomplain -directory $camera_dir *.vh]]]
 
 stereocam_packaging_project pkg_camera_in camera_in $camera_sources
 ipx::package_project -root_dir [file join $STEREOCAM_IP_REPO camera_in] -vendor stereocam -library user \
@@ -169,4 +175,33 @@ stereocam_free_clock $core cam1_pclk
 # driver's full-size window (a window of another start parity needs another build).
 stereocam_user_param $core MAX_WIDTH 752 2 2047
 stereocam_user_param $core BAYER_PHASE 3 0 3
+stereocam_save_core $core
+
+# ---- stereocam:user:frame_gate:1.0 (overlays/spec/frame_gate.py: VLNV, SOURCES) -------------------------
+# Two instances in the block design (gate_raw, gate_live): an AXI4-Stream slave that is always ready and
+# a master that forwards whole frames through a block RAM FIFO of DEPTH beats.
+
+set gate_sources {}
+foreach name {frame_gate.v ci_ram.v ci_ofifo.v} {
+    set path [file join $camera_dir $name]
+    if {![file exists $path]} {
+        error "stereocam: no $name in $camera_dir: the frame_gate IP cannot be packaged"
+    }
+    lappend gate_sources $path
+}
+
+stereocam_packaging_project pkg_frame_gate frame_gate $gate_sources
+ipx::package_project -root_dir [file join $STEREOCAM_IP_REPO frame_gate] -vendor stereocam -library user \
+    -taxonomy /UserIP -import_files -set_current true -force
+set core [ipx::current_core]
+set_property name frame_gate $core
+set_property version 1.0 $core
+set_property display_name {stereocam frame gate} $core
+set_property description {Always takes its input; forwards whole frames, drops those its output cannot take} \
+    $core
+set_property supported_families {zynq Production} $core
+stereocam_require_interfaces $core {aclk aresetn s_axis m_axis}
+stereocam_clock $core aclk aresetn {s_axis m_axis}
+# Parameters: name, default (frame_gate.PARAMETERS), minimum, maximum (frame_gate.DEPTH_RANGE).
+stereocam_user_param $core DEPTH 1024 16 32768
 stereocam_save_core $core
