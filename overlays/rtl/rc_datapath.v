@@ -182,22 +182,31 @@ localparam [31:0] NS_32 = NS;
 localparam [SW:0] NS_V = NS_32[SW:0];           // NS
 localparam [SW-1:0] NS_LAST = NS_32[SW-1:0] - 1'b1;  // NS - 1
 
-// slot -> slot * CW, a small table (no multiplier)
+// slot -> slot * CW, a small table (no multiplier): entry s of SLOT_BASES, SLOT_STRIDE bits
+// from bit s * SLOT_STRIDE (a power of two: the index is a shift), is s * CW for s < NS and 0
+// above. A slot number reads its entry, which a simulator looks up in one step where a chain
+// of NS compares would cost it NS steps.
 // verilator lint_off UNUSEDSIGNAL
-function [AW-1:0] slot_base;
-    input [SW-1:0] s;
+localparam SLOT_STRIDE = 1 << $clog2(AW);
+localparam NSLOT = 1 << SW;                  // slot numbers SW bits can hold
+function [NSLOT*SLOT_STRIDE-1:0] slot_bases;
+    input integer unused;
     integer k;
     reg [31:0] v;
-    reg [31:0] kv;
     begin
-        slot_base = {AW{1'b0}};
+        slot_bases = {NSLOT*SLOT_STRIDE{1'b0}};
         for (k = 1; k < NS; k = k + 1) begin
             v = k * CW;
-            kv = k;
-            if (s == kv[SW-1:0]) begin
-                slot_base = v[AW-1:0];
-            end
+            slot_bases[k*SLOT_STRIDE +: AW] = v[AW-1:0];
         end
+    end
+endfunction
+localparam [NSLOT*SLOT_STRIDE-1:0] SLOT_BASES = slot_bases(0);
+
+function [AW-1:0] slot_base;
+    input [SW-1:0] s;
+    begin
+        slot_base = SLOT_BASES[{s, {$clog2(AW){1'b0}}} +: AW];
     end
 endfunction
 // verilator lint_on UNUSEDSIGNAL
@@ -741,6 +750,7 @@ wire [4*LBW-1:0] rd_cam = tap_cam ? rd_r : rd_l;
 reg  [4*LBW-1:0] tap_reg = {4*LBW{1'b0}};
 
 // tap t = {dy, dx} lies in bank {dy ^ yodd, dx ^ xodd}
+// (a case on constant slices: a variable part-select of the bus simulates slowly)
 function [LBW-1:0] tap_word;
     input [4*LBW-1:0] banks;
     input [1:0] t;
@@ -749,7 +759,12 @@ function [LBW-1:0] tap_word;
     reg [1:0] b;
     begin
         b = {t[1] ^ yodd, t[0] ^ xodd};
-        tap_word = banks[b*LBW +: LBW];
+        case (b)
+            2'd0: tap_word = banks[0*LBW +: LBW];
+            2'd1: tap_word = banks[1*LBW +: LBW];
+            2'd2: tap_word = banks[2*LBW +: LBW];
+            default: tap_word = banks[3*LBW +: LBW];
+        endcase
     end
 endfunction
 

@@ -26,11 +26,14 @@
  * Shadow and active sets. WIDTH, HEIGHT, LB_DELAY and the 2 x RC_NPARAMS
  * signed 64-bit parameters (LO/HI words) are shadow registers that read back
  * what was written (parameters from the read-back copy, written with them).
- * Range check, two stages, every clock: stage 1 flags each group of
- * CHK_GROUP bits above a parameter's sign bit (bit RC_<NAME>_W - 1) that
- * differs from it (a sign-extension comparison), FX and FY below RC_FX_MIN /
- * RC_FY_MIN, WIDTH and HEIGHT outside 1 .. MAX_WIDTH / MAX_HEIGHT, LB_DELAY
- * at or above MAX_HEIGHT; stage 2 ORs the flags into all_ok_reg.
+ * Range check, two stages: stage 1 flags each group of CHK_GROUP bits above
+ * a parameter's sign bit (bit RC_<NAME>_W - 1) that differs from it (a
+ * sign-extension comparison), FX and FY below RC_FX_MIN / RC_FY_MIN, WIDTH
+ * and HEIGHT outside 1 .. MAX_WIDTH / MAX_HEIGHT, LB_DELAY at or above
+ * MAX_HEIGHT, and is loaded on the clock edge after a shadow write or a
+ * reset (the only edges after which its inputs change, so it always holds
+ * the flags of the shadow set as it was one edge before); stage 2 ORs the
+ * flags into all_ok_reg every clock.
  * CONTROL.APPLY (self-clearing) latches or refuses the set on the first clock
  * edge where `idle` is 1 and no shadow register was written on the two edges
  * before (so all_ok_reg describes exactly the set being latched):
@@ -375,25 +378,30 @@ wire wr_debug_row = do_write && aw_addr_reg == A_DEBUG_ROW;
 wire wr_shadow = wr_l || wr_r || wr_width || wr_height || wr_lb_delay;
 
 /*
- * Shadow parameters: 2 x NW words, flat (camera c, parameter i at [c*SET_W + 64*i +: 64])
+ * Shadow parameters: per camera c and parameter p, one 64-bit register (LO word 2p of the
+ * camera's block in the low half, HI word 2p+1 in the high half), which the checks and the
+ * active set read as g_shadow[c].g_param[p].value_reg. Written only on a write to the block,
+ * so a simulator passes over them on every other clock.
  */
-wire [2*SET_W-1:0] shadow;
-
 generate
     for (c = 0; c < 2; c = c + 1) begin : g_shadow
-        for (k = 0; k < NW; k = k + 1) begin : g_word
-            reg [31:0] word_reg = 32'd0;
-            wire word_we = (c == 0 ? wr_l : wr_r) && wr_idx == k;
-            wire [31:0] word_next = word_we ? merge(word_reg, w_data_reg, w_strb_reg) : word_reg;
+        for (p = 0; p < NP; p = p + 1) begin : g_param
+            reg [63:0] value_reg = 64'd0;
+            wire lo_we = wr_idx == 2 * p;
+            wire hi_we = wr_idx == 2 * p + 1;
 
             always @(posedge clk) begin
-                word_reg <= word_next;
                 if (rst) begin
-                    word_reg <= 32'd0;
+                    value_reg <= 64'd0;
+                end else if (c == 0 ? wr_l : wr_r) begin
+                    if (lo_we) begin
+                        value_reg[31:0] <= merge(value_reg[31:0], w_data_reg, w_strb_reg);
+                    end
+                    if (hi_we) begin
+                        value_reg[63:32] <= merge(value_reg[63:32], w_data_reg, w_strb_reg);
+                    end
                 end
             end
-
-            assign shadow[c*SET_W + 32*k +: 32] = word_reg;
         end
     end
 endgenerate
@@ -439,10 +447,13 @@ wire [15:0] height_value = height_reg[`RC_HEIGHT_VALUE +: `RC_HEIGHT_VALUE_W];
 wire [15:0] lb_delay_value = lb_delay_reg[`RC_LB_DELAY_VALUE +: `RC_LB_DELAY_VALUE_W];
 
 /*
- * Range checks, stage 1, every clock: per parameter, each group of up to CHK_GROUP bits
- * above the sign bit is flagged when one differs from the sign bit (a sign-extension
- * comparison, one LUT6 a group), FX and FY when below their minimum; WIDTH, HEIGHT and
- * LB_DELAY when out of range. Stage 2 ORs the flags into all_ok_reg.
+ * Range checks, stage 1: per parameter, each group of up to CHK_GROUP bits above the sign
+ * bit is flagged when one differs from the sign bit (a sign-extension comparison, one LUT6
+ * a group), FX and FY when below their minimum; WIDTH, HEIGHT and LB_DELAY when out of
+ * range. bad_reg loads them on the edge after a shadow write or a reset (wr_shadow_reg[0]:
+ * reset sets it), i.e. whenever they may have changed; holding them otherwise changes no
+ * value, and a simulator then skips the checks on every other clock. Stage 2 ORs the flags
+ * into all_ok_reg.
  */
 localparam NFLAG_CAM = flag_base(NP);       // flags per camera
 localparam NFLAG = 2 * NFLAG_CAM + 3;
@@ -460,7 +471,7 @@ generate
             localparam integer NG = param_groups(p);
             localparam integer BASE = c * NFLAG_CAM + flag_base(p);
             localparam [63:0] MIN = param_min(p);
-            wire [63:0] value = shadow[c*SET_W + 64*p +: 64];
+            wire [63:0] value = g_shadow[c].g_param[p].value_reg;
 
             for (g = 0; g < NG; g = g + 1) begin : g_group
                 localparam integer LO = W + CHK_GROUP * g;
@@ -483,7 +494,9 @@ wire accept = latch && all_ok_reg;
 wire refuse = latch && !all_ok_reg;
 
 always @(posedge clk) begin
-    bad_reg <= bad_now;
+    if (wr_shadow_reg[0]) begin
+        bad_reg <= bad_now;
+    end
     all_ok_reg <= !(|bad_reg);
     wr_shadow_reg <= {wr_shadow_reg[0], wr_shadow};
 
@@ -594,7 +607,7 @@ generate
 
             always @(posedge clk) begin
                 if (accept) begin
-                    act_reg <= shadow[c*SET_W + 64*p +: W];
+                    act_reg <= g_shadow[c].g_param[p].value_reg[W-1:0];
                 end
                 if (rst) begin
                     act_reg <= {W{1'b0}};
