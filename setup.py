@@ -46,5 +46,10 @@ setup(
         "scipy>=1.7; platform_machine != 'armv7l'",
     ],
     extras_require={"board": ["pynq>=3.0"]},
-    entry_points={"console_scripts": ["stereocam=stereocam.cli:main"]},
+    entry_points={
+        "console_scripts": ["stereocam=stereocam.cli:main"],
+        # pynq imports these in every process that makes an Overlay, before it downloads: the guard
+        # refuses a download while the daemon owns the fabric (overlays/pynq_guard.py).
+        "pynq.lib": ["stereocam-guard=stereocam.overlays.pynq_guard"],
+    },
 )

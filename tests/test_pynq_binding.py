@@ -36,16 +36,9 @@ from stereocam.overlays.spec.axis_switch import LIVE, VIRTUAL
 from stereocam.overlays.spec.overlay import ADDRESS_MAP, INSTANCES, VDMA_VLNVS, WINDOW_SIZE
 from stereocam.overlays.spec.rectify import CORE_ID, DEFAULT_BUILD, RECTIFY_MAP
 
-from .pynq_hwh import Ip, rectify_parameters, stereocam_ips, write_overlay
+from .pynq_hwh import Ip, pynq_for_tests, rectify_parameters, stereocam_ips, write_overlay
 
-pynq: Optional[Any]
-if os.environ.get("STEREOCAM_TEST_ENV") == "board":
-    pynq = pd.import_pynq()
-else:
-    try:
-        pynq = pd.import_pynq()
-    except ImportError:
-        pynq = None
+pynq: Optional[Any] = pynq_for_tests()
 
 W, H = 752, 480  # the core's WIDTH/HEIGHT at reset: frames pass in BYPASS without a calibration
 

@@ -14,7 +14,6 @@ environment the tests exist only if pynq imports, so where pynq is absent
 from __future__ import annotations
 
 import asyncio
-import os
 from typing import Any, Iterator, Optional, Tuple
 
 import numpy as np
@@ -28,14 +27,9 @@ from stereocam.overlays.emulated.vdma import EmulatedVDMA
 from stereocam.overlays.spec.pixel import pack, rgby
 from stereocam.overlays.spec.vdma import VDMA_MAP
 
-pynq: Optional[Any]
-if os.environ.get("STEREOCAM_TEST_ENV") == "board":
-    pynq = pd.import_pynq()
-else:
-    try:
-        pynq = pd.import_pynq()
-    except ImportError:
-        pynq = None
+from .pynq_hwh import pynq_for_tests
+
+pynq: Optional[Any] = pynq_for_tests()
 
 BASE = 0x4300_0000
 W, H = 64, 48
