@@ -65,8 +65,9 @@ async def show_nothing(daemon) -> None:
     raise AssertionError("the daemon never lost the signal")
 
 
-async def session(daemon) -> dict:
-    async with daemon.http.get("/api/calibration/session") as r:
+async def session(daemon, token: "str | None" = None) -> dict:
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    async with daemon.http.get("/api/calibration/session", headers=headers) as r:
         assert r.status == 200
         return await r.json()
 
@@ -373,7 +374,9 @@ async def test_changes_from_another_origin_or_without_the_token_are_refused(star
         assert r.status == 403
     async with daemon.http.request(method, path, json={}) as r:
         assert r.status == 401
-    assert (await session(daemon))["settings"]["pattern"] == "9x6"
+    async with daemon.http.get("/api/calibration/session") as r:  # protect: all, the default: reads too
+        assert r.status == 401
+    assert (await session(daemon, token="panel-secret"))["settings"]["pattern"] == "9x6"
 
 
 @pytest.mark.parametrize("path", ["/api/calibration/candidate", "/api/calibration/candidate.yaml",
