@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fcntl
 import logging
+import struct
+import termios
 import time
 from dataclasses import dataclass, field
 from typing import Any, Dict, Iterator, Optional, Tuple
@@ -201,6 +204,34 @@ def _params(request: web.Request, view: str) -> StreamParams:
 
 # -- pacing -----------------------------------------------------------------------------------
 
+QUEUE_POLL_S = 0.005  # how often a stream checks whether the client took its last frame
+
+
+def queued_bytes(transport: Optional[asyncio.BaseTransport]) -> int:
+    """Bytes written to a client that have not reached it: the transport's buffer and the socket's
+    send queue (unsent and unacknowledged bytes, ``SIOCOUTQ``)."""
+    if not isinstance(transport, asyncio.Transport) or transport.is_closing():
+        return 0
+    queued = transport.get_write_buffer_size()
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        try:
+            queued += struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0" * 4))[0]
+        except (OSError, ValueError):  # not a TCP socket, or closed meanwhile
+            pass
+    return queued
+
+
+async def until_taken(client: "StreamClient", limit: int) -> None:
+    """Wait until at most ``limit`` written bytes are still on their way to ``client``.
+
+    A frame is then chosen when the client can take it, so a slow reader gets the newest
+    frame instead of one that waited seconds in socket buffers (megabytes of them). The
+    caller keeps ``writing_since`` set: a client that takes nothing is still dropped.
+    """
+    while queued_bytes(client.transport) > limit:
+        await asyncio.sleep(QUEUE_POLL_S)
+
 class Pacer:
     """At most ``fps`` frames a second, on a steady schedule that does not burst after a stall."""
 
@@ -256,6 +287,7 @@ async def stream_handler(request: web.Request) -> web.StreamResponse:
                 seq, encoded = await _next(encoder.output, seq, pacer)
                 client.writing_since = time.monotonic()
                 await resp.write(encoded.part)
+                await until_taken(client, len(encoded.part))  # the frame before has reached the client
                 client.writing_since = None
                 client.frames += 1
                 pacer.sent(loop.time())
@@ -377,6 +409,7 @@ async def _ws_sender(request: web.Request, ws: web.WebSocketResponse, client: St
                 seq, encoded = await _next(encoder.output, seq, pacer)
                 client.writing_since = time.monotonic()
                 await ws.send_bytes(encoded.ws)
+                await until_taken(client, len(encoded.ws))
                 client.writing_since = None
                 client.frames += 1
                 pacer.sent(loop.time())
