@@ -109,8 +109,9 @@ SHAPES: Dict[str, Tuple[int, ...]] = {
 # rounding in the last bits (another LAPACK inverts P*R); an edit does not.
 REL_TOL = 1e-9
 ABS_TOL = 1e-12
-# A calibration with figures for 100 pairs is about 100 KB; anything far larger is not one.
-MAX_FILE_CHARS = 1 << 20
+# A calibration with figures for 100 pairs is about 100 KB; anything far larger is not one, and
+# parsing 1 MB would hold the calibration lock for tens of seconds on the board's A9.
+MAX_FILE_CHARS = 256 << 10
 
 PathLike = Union[str, Path]
 

@@ -12,6 +12,18 @@ from stereocam.safe_yaml import MAX_DEPTH, YamlRefused, load
 from stereocam.server.config import Config, ConfigError
 
 
+@pytest.fixture(params=["libyaml", "python"], autouse=True)
+def parser(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Every test runs with PyYAML's C parser (the board's) and the pure-Python one (where it is missing)."""
+    import yaml
+
+    if request.param == "python":
+        monkeypatch.delattr(yaml, "CSafeLoader", raising=False)
+    else:
+        assert hasattr(yaml, "CSafeLoader"), "this environment's PyYAML has no libyaml"
+    return str(request.param)
+
+
 def alias_bomb(levels: int = 12, width: int = 10) -> str:
     """The "billion laughs": ``width ** levels`` leaves from a few hundred bytes."""
     lines = ["a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
