@@ -255,7 +255,7 @@ async def status_handler(request: web.Request) -> web.Response:
         "core": hw.get("core"),
         "core_impl": getattr(overlay, "core_kind", "hardware"),
         "vdma": hw.get("vdma"),
-        "calibration": app[CALIBRATION].to_json(),
+        "calibration": {**app[CALIBRATION].to_json(), "changing": app[CALIBRATION].changing},
         "virtual_camera": app[VIRTUAL].to_json(),
         "clients": len(streams),
         "max_streams": streams.max_streams,
@@ -450,12 +450,13 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
 
     Raises :class:`ApiError` 503 when no frame comes in time (no signal) or the daemon is stopping.
     """
-    feed, pipeline = app[FEED], app[PIPELINE]
+    feed, pipeline, calibration = app[FEED], app[PIPELINE], app[CALIBRATION]
     timeout = max(1.0, 2 * app[CONFIG].no_signal_s)
     asked = time.time()
 
-    def wanted(f: FrameSet) -> bool:  # grabbed after the request came, with its raw pair
-        return f.timestamp >= asked and f.raw is not None
+    def wanted(f: FrameSet) -> bool:  # grabbed after the request, with its raw pair, of a known calibration
+        known = calibration.for_frame(f.fabric_count) is not None
+        return f.timestamp >= asked and f.raw is not None and known
 
     try:
         with pipeline.raw_wanted():
@@ -478,15 +479,18 @@ async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
         registers = await app[EXECUTORS].run(overlay.fabric.rectify.dump)
     except Exception as exc:
         registers = {"error": str(exc)}
-    calibration = app[CALIBRATION]
+    # The calibration this frame ran with (a change since it was grabbed does not relabel it).
+    calibration = app[CALIBRATION].for_frame(fs.fabric_count) or {
+        "id": None, "description": "unknown: the calibration changed while this frame was processed"}
     assert fs.raw is not None
     meta: Dict[str, Any] = {
         "frame": fs.frame,
+        "fabric_count": fs.fabric_count,
         "time": fs.timestamp,
         "time_utc": datetime.fromtimestamp(fs.timestamp, timezone.utc).isoformat(timespec="milliseconds"),
         "source": fs.source,
-        "calibration_id": calibration.id,
-        "calibration": calibration.to_json(),
+        "calibration_id": calibration["id"],
+        "calibration": calibration,
         "backend": getattr(overlay, "backend", overlay.fabric.backend),
         "frame_size": list(fs.size),
         "registers": registers,

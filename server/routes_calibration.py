@@ -226,11 +226,18 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
                 from None
         except ValueError as exc:
             raise web.HTTPBadRequest(text=f"refused, the previous calibration stays active: {exc}") from None
+        state = app[CALIBRATION]
+        previous = state.to_json()
+        before = await app[EXECUTORS].run(rectify.regs.read, "FRAME_COUNT")
+        state.changing = True  # frames now may carry either register set: captures wait
         try:
             core_config = await app[EXECUTORS].run(_apply, rectify, cal, active.path)
+            latched = await app[EXECUTORS].run(rectify.regs.read, "FRAME_COUNT")
         except (OSError, ConfigError) as exc:
             raise web.HTTPInternalServerError(text=str(exc)) from None
-        state = app[CALIBRATION]
+        finally:
+            state.changing = False
+        state.changed(int(before), (int(latched) + 2) % (1 << 32), previous)
         state.id = cal.id
         state.description = f"calibration file {active.path} ({how}" + (f"; {cal.source})" if cal.source else ")")
         state.rows_needed = cal.rows_needed

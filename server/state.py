@@ -12,7 +12,7 @@ import asyncio
 import concurrent.futures
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional, Tuple, TypeVar
 
 from aiohttp import web
 
@@ -73,10 +73,48 @@ class CalibrationState:
     lb_rows: Optional[int] = None
     lb_delay: Optional[int] = None
     calibration: Any = field(default=None, repr=False, compare=False)  # the Calibration, when one is known
+    # A change in progress (registers being programmed: frames may carry either set), and the
+    # calibrations that ran before, each from the FRAME_COUNT it surely took effect.
+    changing: bool = field(default=False, compare=False)
+    history: List[Tuple[int, int, Dict[str, Any]]] = field(default_factory=list, repr=False, compare=False)
 
     def to_json(self) -> Dict[str, Any]:
         return {"id": self.id, "description": self.description, "rows_needed": self.rows_needed,
                 "lb_rows": self.lb_rows, "lb_delay": self.lb_delay}
+
+    def changed(self, before: int, effective: int, previous: Dict[str, Any]) -> None:
+        """Record a change: frames up to ``before`` ran ``previous``, frames from ``effective`` this one.
+
+        ``before``/``effective`` are FRAME_COUNT values read before programming and two frames
+        after the core latched (the frame in flight may still leave with the old set).
+        """
+        self.history.append((before, effective, previous))
+        del self.history[:-HISTORY]
+
+    def for_frame(self, count: int) -> Optional[Dict[str, Any]]:
+        """``to_json()`` of the calibration frame ``count`` (its FRAME_COUNT) ran with; None when unknown.
+
+        Unknown: a frame of a change in progress, or between a change's two counts.
+        """
+        if self.changing:
+            return None
+        after = self.to_json()
+        for before, effective, previous in reversed(self.history):
+            if _not_before(count, effective):
+                return after
+            if not _not_before(count, before + 1):
+                after = previous
+                continue
+            return None
+        return after
+
+
+HISTORY = 8  # calibration changes remembered for labelling frames (a capture is seconds old at most)
+
+
+def _not_before(count: int, mark: int) -> bool:
+    """FRAME_COUNT ``count`` is ``mark`` or later (it wraps at 2**32)."""
+    return (count - mark) % (1 << 32) < (1 << 31)
 
 
 Provider = Callable[[], Dict[str, Any]]

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -243,3 +245,70 @@ async def test_put_keeps_the_file_it_replaces(start_daemon, tmp_path) -> None:
     assert load_calibration(tmp_path / "calibration.yaml") == second
     assert load_calibration(routes_calibration.previous_path(tmp_path / "calibration.yaml")) == first
     assert routes_calibration.previous_path(tmp_path / "calibration.yaml").name == "calibration.previous.yaml"
+
+
+def test_frames_are_labelled_with_the_calibration_they_ran_with() -> None:
+    from stereocam.server.state import CalibrationState
+
+    state = CalibrationState(id="A")
+    assert state.for_frame(5)["id"] == "A"  # type: ignore[index]
+    a = state.to_json()
+    state.changing = True
+    assert state.for_frame(7) is None  # registers being programmed: either set
+    state.changing = False
+    state.changed(10, 14, a)
+    state.id = "B"
+    labels = [(state.for_frame(c) or {}).get("id") for c in (9, 10, 11, 13, 14, 20)]
+    assert labels == ["A", "A", None, None, "B", "B"]
+    wrap = CalibrationState(id="B")
+    wrap.changed((1 << 32) - 10, (1 << 32) - 6, a)
+    wrap.changed((1 << 32) - 2, 1, wrap.to_json())  # FRAME_COUNT wraps at 2**32
+    wrap.id = "C"
+    counts = [(1 << 32) - 11, (1 << 32) - 6, (1 << 32) - 2, (1 << 32) - 1, 0, 1, 2]
+    assert [(wrap.for_frame(c) or {}).get("id") for c in counts] == ["A", "B", "B", None, None, "C", "C"]
+
+
+async def test_a_capture_during_a_calibration_change_names_the_calibration_its_frames_ran_with(
+        start_daemon, tmp_path, monkeypatch) -> None:
+    """The core runs the new registers while the file is still being written (slow storage): a capture
+    taken then must not be labelled with the old calibration (issue 10, item 4)."""
+    import asyncio
+
+    from stereocam.overlays.model.fast import RectifyModel
+    from stereocam.server.routes_api import core_model_setup
+    from stereocam.server.state import CAPTURES
+
+    daemon = await start_daemon(extensions=EXT)
+    cals = [rig_calibration(daemon, alpha=0.0), rig_calibration(daemon, alpha=0.6)]
+    assert cals[0].id != cals[1].id
+    real_apply = routes_calibration._apply
+
+    def slow_apply(rectify, cal, path):  # the registers are live at once; the file write takes a while
+        config = real_apply(rectify, cal, path)
+        time.sleep(0.3)
+        return config
+
+    monkeypatch.setattr(routes_calibration, "_apply", slow_apply)
+    expected = {}
+    for cal in cals:  # the rectified frame each calibration gives for the rig's still frame
+        async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+            assert r.status == 200, await r.text()
+        config, options = core_model_setup(daemon.overlay.fabric.rectify)
+        raw = daemon.overlay.hw.source.frame
+        expected[cal.id] = RectifyModel(config.left, config.right, config.width, config.height,
+                                        options).process(raw).frame
+    for cal in cals * 2:
+        put = asyncio.ensure_future(daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML))
+        await asyncio.sleep(0.1)  # the PUT is in its slow write now: the core already runs its registers
+        async with daemon.http.post("/api/captures") as r:
+            assert r.status == 201, await r.text()
+            info = await r.json()
+        async with await put as r:
+            assert r.status == 200
+        label = info["meta"]["calibration_id"] if "meta" in info else None
+        if label is None:
+            label = daemon.app[CAPTURES].get(info["id"]).to_json(meta=True)["meta"]["calibration_id"]
+        rect_left = cv2.imread(str(daemon.app[CAPTURES].path(info["id"]) / "rect_left.png"), cv2.IMREAD_COLOR)
+        ran_with = [cid for cid, frame in expected.items()
+                    if np.array_equal(rect_left, frame[..., [2, 1, 0]])]
+        assert ran_with == [label], (label, ran_with)
