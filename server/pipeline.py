@@ -100,6 +100,9 @@ class FrameSet:
     processed: np.ndarray
     raw: Optional[np.ndarray]
     cache: OnceCache = field(default_factory=OnceCache, repr=False)
+    # The raw store before ``raw``'s, copied with it while a capture asks (:meth:`Pipeline.pairs_wanted`):
+    # the raw channel may complete the next frame before the core has finished this one.
+    raw_previous: Optional[np.ndarray] = field(default=None, repr=False)
     signal = True
 
     @property
@@ -188,6 +191,7 @@ class Pipeline:
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._raw_wanted = 0
+        self._pairs_wanted = 0
         self.source_state = SourceState()
         # Counters.
         self.frames = 0
@@ -251,6 +255,17 @@ class Pipeline:
         finally:
             with self._lock:
                 self._raw_wanted -= 1
+
+    @contextlib.contextmanager
+    def pairs_wanted(self) -> Iterator[None]:
+        """While inside, frame sets also carry the raw store before ``raw`` (``raw_previous``): captures."""
+        with self._lock:
+            self._pairs_wanted += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._pairs_wanted -= 1
 
     @property
     def wants_raw(self) -> bool:
@@ -370,14 +385,20 @@ class Pipeline:
             np.copyto(processed, buf)
             state = self.source_state
             raw: Optional[np.ndarray] = None
+            raw_previous: Optional[np.ndarray] = None
             if state.source == "virtual" and state.virtual_input is not None and \
                     (count - state.effective_count) % COUNT_MOD < COUNT_MOD // 2:
                 raw = state.virtual_input
             elif self._raw_wanted:
                 try:
-                    _, rbuf = self.fabric.raw_vdma.s2mm.latest_completed()
+                    rstore, rbuf = self.fabric.raw_vdma.s2mm.latest_completed()
                     raw = np.empty(rbuf.shape, dtype=np.uint8)
                     np.copyto(raw, rbuf)
+                    if self._pairs_wanted:
+                        raw_s2mm = self.fabric.raw_vdma.s2mm
+                        before = raw_s2mm.buffers[(rstore - 1) % raw_s2mm.num_fstores]
+                        raw_previous = np.empty(before.shape, dtype=np.uint8)
+                        np.copyto(raw_previous, before)
                 except NoFrameYet:
                     raw = None
             if self.frame_count() == count:
@@ -397,11 +418,13 @@ class Pipeline:
                 self.period = period if self.period is None else 0.8 * self.period + 0.2 * period
         self._last_store, self._last_count = store, count
         processed.flags.writeable = False
-        if raw is not None and raw.flags.writeable:
-            raw.flags.writeable = False
+        for copy in (raw, raw_previous):
+            if copy is not None and copy.flags.writeable:
+                copy.flags.writeable = False
         self._seq += 1
         frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
-                             monotonic=now, source=state.source, processed=processed, raw=raw)
+                             monotonic=now, source=state.source, processed=processed, raw=raw,
+                             raw_previous=raw_previous)
         self.frames += 1
         self.last_frame_at, self.last_frame_number = now, number
         self.meter.mark(now)

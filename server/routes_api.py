@@ -459,13 +459,33 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
         return f.timestamp >= asked and f.raw is not None and known
 
     try:
-        with pipeline.raw_wanted():
+        with pipeline.raw_wanted(), pipeline.pairs_wanted():
             return await feed.next_frame(timeout=timeout, accept=wanted)
     except asyncio.TimeoutError:
         raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",
                        status=503) from None
     except BroadcastClosed:
         raise ApiError("the daemon is shutting down", status=503) from None
+
+
+def paired_raw(app: web.Application, fs: FrameSet) -> Tuple[np.ndarray, str]:
+    """The raw pair whose rectified frame ``fs.processed`` is, and how that is known (blocking).
+
+    The pipeline copies the latest raw and processed stores together, but the raw channel
+    can complete the next frame before the core has finished this one, so the latest raw
+    store may be a frame ahead; for captures it also copies the store before
+    (``fs.raw_previous``). The closed loop decides: the raw frame that the model turns into
+    exactly the processed one. "checked" when one does; "unverified" when neither does (a
+    core that differs from the model, which Verify shows), and the latest raw pair is kept.
+    """
+    assert fs.raw is not None
+    if fs.source == "virtual":
+        return fs.raw, "virtual input"
+    rectify, models = app[OVERLAY].fabric.rectify, app[VIRTUAL].models
+    for candidate in (fs.raw, fs.raw_previous):
+        if candidate is not None and np.array_equal(models.run(rectify, candidate), fs.processed):
+            return candidate, "checked"
+    return fs.raw, "unverified"
 
 
 async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
@@ -483,8 +503,13 @@ async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
     calibration = app[CALIBRATION].for_frame(fs.fabric_count) or {
         "id": None, "description": "unknown: the calibration changed while this frame was processed"}
     assert fs.raw is not None
+    try:
+        raw, pairing = await app[EXECUTORS].run(paired_raw, app, fs)
+    except Exception as exc:  # a model that cannot run (no registers?): store what was copied, say so
+        raw, pairing = fs.raw, f"unverified ({type(exc).__name__}: {exc})"
     meta: Dict[str, Any] = {
         "frame": fs.frame,
+        "pairing": pairing,
         "fabric_count": fs.fabric_count,
         "time": fs.timestamp,
         "time_utc": datetime.fromtimestamp(fs.timestamp, timezone.utc).isoformat(timespec="milliseconds"),
@@ -499,7 +524,7 @@ async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
         meta["virtual_input"] = app[VIRTUAL].origin
     meta.update(app[EXTENSIONS].capture_sections())
     meta.update(extra or {})
-    frames = {"raw_left": fs.raw[..., pixel.LEFT], "raw_right": fs.raw[..., pixel.RIGHT],
+    frames = {"raw_left": raw[..., pixel.LEFT], "raw_right": raw[..., pixel.RIGHT],
               "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
     return await app[EXECUTORS].run(store.save, frames, meta)
 

@@ -23,6 +23,7 @@ from stereocam.server.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 
 from .server_fixtures import (
+    FULL,
     SMALL,
     TEST_FPS,
     StillSource,
@@ -493,3 +494,36 @@ async def test_capture_without_signal_is_503(start_daemon) -> None:
         assert resp.status == 503
     assert list(d.app[CAPTURES].root.iterdir()) == []
     assert d.app[PIPELINE].running
+
+
+@pytest.mark.timeout(900)  # 40 full-size captures: slow on a busy machine, never red
+async def test_every_capture_pairs_raw_and_rectified_of_one_frame(start_daemon) -> None:
+    """A capture is the closed loop's ground truth: its rectified pair is the core's output for its raw
+    pair, checked by the model and by replaying it through the virtual camera (issue 10, item 1)."""
+    from stereocam.overlays.emulated.cameras import SyntheticRig
+
+    overlay = EmulatedOverlay(source=SyntheticRig(size=FULL, motion=True), fps=60)  # as the daemon runs
+    d = await start_daemon(overlay=overlay)
+    await wait_for_frames(d, 3)
+    store = d.app[CAPTURES]
+    ids = []
+    for _ in range(40):
+        async with d.http.post("/api/captures") as resp:
+            assert resp.status == 201, await resp.text()
+            ids.append((await resp.json())["id"])
+    raws = {}
+    for cid in ids:
+        meta = store.get(cid).to_json(meta=True)["meta"]
+        assert meta["pairing"] == "checked" and isinstance(meta["fabric_count"], int), meta.get("pairing")
+        raws[cid] = pixel.pack(*store.raw_pair(cid))
+        expected = model_output(d, raws[cid])
+        for side, channels in (("left", [0, 1, 2]), ("right", [4, 5, 6])):
+            rect = cv2.cvtColor(decode_png(store.read_file(cid, f"rect_{side}.png")), cv2.COLOR_BGR2RGB)
+            np.testing.assert_array_equal(rect, expected[..., channels], err_msg=f"{cid} rect_{side}")
+    assert len({raw.tobytes() for raw in raws.values()}) > 10  # the scene moved: pairing mattered
+    for cid in ids[::10]:  # the closed loop itself: replay the raw pair through the fabric
+        async with d.http.post("/api/virtual-camera", json={"capture": cid}) as resp:
+            assert resp.status == 200, await resp.text()
+        async with d.http.get("/api/virtual-camera/result/left.png") as resp:
+            replayed = decode_png(await resp.read())
+        assert np.array_equal(replayed, decode_png(store.read_file(cid, "rect_left.png"))), cid
