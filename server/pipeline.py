@@ -42,6 +42,7 @@ __all__ = ["FrameSet", "NoSignal", "SourceState", "OnceCache", "RateMeter", "Pip
 
 COUNT_MOD = 1 << 32  # FRAME_COUNT wraps at 2**32
 GRAB_ATTEMPTS = 3
+RAW_RECOVERY_S = 1.0  # at most one restart of a faulted raw channel per second
 DOZE = 0.7  # share of the frame period the thread sleeps before polling for the next frame
 
 
@@ -192,6 +193,7 @@ class Pipeline:
         self._thread: Optional[threading.Thread] = None
         self._raw_wanted = 0
         self._pairs_wanted = 0
+        self._raw_recovered_at = -RAW_RECOVERY_S
         self.source_state = SourceState()
         # Counters.
         self.frames = 0
@@ -365,6 +367,20 @@ class Pipeline:
             self._fail("recovering the channel", exc)
             self._stop.wait(self.wait_s)
 
+    def _recover_raw(self, exc: ChannelFault) -> None:
+        """Restart the raw channel after a fatal error, at most once a second (it costs a DMA reset)."""
+        now = time.monotonic()
+        if now - self._raw_recovered_at < RAW_RECOVERY_S:
+            return
+        self._raw_recovered_at = now
+        self.errors += 1
+        self.last_error = f"raw frames channel fault: {exc}"
+        try:
+            self.fabric.raw_vdma.s2mm.recover()
+            log.warning("pipeline: raw frames channel fault (%s): restarted it", exc)
+        except Exception as again:
+            log.warning("pipeline: raw frames channel fault (%s); restarting it failed: %s", exc, again)
+
     def grab(self) -> Optional[FrameSet]:
         """Copy the latest completed pair into a new :class:`FrameSet`, without waiting (blocks on the copy).
 
@@ -401,6 +417,9 @@ class Pipeline:
                         np.copyto(raw_previous, before)
                 except NoFrameYet:
                     raw = None
+                except ChannelFault as exc:  # the processed frames go on; the raw channel restarts
+                    raw = raw_previous = None
+                    self._recover_raw(exc)
             if self.frame_count() == count:
                 break
             self.retries += 1

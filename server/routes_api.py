@@ -21,6 +21,7 @@ import numpy as np
 from aiohttp import BodyPartReader, web
 
 from ..drivers.mmio import DriverError
+from ..drivers.vdma import FATAL_ERRORS, ChannelFault
 from ..overlays.model.fast import RectifyModel
 from ..overlays.model.result import CoreOptions
 from ..overlays.spec import pixel
@@ -129,9 +130,23 @@ class VirtualCamera:
         return n * (self.pipeline.period or 1 / 60)
 
     def _send_blocking(self, frame: np.ndarray) -> int:
-        """Mux to virtual, frame down MM2S, wait until the channel reads it; the FRAME_COUNT then."""
+        """Mux to virtual, frame down MM2S, wait until the channel reads it; the FRAME_COUNT then.
+
+        A channel that halted on a fatal error (a fault since the last upload) is restarted
+        once and the frame sent again, so one fault does not fail every later upload.
+        """
         self.fabric.select("virtual")
-        self.fabric.send_virtual(frame)
+        mm2s = self.fabric.proc_vdma.mm2s
+        fatal = [e for e in mm2s.errors() if e in FATAL_ERRORS]
+        if fatal:
+            log.warning("virtual camera: MM2S channel halted on %s: restarting it", ", ".join(fatal))
+            mm2s.recover()
+        try:
+            self.fabric.send_virtual(frame)
+        except ChannelFault as exc:
+            log.warning("virtual camera: MM2S channel fault (%s): restarting it", exc)
+            mm2s.recover()
+            self.fabric.send_virtual(frame)
         self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3), self.round_trip_timeout / 2))
         return int(self.pipeline.frame_count())
 

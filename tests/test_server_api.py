@@ -527,3 +527,45 @@ async def test_every_capture_pairs_raw_and_rectified_of_one_frame(start_daemon) 
         async with d.http.get("/api/virtual-camera/result/left.png") as resp:
             replayed = decode_png(await resp.read())
         assert np.array_equal(replayed, decode_png(store.read_file(cid, "rect_left.png"))), cid
+
+
+def _fault(vdma, channel: str, error: str = "VDMADecErr") -> None:
+    """A fatal DMA error on one channel of an emulated VDMA (it halts, as the IP does)."""
+    with vdma.lock:
+        vdma._fatal(vdma.channels[channel], error)
+
+
+async def test_a_raw_channel_fault_is_recovered_and_the_other_streams_go_on(start_daemon, caplog) -> None:
+    """Issue 10, item 6: the raw S2MM channel was never restarted and froze every stream."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    d = await start_daemon()
+    pipeline = d.app[PIPELINE]
+    await wait_for_frames(d, 2)
+    async with d.http.get("/snapshot/raw_left.png") as resp:
+        assert resp.status == 200
+    _fault(d.overlay.hw.vdma_raw, "S2MM")
+    frames = pipeline.frames
+    async with d.http.get("/snapshot/raw_left.png") as resp:  # waits for a frame with its raw pair
+        assert resp.status == 200, await resp.text()
+    async with d.http.post("/api/captures") as resp:
+        assert resp.status == 201, await resp.text()
+    assert pipeline.frames > frames and "raw frames channel fault" in pipeline.last_error
+    assert d.overlay.fabric.raw_vdma.s2mm.errors() == ()
+    warnings = [r for r in caplog.records if "raw frames channel fault" in r.getMessage()]
+    assert len(warnings) == 1, [r.getMessage() for r in warnings]  # one line, not one per frame
+
+
+async def test_an_mm2s_fault_does_not_fail_the_next_upload(start_daemon) -> None:
+    d = await start_daemon()
+    left, right = pattern_pair(7)
+    async with d.http.post("/api/virtual-camera", data=pair_form(encode(left), encode(right))) as resp:
+        assert resp.status == 200
+    _fault(d.overlay.hw.vdma_proc, "MM2S")
+    left2, right2 = pattern_pair(8)
+    async with d.http.post("/api/virtual-camera", data=pair_form(encode(left2), encode(right2))) as resp:
+        assert resp.status == 200, await resp.text()
+    expected = model_output(d, pixel.pack(pixel.rgby(left2), pixel.rgby(right2)))
+    async with d.http.get("/api/virtual-camera/result/left.png") as resp:
+        np.testing.assert_array_equal(decode_png(await resp.read()), expected[..., [2, 1, 0]])
