@@ -8,6 +8,7 @@ waits, bounded, for the commit to finish.
 
 from __future__ import annotations
 
+import threading
 from typing import Optional
 
 from ..overlays.spec.axis_switch import (
@@ -48,6 +49,7 @@ class AxisSwitch:
         self.regs = Registers(window, self.map, name)
         self._mux = self.map[mi_mux_name(0)]
         self._ctrl = self.map["CTRL"]
+        self._lock = threading.Lock()
 
     def select(self, index: int, timeout: Optional[float] = None) -> None:
         """Route slave interface ``index`` to MI0; blocks (at most ``timeout`` s) until committed."""
@@ -63,6 +65,10 @@ class AxisSwitch:
         self._commit(self._mux.encode(DISABLE=1), timeout)
 
     def _commit(self, mux: int, timeout: Optional[float]) -> None:
+        with self._lock:  # one commit at a time: a retry must not interleave with a change
+            self._commit_locked(mux, timeout)
+
+    def _commit_locked(self, mux: int, timeout: Optional[float]) -> None:
         self.regs.write(self._mux.name, mux)
         self.regs.write(self._ctrl.name, self._ctrl.encode(REG_UPDATE=1))
         self.regs.wait(

@@ -321,10 +321,13 @@ class _Channel:
         """Soft-reset the channel: write ``VDMACR.Reset`` and wait for it to clear itself.
 
         Afterwards the channel is halted and all its registers hold their
-        reset values (error flags included). Keeps the configuration.
+        reset values (error flags included). Keeps the configuration. A
+        reset still in progress (an earlier one timed out) is waited for, not
+        written again: the IP takes no register write until it finishes.
         """
         with self.lock:
-            self.regs.write(self.CR.name, self.CR.encode(Reset=1))
+            if not self.resetting():
+                self.regs.write(self.CR.name, self.CR.encode(Reset=1))
             self._forget_frames()
             self.regs.wait(
                 self.CR.name,
@@ -332,6 +335,10 @@ class _Channel:
                 expected="cleared Reset (soft reset never completed)",
                 timeout=self._timeout(timeout),
             )
+
+    def resetting(self) -> bool:
+        """True while a soft reset is in progress (``VDMACR.Reset`` reads 1)."""
+        return bool(self.regs.field(self.CR.name, "Reset"))
 
     def recover(self, timeout: Optional[float] = None) -> Recovery:
         """Get a faulted channel running again with its previous configuration and buffers.
@@ -345,6 +352,8 @@ class _Channel:
             cfg = self._require_config()
             errors = self.errors()
             try:
+                if self.resetting():  # an earlier reset that timed out: only waiting for it is allowed
+                    raise RegisterTimeout(self.vdma.name, self.CR.name, "cleared Reset", 1, 0.0)
                 self.stop(timeout)
                 halted = True
             except RegisterTimeout:

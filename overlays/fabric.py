@@ -26,6 +26,7 @@ from .spec.overlay import INSTANCES
 log = logging.getLogger(__name__)
 
 SOURCES = {"live": LIVE, "virtual": VIRTUAL}
+COMMIT_TIMEOUT_S = 0.5  # a mux commit waits for the end of a packet (a line): microseconds when healthy
 
 
 class StereoFabric:
@@ -87,10 +88,11 @@ class StereoFabric:
         sel = self.mux.selected()
         return "off" if sel is None else INPUT_NAMES.get(sel, str(sel))
 
-    def select(self, source: str) -> None:
+    def select(self, source: str, timeout: float = COMMIT_TIMEOUT_S) -> None:
+        """Route ``source`` to the core; :class:`RegisterTimeout` when the mux does not commit in time."""
         if source not in SOURCES:
             raise ValueError(f"source must be 'live' or 'virtual', not {source!r}")
-        self.mux.select(SOURCES[source])
+        self.mux.select(SOURCES[source], timeout=timeout)
 
     # -- frames -------------------------------------------------------------------------
     def send_virtual(self, frame: np.ndarray) -> int:

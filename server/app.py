@@ -33,6 +33,8 @@ from aiohttp.http_exceptions import HttpProcessingError
 from .captures import CaptureStore
 from .config import Config
 from .encoders import Encoders, FrameFeed
+from . import routes_faults
+from .fabric_health import FabricHealth
 from .metrics import Metrics
 from .metrics import setup_routes as setup_ops_routes
 from .pipeline import Pipeline
@@ -46,6 +48,7 @@ from .state import (
     ENCODERS,
     EXECUTORS,
     EXTENSIONS,
+    FABRIC_HEALTH,
     FEED,
     METRICS,
     OVERLAY,
@@ -213,6 +216,13 @@ def create_app(
     app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
     app[CALIBRATION] = calibration or CalibrationState(lb_rows=fabric.rectify.lb_rows)
     app[EXTENSIONS] = Extensions()
+    health = FabricHealth(fabric, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
+                          period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
+    app[FABRIC_HEALTH] = health
+    pipeline.channel_ok = health.channel_ok
+    app[VIRTUAL].mux_refused, app[VIRTUAL].mux_committed = health.mux_refused, health.mux_committed
+    app[EXTENSIONS].faults.append(health.faults)
+    app[EXTENSIONS].metrics.append(health.metrics)
 
     app.router.add_get("/", _index)
     app.router.add_get("/static/{path:.+}", _static)
@@ -224,6 +234,12 @@ def create_app(
 
     app.cleanup_ctx.append(_executors_ctx)
     app.cleanup_ctx.append(_fabric_ctx)
+    app.cleanup_ctx.append(_health_ctx)  # starts after the fabric streams, stops before it stops
+    if config.allow_fault_injection:
+        try:
+            routes_faults.setup(app)
+        except routes_faults.FaultInjectionUnavailable as exc:
+            raise ServeError(str(exc)) from None
     app.on_shutdown.append(_close_streams)
     return app
 
@@ -255,6 +271,20 @@ async def _fabric_ctx(app: web.Application) -> AsyncIterator[None]:
         feed.close()
         await loop.run_in_executor(None, pipeline.stop)
         await loop.run_in_executor(None, overlay.stop)  # clock, then streams: mux back to live, VDMA stopped
+        log.info("fabric stopped: mux on live, VDMA channels stopped")
+
+
+async def _health_ctx(app: web.Application) -> AsyncIterator[None]:
+    """FabricHealth's thread and its mux task, while the fabric streams."""
+    health, loop = app[FABRIC_HEALTH], asyncio.get_running_loop()
+    health.start()
+    task = loop.create_task(health.watch_mux(app[VIRTUAL].lock, app[EXECUTORS].work), name="stereocam-mux")
+    try:
+        yield
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await loop.run_in_executor(None, health.stop)
 
 
 async def _close_streams(app: web.Application) -> None:

@@ -53,9 +53,10 @@ class Config:
     client whose frame write takes longer is dropped), ``default_fps`` /
     ``default_quality`` (when the query gives none), ``disparity_fps``,
     ``no_signal_s`` (no frame for that long shows the no-signal frame),
-    ``encode_threads``. Safety: ``access_token`` (when set, every
-    state-changing request needs it, and with ``protect: all``, the default,
-    every stream, snapshot, capture and status read too; ``protect: control``
+    ``encode_threads``. Tests: ``allow_fault_injection`` (the ``--allow-fault-injection``
+    flag of ``serve``, emulated fabric only: ``/api/faults`` injects faults). Safety:
+    ``access_token`` (when set, every state-changing request needs it, and with
+    ``protect: all``, the default, every stream, snapshot, capture and status read too; ``protect: control``
     leaves reads open), ``allowed_hosts`` (names besides loopback, the
     listening host and, on 0.0.0.0, the machine's own, that a request's Host
     may carry: the DNS-rebinding guard), ``max_upload_bytes``.
@@ -85,6 +86,7 @@ class Config:
     protect: str = "all"
     allowed_hosts: Tuple[str, ...] = ()
     max_upload_bytes: int = 16 * 1024 * 1024
+    allow_fault_injection: bool = False  # the --allow-fault-injection flag only: never from a file
     extra: Mapping[str, Any] = field(default_factory=dict)  # sections owned by extensions (issues 4, 5)
 
     def __post_init__(self) -> None:
@@ -98,8 +100,11 @@ class Config:
         if not isinstance(data, Mapping):
             raise ConfigError(f"{_where(origin)}the configuration must be a mapping of settings, "
                               f"got {type(data).__name__}")
-        known = [f.name for f in fields(cls)]
+        known = [f.name for f in fields(cls) if f.name not in FLAG_ONLY]
         for key in data:
+            if key in FLAG_ONLY:
+                raise ConfigError(f"{_where(origin)}{key} cannot be set in a settings file: it lets any "
+                                  f"client break the fabric, so only the --{key.replace('_', '-')} flag sets it")
             if not isinstance(key, str) or key not in known:
                 hint = difflib.get_close_matches(str(key), known, n=1)
                 suggestion = f" (did you mean {hint[0]!r}?)" if hint else ""
@@ -213,6 +218,9 @@ _RANGES: Dict[str, Tuple[float, float, bool, bool]] = {
 }
 
 
+FLAG_ONLY = ("allow_fault_injection",)
+
+
 def _check(origin: Optional[str], key: str, value: Any) -> Any:
     """``value`` if valid for ``key`` (ints widened to float where a float is wanted), else ConfigError."""
     if key in _RANGES:
@@ -255,6 +263,10 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
             raise ConfigError(f"{_where(origin)}allowed_hosts must be a list of host names "
                               f"(no ports or spaces), got {value!r}")
         return tuple(v.strip().lower() for v in value)
+    if key == "allow_fault_injection":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{_where(origin)}{key} must be true or false, got {value!r}")
+        return value
     if key == "extra":
         if not isinstance(value, Mapping):
             raise ConfigError(f"{_where(origin)}extra must be a mapping of extension sections, got {value!r}")

@@ -116,18 +116,28 @@ def render(app: web.Application) -> str:
     family("stereocam_captures_total", "counter", "Captures stored since start.", [({}, metrics.captures)])
     family("stereocam_uptime_seconds", "gauge", "Seconds since the daemon started.",
            [({}, round(time.time() - metrics.started, 3))])
+    faults = app[EXTENSIONS].active_faults()
+    family("stereocam_faults_active", "gauge", "Faults active now (see stereocam_fault).", [({}, len(faults))])
+    family("stereocam_fault", "gauge", "1 for each fault active now, by the part it is on.",
+           [({"what": f["what"]}, 1) for f in faults])
     lines.extend(app[EXTENSIONS].metrics_lines())
     return "\n".join(lines) + "\n"
 
 
 def healthy(app: web.Application) -> Tuple[bool, str]:
-    """True while frames flow: one within the last second (or ``no_signal_s``, if longer)."""
+    """True while frames flow (one within ``no_signal_s``, at least a second) and no fault is active.
+
+    The text names every active fault, one per line, so a monitor's log says what is wrong.
+    """
     limit = max(1.0, app[CONFIG].no_signal_s)
     age = app[FEED].frame_age()
+    problems = [f"{f['what']}: {f['text']}" for f in app[EXTENSIONS].active_faults()]
     if age is None:
-        return False, "no frame yet"
-    if age > limit:
-        return False, f"no frame for {age:.1f} s"
+        problems.insert(0, "no frame yet")
+    elif age > limit and not any(p.startswith("cameras:") for p in problems):
+        problems.insert(0, f"no frame for {age:.1f} s")
+    if problems:
+        return False, "\n".join(problems)
     return True, "ok"
 
 

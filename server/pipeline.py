@@ -42,7 +42,6 @@ __all__ = ["FrameSet", "NoSignal", "SourceState", "OnceCache", "RateMeter", "Pip
 
 COUNT_MOD = 1 << 32  # FRAME_COUNT wraps at 2**32
 GRAB_ATTEMPTS = 3
-RAW_RECOVERY_S = 1.0  # at most one restart of a faulted raw channel per second
 DOZE = 0.7  # share of the frame period the thread sleeps before polling for the next frame
 
 
@@ -193,7 +192,7 @@ class Pipeline:
         self._thread: Optional[threading.Thread] = None
         self._raw_wanted = 0
         self._pairs_wanted = 0
-        self._raw_recovered_at = -RAW_RECOVERY_S
+        self.channel_ok: Callable[[str], bool] = lambda name: True  # FabricHealth.channel_ok, once set
         self.source_state = SourceState()
         # Counters.
         self.frames = 0
@@ -315,9 +314,10 @@ class Pipeline:
             except RegisterTimeout:
                 self._beat()  # healthy, just no frame: the feed shows "no signal"
                 continue
-            except ChannelFault as exc:
-                self._fail("processed frames channel fault", exc)
-                self._recover(s2mm)
+            except ChannelFault as exc:  # FabricHealth restarts the channel; wait for it
+                self._fault("processed frames channel fault", exc)
+                self._beat()
+                self._stop.wait(self.wait_s)
                 continue
             except ChannelNotStarted as exc:
                 self._fail("the fabric is not streaming", exc)
@@ -359,27 +359,10 @@ class Pipeline:
         if pause > 0:
             self._stop.wait(min(pause, self.wait_s))
 
-    def _recover(self, channel: Any) -> None:
-        try:
-            channel.recover()
-            log.info("pipeline: recovered %s", channel)
-        except Exception as exc:
-            self._fail("recovering the channel", exc)
-            self._stop.wait(self.wait_s)
-
-    def _recover_raw(self, exc: ChannelFault) -> None:
-        """Restart the raw channel after a fatal error, at most once a second (it costs a DMA reset)."""
-        now = time.monotonic()
-        if now - self._raw_recovered_at < RAW_RECOVERY_S:
-            return
-        self._raw_recovered_at = now
+    def _fault(self, what: str, exc: BaseException) -> None:
+        """A channel fault: counted, logged by :class:`~.fabric_health.FabricHealth` (once, not per frame)."""
         self.errors += 1
-        self.last_error = f"raw frames channel fault: {exc}"
-        try:
-            self.fabric.raw_vdma.s2mm.recover()
-            log.warning("pipeline: raw frames channel fault (%s): restarted it", exc)
-        except Exception as again:
-            log.warning("pipeline: raw frames channel fault (%s); restarting it failed: %s", exc, again)
+        self.last_error = f"{what}: {exc}"
 
     def grab(self) -> Optional[FrameSet]:
         """Copy the latest completed pair into a new :class:`FrameSet`, without waiting (blocks on the copy).
@@ -405,7 +388,7 @@ class Pipeline:
             if state.source == "virtual" and state.virtual_input is not None and \
                     (count - state.effective_count) % COUNT_MOD < COUNT_MOD // 2:
                 raw = state.virtual_input
-            elif self._raw_wanted:
+            elif self._raw_wanted and self.channel_ok("vdma_raw.s2mm"):
                 try:
                     rstore, rbuf = self.fabric.raw_vdma.s2mm.latest_completed()
                     raw = np.empty(rbuf.shape, dtype=np.uint8)
@@ -417,9 +400,9 @@ class Pipeline:
                         np.copyto(raw_previous, before)
                 except NoFrameYet:
                     raw = None
-                except ChannelFault as exc:  # the processed frames go on; the raw channel restarts
+                except ChannelFault as exc:  # the processed frames go on; FabricHealth restarts it
                     raw = raw_previous = None
-                    self._recover_raw(exc)
+                    self._fault("raw frames channel fault", exc)
             if self.frame_count() == count:
                 break
             self.retries += 1

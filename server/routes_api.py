@@ -8,6 +8,7 @@ with a 4xx/5xx status, and a refused request changes nothing.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import mimetypes
 import os
@@ -97,6 +98,14 @@ class VerifyResult:
     difference_png: bytes
 
 
+class MuxRefused(ApiError):
+    """The mux did not commit a change of source: 503, the daemon's source stays what it was."""
+
+    def __init__(self, source: str, exc: BaseException) -> None:
+        super().__init__(f"the mux did not switch to {source} ({exc}): the daemon retries until it commits "
+                         "(see /api/status faults); try again in a moment", status=503)
+
+
 class VirtualCamera:
     """The mux and the virtual camera as the daemon drives them (loop thread; one change at a time).
 
@@ -118,6 +127,9 @@ class VirtualCamera:
         self.verify: Optional[VerifyResult] = None
         self.models = _ModelCache()
         self.round_trip_timeout = round_trip_timeout
+        # FabricHealth's, once set: a commit the mux refused is a fault until one lands.
+        self.mux_refused: Callable[[str, BaseException], None] = lambda source, exc: None
+        self.mux_committed: Callable[[], None] = lambda: None
 
     def to_json(self) -> Dict[str, Any]:
         w, h = self.fabric.frame_size
@@ -135,7 +147,7 @@ class VirtualCamera:
         A channel that halted on a fatal error (a fault since the last upload) is restarted
         once and the frame sent again, so one fault does not fail every later upload.
         """
-        self.fabric.select("virtual")
+        self._select_blocking("virtual")
         mm2s = self.fabric.proc_vdma.mm2s
         fatal = [e for e in mm2s.errors() if e in FATAL_ERRORS]
         if fatal:
@@ -150,8 +162,16 @@ class VirtualCamera:
         self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3), self.round_trip_timeout / 2))
         return int(self.pipeline.frame_count())
 
+    def _select_blocking(self, source: str) -> None:
+        try:
+            self.fabric.select(source)
+        except DriverError as exc:
+            self.mux_refused(source, exc)
+            raise MuxRefused(source, exc) from exc
+        self.mux_committed()
+
     def _live_blocking(self) -> None:
-        self.fabric.select("live")
+        self._select_blocking("live")
 
     async def send(self, loop_executor: Any, frame: np.ndarray, origin: str) -> FrameSet:
         """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError 504 if none came)."""
@@ -160,8 +180,13 @@ class VirtualCamera:
         async with self.lock:
             try:
                 count = await loop.run_in_executor(loop_executor, self._send_blocking, frame)
+            except MuxRefused:
+                with contextlib.suppress(MuxRefused):
+                    await self._back_to_live(loop_executor)
+                raise
             except Exception as exc:
-                await self._back_to_live(loop_executor)
+                with contextlib.suppress(MuxRefused):
+                    await self._back_to_live(loop_executor)
                 raise ApiError(f"the fabric did not take the virtual-camera frame: {exc}", status=504) from exc
             effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
             self.pipeline.set_source(SourceState("virtual", frame, effective))
@@ -205,15 +230,7 @@ class VirtualCamera:
         A mux that does not take the change (its commit times out) is an ApiError 503 naming
         the source the status then shows; nothing else changes.
         """
-        try:
-            await self._select(executor, source)
-        except DriverError as exc:
-            try:
-                now = self.fabric.source
-            except DriverError:
-                now = "unknown"
-            raise ApiError(f"the mux did not switch to {source} ({exc}); the fabric's source is {now}: "
-                           "try again, or see /api/status", status=503) from None
+        await self._select(executor, source)
 
     async def _select(self, executor: Any, source: str) -> None:
         async with self.lock:
@@ -281,6 +298,9 @@ async def status_handler(request: web.Request) -> web.Response:
         "access_token": app[CONFIG].access_token is not None,
         "errors": errors[-20:],
     }
+    now = time.time()
+    body["faults"] = [{**f, "for_s": round(now - f["since"], 3) if f.get("since") else None}
+                      for f in app[EXTENSIONS].active_faults()]
     body.update(app[EXTENSIONS].status_sections())
     return web.json_response(body, headers={"Cache-Control": "no-store"})
 

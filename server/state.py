@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .captures import CaptureStore
     from .config import Config
     from .encoders import Encoders, FrameFeed
+    from .fabric_health import FabricHealth
     from .metrics import Metrics
     from .pipeline import Pipeline
     from .routes_api import VirtualCamera
@@ -30,7 +31,7 @@ T = TypeVar("T")
 
 __all__ = [
     "CONFIG", "OVERLAY", "PIPELINE", "FEED", "ENCODERS", "STREAMS", "METRICS", "CAPTURES", "VIRTUAL",
-    "CALIBRATION", "EXTENSIONS", "EXECUTORS", "Executors", "CalibrationState", "Extensions",
+    "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState", "Extensions",
 ]
 
 
@@ -119,6 +120,9 @@ def _not_before(count: int, mark: int) -> bool:
 
 Provider = Callable[[], Dict[str, Any]]
 MetricsProvider = Callable[[], Iterable[str]]
+# Faults active now, each {"what": a stable name such as "sensor.left", "text": what is wrong,
+# "since": wall-clock seconds when it began}: /healthz, /api/status and /metrics report them.
+FaultProvider = Callable[[], Iterable[Dict[str, Any]]]
 
 
 @dataclass
@@ -130,11 +134,13 @@ class Extensions:
     - ``metrics``: providers of extra Prometheus text lines.
     - ``capture_meta``: name -> provider; each capture's meta.json gets
       ``{name: provider()}`` (e.g. ``"sensors"``: exposure and gain).
+    - ``faults``: providers of the faults active now (:data:`FaultProvider`).
     """
 
     status: Dict[str, Provider] = field(default_factory=dict)
     metrics: List[MetricsProvider] = field(default_factory=list)
     capture_meta: Dict[str, Provider] = field(default_factory=dict)
+    faults: List[FaultProvider] = field(default_factory=list)
 
     @staticmethod
     def _collect(providers: Dict[str, Provider], what: str) -> Dict[str, Any]:
@@ -153,14 +159,21 @@ class Extensions:
     def capture_sections(self) -> Dict[str, Any]:
         return self._collect(self.capture_meta, "capture meta")
 
-    def metrics_lines(self) -> List[str]:
-        lines: List[str] = []
-        for provider in self.metrics:
+    @staticmethod
+    def _chain(providers: Iterable[Callable[[], Iterable[T]]], what: str) -> List[T]:
+        out: List[T] = []
+        for provider in providers:
             try:
-                lines.extend(provider())
-            except Exception as exc:
-                log.warning("metrics provider failed: %s", exc)
-        return lines
+                out.extend(provider())
+            except Exception as exc:  # one broken extension must not break the rest
+                log.warning("%s provider failed: %s", what, exc)
+        return out
+
+    def active_faults(self) -> List[Dict[str, Any]]:
+        return self._chain(self.faults, "fault")
+
+    def metrics_lines(self) -> List[str]:
+        return self._chain(self.metrics, "metrics")
 
 
 CONFIG: "web.AppKey[Config]" = web.AppKey("stereocam.config")
@@ -175,3 +188,4 @@ VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual")
 CALIBRATION: "web.AppKey[CalibrationState]" = web.AppKey("stereocam.calibration")
 EXTENSIONS: "web.AppKey[Extensions]" = web.AppKey("stereocam.extensions")
 EXECUTORS: "web.AppKey[Executors]" = web.AppKey("stereocam.executors")
+FABRIC_HEALTH: "web.AppKey[FabricHealth]" = web.AppKey("stereocam.fabric_health")

@@ -276,7 +276,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
                              bitstream=args.bitstream, source=args.source, fps=args.fps,
-                             core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir)
+                             core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir,
+                             allow_fault_injection=args.allow_fault_injection)
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:
         raise UserError(str(exc)) from None
@@ -332,6 +333,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
     s.add_argument("--rtl-dir", metavar="DIR",
                    help="with --core rtl: build this copy of overlays/rtl instead (e.g. one being changed)")
+    s.add_argument("--allow-fault-injection", action="store_true", default=None,
+                   help="emulated fabric only, for testing: /api/faults stalls cameras, faults DMA channels, "
+                        "hangs resets, silences sensors, makes the mux refuse (see server/API.md)")
     s.set_defaults(func=cmd_serve)
 
     i = sub.add_parser(

@@ -137,7 +137,8 @@ def test_thread_publishes_every_frame_and_beats_without_frames() -> None:
         overlay.close()
 
 
-def test_a_faulted_channel_is_recovered(stepped, monkeypatch) -> None:
+def test_a_channel_fault_is_counted_and_left_to_fabric_health(stepped, monkeypatch) -> None:
+    """The pipeline thread goes on waiting; it does not restart the channel (a hung reset would stall it)."""
     pipeline = Pipeline(stepped.fabric, publish=lambda fs: None, wait_s=0.05)
     s2mm = stepped.fabric.proc_vdma.s2mm
     calls = {"wait": 0, "recover": 0}
@@ -160,7 +161,7 @@ def test_a_faulted_channel_is_recovered(stepped, monkeypatch) -> None:
         while calls["wait"] < 3:
             assert time.monotonic() < deadline
             time.sleep(0.01)
-    assert calls["recover"] == 1 and pipeline.errors == 1 and "VDMADecErr" in pipeline.last_error
+    assert calls["recover"] == 0 and pipeline.errors == 1 and "VDMADecErr" in pipeline.last_error
 
 
 def test_once_cache_computes_once_across_threads() -> None:

@@ -99,6 +99,7 @@ class ChannelState:
     halt_countdown: Optional[int] = None
     reset_countdown: Optional[int] = None
     hangs: Set[str] = field(default_factory=set)
+    injected: Optional[str] = None  # tests: a fatal error raised on every frame the channel starts
     frames: int = 0
     completed_frames: int = 0
     dropped: int = 0
@@ -164,6 +165,18 @@ class EmulatedVDMA(RegisterBlock):
             hangs.add(what)
         else:
             hangs.discard(what)
+
+    def inject(self, channel: str, error: Optional[str]) -> None:
+        """Fault injection: raise the fatal ``error`` on every frame ``channel`` starts (None: stop).
+
+        Like a bus error that persists (a slave that keeps answering SLVERR,
+        an address that stays undecoded): every restart of the channel halts
+        again on its next frame until the fault ends.
+        """
+        if error is not None and error not in FATAL_ERRORS:
+            raise ValueError(f"can inject one of {FATAL_ERRORS}, not {error!r}")
+        with self.lock:
+            self.channels[channel].injected = error
 
     def interrupt(self, channel: str) -> bool:
         """Level of the channel's interrupt output (``mm2s_introut``/``s2mm_introut``)."""
@@ -364,6 +377,10 @@ class EmulatedVDMA(RegisterBlock):
         if ch.halt_countdown is not None and "halt" not in ch.hangs:
             self._halt(ch)
         if not (ch.started and self._running(ch)):
+            ch.dropped += 1
+            return None
+        if ch.injected is not None:
+            self._fatal(ch, ch.injected)
             ch.dropped += 1
             return None
         self._complete(ch)
