@@ -27,19 +27,23 @@ exposure (µs)         read ``WINDOW_WIDTH`` and ``HORIZONTAL_BLANKING`` (the ro
 :class:`StereoSensors` is the pair and the service the daemon's
 ``/api/cameras`` calls: :meth:`~StereoSensors.start` brings both sensors up
 from the board profile without ever raising for a sensor that fails (it is
-marked, logged and reported by :meth:`~StereoSensors.health`), and
-:meth:`~StereoSensors.apply` / :meth:`~StereoSensors.read` set and report
-the controls. Its error contract: :class:`ValueError` (``SettingsError``,
-``SensorRangeError``) for a request to refuse, :class:`SensorUnavailable`
-for a sensor that does not answer.
+marked, logged and reported by :meth:`~StereoSensors.health` and
+:meth:`~StereoSensors.faults`), :meth:`~StereoSensors.apply` /
+:meth:`~StereoSensors.read` set and report the controls, and
+:meth:`~StereoSensors.check`, called periodically, notices a sensor that
+stops answering and sets one that answers again up as :meth:`start` did,
+with the controls last applied. Its error contract: :class:`ValueError`
+(``SettingsError``, ``SensorRangeError``) for a request to refuse,
+:class:`SensorUnavailable` for a sensor that does not answer.
 """
 from __future__ import annotations
 
 import logging
 import math
 import threading
+import time
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any, Dict, Mapping, Optional, Tuple, Union
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Tuple, Union
 
 from ..overlays.spec import mt9v034 as spec
 from ..overlays.spec.mt9v034 import MT9V034_MAP
@@ -459,10 +463,13 @@ class _SensorState:
     ok: bool = False
     error: Optional[str] = "not started"
     chip_id: Optional[int] = None
+    answering: bool = True  # False while the last failure was on the bus (not a wrong part, say)
+    since: Optional[float] = None  # time.time() when it became unavailable; None while up
+    lost_at: float = 0.0  # time.monotonic() of the same moment, for the "back after" line
 
 
 class StereoSensors:
-    """The left and right MT9V034 of the board: bring-up, controls, read-back, health.
+    """The left and right MT9V034 of the board: bring-up, controls, read-back, health, recovery.
 
     ``sync`` is ``"master-slave"`` (``master`` names the sensor whose timing
     the other follows) or ``"snapshot"`` (both expose on the fabric's common
@@ -473,6 +480,12 @@ class StereoSensors:
     it from a worker thread, not the event loop. Thread-safe: every public
     call holds one lock for its whole I2C sequence, so the two sensors never
     get half of a request each from two callers.
+
+    Per camera it remembers the controls in effect: the defaults, with what
+    each successful :meth:`apply` set on top (a refused request changes
+    nothing). A sensor that stops answering loses nothing the user chose:
+    when :meth:`check` finds it answering again, it is brought up exactly as
+    :meth:`start` does and given those controls back.
     """
 
     def __init__(self, left: MT9V034, right: MT9V034, *, sync: str = "master-slave", master: str = "left",
@@ -492,6 +505,8 @@ class StereoSensors:
                          else SensorSettings.from_dict(defaults or {}))
         self.aec_target = aec_target
         self._state = {c: _SensorState() for c in CAMERAS}
+        self._controls: Dict[str, Dict[str, Any]] = {c: self.defaults.given() for c in CAMERAS}
+        self._started = False
         self._lock = threading.RLock()
 
     @classmethod
@@ -528,10 +543,23 @@ class StereoSensors:
         raise SettingsError(f"camera {camera!r} is not one of: both, left, right")
 
     def _fail(self, camera: str, exc: Exception) -> None:
+        """Mark ``camera`` unavailable because of ``exc``; one log line when it goes, not one per re-probe.
+
+        While it stays down, a bus error (the usual re-probe answer) is not
+        logged again; a sensor that answers but fails its checks is, once per
+        distinct message (that is news: another part, a wrong strap).
+        """
         state = self._state[camera]
-        if state.error != str(exc):
-            log.error("camera sensor %s: %s", camera, exc)
-        state.ok, state.error = False, str(exc)
+        down_already = not state.ok and state.since is not None
+        message = str(exc)
+        if not down_already:
+            log.error("camera sensor %s: %s", camera, _unnamed(camera, message))
+            state.since, state.lost_at = time.time(), time.monotonic()
+        elif not isinstance(exc, I2CError) and message != state.error:
+            log.error("camera sensor %s: %s", camera, _unnamed(camera, message))
+        else:
+            log.debug("camera sensor %s: still unavailable: %s", camera, exc)
+        state.ok, state.error, state.answering = False, message, not isinstance(exc, I2CError)
 
     # -- bring-up ---------------------------------------------------------------------------
 
@@ -539,31 +567,72 @@ class StereoSensors:
         """Bring both sensors up; returns :meth:`health`. Never raises for a sensor that fails.
 
         Per sensor: soft reset, identity check, window, frame rate, sync
-        mode, AEC target, then the default controls. A sensor that does not
+        mode, AEC target, then the default controls (what :meth:`apply` set
+        before is forgotten: this is a fresh start). A sensor that does not
         answer or is not an MT9V034 is marked unavailable with the reason
         (logged, and in :meth:`health`); the other one is still brought up.
-        Calling it again retries (a reseated cable, a power cycle).
+        Calling it again retries (a reseated cable, a power cycle);
+        :meth:`check` retries an unavailable sensor by itself.
         """
         with self._lock:
+            self._started = True
             for camera in CAMERAS:
-                sensor = self.sensors[camera]
+                self._controls[camera] = self.defaults.given()
+                self._set_up(camera)
+            return self.health()
+
+    def _set_up(self, camera: str) -> bool:
+        """The bring-up of one sensor with its remembered controls; False (and marked) if it fails."""
+        sensor = self.sensors[camera]
+        state = self._state[camera]
+        was_down = state.since is not None
+        try:
+            sensor.reset()
+            state.chip_id = sensor.check_id()
+            sensor.configure_window(*self.frame_size)
+            sensor.set_frame_rate(self.fps)
+            sensor.set_sync(self._mode_of(camera))
+            if self.aec_target is not None:
+                sensor.set_auto_target(self.aec_target)
+            self._write(sensor, self._plan(sensor, SensorSettings(**self._controls[camera])))
+        except (I2CError, SensorError) as exc:
+            self._fail(camera, exc)
+            return False
+        if was_down:
+            log.info("camera sensor %s: answers again after %.1f s; MT9V034 at %#04x set up again (%s) "
+                     "with the controls last applied", camera, time.monotonic() - state.lost_at,
+                     sensor.address, self._mode_of(camera))
+        elif not state.ok:
+            log.info("camera sensor %s: MT9V034 at %#04x ready (%s)", camera, sensor.address,
+                     self._mode_of(camera))
+        state.ok, state.error, state.answering, state.since = True, None, True, None
+        return True
+
+    def check(self) -> Dict[str, Any]:
+        """The periodic check: notice a sensor that stopped answering, restore one that answers again.
+
+        Returns :meth:`health`; never raises for a sensor. Per sensor that is
+        up: one read of ``CHIP_VERSION`` (it answers, and is still an
+        MT9V034). Per sensor that is unavailable: the same one read, and
+        only when that succeeds, the whole bring-up of :meth:`start` followed
+        by the controls last applied (about 30 transactions, a few ms on the
+        board). So a check costs two register reads (~0.2 ms on the board's
+        bus, or one adapter timeout per silent sensor), cheap enough to run
+        several times a second; :meth:`read` (14 reads) is the costlier
+        call. Does nothing before :meth:`start`.
+        """
+        with self._lock:
+            if not self._started:
+                return self.health()
+            for camera in CAMERAS:
                 state = self._state[camera]
                 try:
-                    sensor.reset()
-                    state.chip_id = sensor.check_id()
-                    sensor.configure_window(*self.frame_size)
-                    sensor.set_frame_rate(self.fps)
-                    sensor.set_sync(self._mode_of(camera))
-                    if self.aec_target is not None:
-                        sensor.set_auto_target(self.aec_target)
-                    self._write(sensor, self._plan(sensor, self.defaults))
+                    self.sensors[camera].check_id()
                 except (I2CError, SensorError) as exc:
                     self._fail(camera, exc)
-                else:
-                    if not state.ok:
-                        log.info("camera sensor %s: MT9V034 at %#04x ready (%s)", camera, sensor.address,
-                                 self._mode_of(camera))
-                    state.ok, state.error = True, None
+                    continue
+                if not state.ok:
+                    self._set_up(camera)
             return self.health()
 
     # -- controls ----------------------------------------------------------------------------
@@ -601,21 +670,35 @@ class StereoSensors:
         Raises :class:`SettingsError`/:class:`SensorRangeError` (both
         ``ValueError``) for a bad request, :class:`SensorUnavailable` if a
         target sensor is not answering (it is then marked in :meth:`health`).
-        Returns :meth:`read`: the values in use afterwards.
+        What a sensor took is remembered (:meth:`controls`) and given back
+        when it is set up again. Returns :meth:`read`: the values in use afterwards.
         """
         s = settings if isinstance(settings, SensorSettings) else SensorSettings.from_dict(settings)
         with self._lock:
             targets = self._targets(camera)
             down = [c for c in targets if not self._state[c].ok]
             if down:
+                hints = []
+                if any(not self._state[c].answering for c in down):
+                    hints.append("a sensor is set up again, with the settings last applied, as soon as "
+                                 "it answers: check its cable and power")
+                if len(down) < len(targets):
+                    hints.append("set the other camera alone with camera='left' or 'right'")
                 raise SensorUnavailable("; ".join(
                     f"{c} sensor (I2C {self.sensors[c].address:#04x}) is unavailable: {self._state[c].error}"
-                    for c in down) + (". Set the other camera alone with camera='left' or 'right'"
-                                      if len(down) < len(targets) else ""))
+                    for c in down) + "".join(f". {h[0].upper()}{h[1:]}" for h in hints))
             plans = {c: self._guarded(c, lambda sensor: self._plan(sensor, s)) for c in targets}
             for c, plan in plans.items():
                 self._guarded(c, lambda sensor, plan=plan: self._write(sensor, plan))
+                self._controls[c].update(s.given())
             return self.read()
+
+    def controls(self, camera: str) -> Dict[str, Any]:
+        """What ``camera`` is set up with when it answers again: the defaults, with what apply() set."""
+        if camera not in CAMERAS:
+            raise SettingsError(f"camera {camera!r} is not one of: {', '.join(CAMERAS)}")
+        with self._lock:
+            return dict(self._controls[camera])
 
     def _guarded(self, camera: str, action: Any) -> Any:
         try:
@@ -628,7 +711,7 @@ class StereoSensors:
         """The values in use per camera (see :meth:`MT9V034.settings`); None for an unavailable sensor.
 
         Never raises for a sensor that stops answering: it is marked in
-        :meth:`health` and reads None.
+        :meth:`health` and reads None. It does not re-probe: :meth:`check` does.
         """
         with self._lock:
             out: Dict[str, Optional[Dict[str, Any]]] = {}
@@ -660,6 +743,31 @@ class StereoSensors:
                 out[slave]["warning"] = f"its master ({self.master}) is unavailable: it gets no frame timing"
             return out
 
+    def faults(self) -> List[Dict[str, Any]]:
+        """The sensors unavailable now, as faults: ``what`` (``"sensor.left"``), ``text``, ``since``.
+
+        ``since`` is the ``time.time()`` it became unavailable (kept while
+        re-probes fail). A sensor never started is not a fault.
+        """
+        with self._lock:
+            out: List[Dict[str, Any]] = []
+            for c in CAMERAS:
+                st = self._state[c]
+                if st.ok or st.since is None:
+                    continue
+                how = "is unavailable" if st.answering else "is not answering"
+                text = f"{c} sensor (I2C {self.sensors[c].address:#04x}) {how}: {_unnamed(c, st.error or '')}"
+                if self.sync == "master-slave" and c == self.master:
+                    text += f"; the {self._other(c)} sensor, its slave, gets no frame timing"
+                out.append({"what": f"sensor.{c}", "text": text, "since": st.since})
+            return out
+
     @staticmethod
     def _other(camera: str) -> str:
         return "right" if camera == "left" else "left"
+
+
+def _unnamed(camera: str, message: str) -> str:
+    """``message`` without the ``"left: "`` an :class:`MT9V034` error starts with (the caller names it)."""
+    prefix = f"{camera}: "
+    return message[len(prefix):] if message.startswith(prefix) else message

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Tuple
 
 import numpy as np
 import pytest
 
+from stereocam.bench_faults import KINDS, ON_THE_PROCESSED_PATH
 from stereocam.overlays.emulated.faults import FaultError, FaultInjector
 from stereocam.overlays.fabric import SOURCES
 from stereocam.server import routes_cameras
@@ -179,16 +180,6 @@ async def test_bad_fault_requests_get_a_clear_4xx(start_daemon) -> None:
 
 # -- the rounds -------------------------------------------------------------------------------
 
-CHANNELS = ("vdma_raw.s2mm", "vdma_proc.s2mm", "vdma_proc.mm2s")
-KINDS: List[Tuple[str, Optional[str], str]] = [
-    ("camera_stall", None, "cameras"),
-    *[(kind, ch, ch) for kind in ("dma_internal", "dma_slave", "dma_decode", "reset_hang")
-      for ch in CHANNELS],
-    ("mux_refuse", None, "mux"),
-    ("sensor_silent", "left", "sensor.left"),
-    ("sensor_silent", "right", "sensor.right"),
-]
-ON_THE_PROCESSED_PATH = {"cameras", "vdma_proc.s2mm"}  # faults that stop the rectified frames too
 ROUNDS = 100
 
 
@@ -295,3 +286,18 @@ async def test_rectified_frames_go_on_through_a_hung_raw_reset(start_daemon) -> 
         await until("raw frames again", lambda: pipeline.frames > frames + 5 and health_part.since is None)
     last = np.asarray(d.app[FEED].last_frame.processed)
     assert last.size > 0
+
+
+def test_the_faults_benchmark_measures_every_kind_against_the_floor() -> None:
+    from stereocam.bench_faults import FLOORS, measure_faults, text_lines
+
+    result = measure_faults(rounds=1)
+    parts = result["parts"]
+    assert {(row["kind"], row["part"]) for row in parts.values()} == {(k, w) for k, _, w in KINDS}
+    for row in parts.values():
+        assert row["rounds"] == 1 and row["report_s"] > 0 and row["recover_s"] > 0
+        assert (row["gap_s"] is None) == (row["part"] in ON_THE_PROCESSED_PATH)
+    met = all(row[k] is None or row[k] <= FLOORS[k] for row in parts.values() for k in FLOORS)
+    assert result["ok"] == met
+    text = "\n".join(text_lines(result))
+    assert ("all floors met" in text) == met and "vdma_proc.mm2s" in text

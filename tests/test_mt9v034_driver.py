@@ -2,12 +2,15 @@
 
 Register numbers are written out here on purpose (not taken from the table):
 they pin the table to the Linux driver's ``mt9v032.c`` and the data sheet.
-Also the Linux I2C bus's messages, with the ioctl faked (no hardware).
+Also the Linux I2C bus's messages, with the ioctl faked (no hardware), and
+the stereo pair's recovery of a sensor that stops answering, on the emulated bus.
 """
 from __future__ import annotations
 
 import errno
+import logging
 import os
+import time
 from pathlib import Path
 from typing import Any, List, Tuple
 
@@ -29,8 +32,11 @@ from stereocam.drivers.mt9v034 import (
     ChipIdError,
     SensorRangeError,
     SensorSettings,
+    SensorUnavailable,
     SettingsError,
+    StereoSensors,
 )
+from stereocam.overlays.emulated.sensors import EmulatedSensorPair
 from stereocam.overlays.spec import mt9v034 as spec
 from tests.doubles import RecordingI2C, UnexpectedAccess
 
@@ -334,6 +340,139 @@ def test_bad_requests_are_refused_with_a_reason(body: Any, message: str) -> None
     with pytest.raises(ValueError) as err:
         SensorSettings.from_dict(body)
     assert message in str(err.value)
+
+
+# -- the stereo pair: a sensor that stops answering, then answers again ---------------------------------
+
+B = 0x58  # the right sensor's address
+
+
+def bring_up(addr: int, chip_control: int) -> List[Tuple[str, int, int, Any]]:
+    """What start() does to one sensor (752x480 at 60 fps, AEC target 32, defaults {"gain": 2.0})."""
+    return [("w", addr, 0x0C, 0x0001), ("w", addr, 0x0C, 0x0000), ("r", addr, 0x00, 0x1324),
+            ("w", addr, 0x01, 1), ("w", addr, 0x02, 4), ("w", addr, 0x04, 752), ("w", addr, 0x03, 480),
+            ("w", addr, 0x05, 94),
+            ("r", addr, 0x04, 752), ("r", addr, 0x05, 94), ("r", addr, 0x03, 480), ("w", addr, 0x06, 44),
+            ("r", addr, 0x07, 0x0388), ("w", addr, 0x07, chip_control),
+            ("w", addr, 0xA5, 32),
+            ("w", addr, 0x35, 32)]
+
+
+def test_check_reads_one_register_per_sensor_and_sets_a_returning_one_up_again() -> None:
+    """The periodic check is one CHIP_VERSION read per sensor; a returning sensor gets start()'s sequence."""
+    bus = RecordingI2C([*bring_up(A, 0x0388), *bring_up(B, 0x0380)])
+    pair = StereoSensors(MT9V034(bus, A, name="left"), MT9V034(bus, B, name="right"),
+                         defaults={"gain": 2.0}, aec_target=32)
+    assert pair.start()["ok"]
+    bus.assert_done()
+    bus.expect(("r", A, 0x00, 0x1324), ("r", B, 0x00, 0x1324))
+    assert pair.check()["ok"]
+    bus.assert_done()
+    nack = I2CNack("no acknowledge reading R0x00", bus="test", address=A, register=0)
+    for _ in range(3):  # silent: one read, no bring-up, no writes
+        bus.expect(("r", A, 0x00, nack), ("r", B, 0x00, 0x1324))
+        health = pair.check()
+        bus.assert_done()
+        assert not health["left"]["ok"] and health["right"]["ok"]
+    bus.expect(("r", A, 0x00, 0x1324), *bring_up(A, 0x0388), ("r", B, 0x00, 0x1324))
+    assert pair.check()["ok"]
+    bus.assert_done()
+
+
+def test_check_does_nothing_before_start() -> None:
+    bus = RecordingI2C()
+    pair = StereoSensors(MT9V034(bus, A, name="left"), MT9V034(bus, B, name="right"))
+    assert pair.check()["left"]["error"] == "not started"
+    assert pair.faults() == []  # not started is not a fault
+    assert not bus.done
+
+
+SET_UP = ("COLUMN_START", "ROW_START", "WINDOW_WIDTH", "WINDOW_HEIGHT", "HORIZONTAL_BLANKING",
+          "VERTICAL_BLANKING", "CHIP_CONTROL", "AEC_AGC_DESIRED_BIN")
+
+
+def test_a_sensor_that_answers_again_gets_its_set_up_and_the_controls_last_applied(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """On the emulated bus: the silent sensor loses power; it comes back as the user left it."""
+    emulated = EmulatedSensorPair(None)
+    pair = StereoSensors(MT9V034(emulated.bus, A, name="left"), MT9V034(emulated.bus, B, name="right"),
+                         frame_size=(640, 400), fps=30.0, aec_target=40,
+                         defaults={"exposure_us": 10_000, "gain": 1.0, "aec": False, "agc": False})
+    assert pair.start()["ok"]
+    pair.apply({"exposure_us": 5000, "gain": 2.5, "flip_h": True, "test_pattern": "gray_vertical"},
+               camera="left")
+    pair.apply({"agc": True}, camera="left")
+    pair.apply({"gain": 3.0}, camera="right")
+    wanted = pair.read()
+    left = wanted["left"]
+    assert left is not None and left["flip_h"] and left["agc"] and left["test_pattern"] == "gray_vertical"
+    assert abs(left["exposure_us"] - 5000) < 32  # whole rows
+    set_up = {name: emulated.left.get(name) for name in SET_UP}
+    assert set_up["VERTICAL_BLANKING"] != spec.MT9V034_MAP["VERTICAL_BLANKING"].reset  # 30 fps, not 60
+    assert pair.controls("left") == {"exposure_us": 5000, "gain": 2.5, "aec": False, "agc": True,
+                                     "flip_h": True, "test_pattern": "gray_vertical"}
+
+    with caplog.at_level(logging.DEBUG, logger="stereocam.drivers.mt9v034"):
+        before = time.time()
+        emulated.left.answering = False
+        emulated.left.power_on()  # the glitch cut its power too: every register is back at reset
+        got = pair.read()
+        assert got["left"] is None and got["right"] == wanted["right"]
+        for _ in range(5):  # the daemon's refresh re-probes a few times a second
+            health = pair.check()
+            assert not health["left"]["ok"] and health["right"]["ok"]
+        (fault,) = pair.faults()
+        assert fault["what"] == "sensor.left"
+        assert fault["text"].startswith("left sensor (I2C 0x48) is not answering: no acknowledge reading")
+        assert "the right sensor, its slave, gets no frame timing" in fault["text"]
+        assert before <= fault["since"] <= time.time()
+        with pytest.raises(SensorUnavailable) as refused:
+            pair.apply({"gain": 4.0}, camera="left")  # refused: not remembered either
+        assert str(refused.value).startswith("left sensor (I2C 0x48) is unavailable: no acknowledge")
+        assert "as soon as it answers: check its cable and power" in str(refused.value)
+
+        emulated.left.answering = True
+        assert pair.check()["ok"]
+    assert pair.faults() == []
+    assert {name: emulated.left.get(name) for name in SET_UP} == set_up
+    assert pair.read() == wanted  # the user's exposure, gain, AGC, flip and test pattern, not the defaults
+    assert emulated.left.get("COARSE_SHUTTER_WIDTH_TOTAL") == left["exposure_rows"]
+
+    lines = [r for r in caplog.records if r.levelno >= logging.INFO]
+    assert [r.levelno for r in lines] == [logging.ERROR, logging.INFO], [r.getMessage() for r in lines]
+    assert lines[0].getMessage().startswith("camera sensor left: no acknowledge reading R0x")
+    assert lines[1].getMessage().startswith("camera sensor left: answers again after ")
+    assert "set up again (master) with the controls last applied" in lines[1].getMessage()
+
+    pair.start()  # a fresh start forgets what was applied
+    assert pair.controls("left") == pair.defaults.given()
+    with pytest.raises(SettingsError, match="camera 'both' is not one of: left, right"):
+        pair.controls("both")
+
+
+def test_a_wrong_part_answering_is_logged_once_per_change(caplog: pytest.LogCaptureFixture) -> None:
+    """While down, bus errors are quiet; a part that answers with another chip id is news, once."""
+    emulated = EmulatedSensorPair(None)
+    pair = StereoSensors(MT9V034(emulated.bus, A, name="left"), MT9V034(emulated.bus, B, name="right"))
+    assert pair.start()["ok"]
+    with caplog.at_level(logging.INFO, logger="stereocam.drivers.mt9v034"):
+        emulated.right.answering = False
+        for _ in range(3):
+            pair.check()
+        emulated.right.answering = True
+        emulated.right.chip_id = 0x1313  # another part strapped there
+        for _ in range(3):
+            health = pair.check()
+        assert not health["right"]["ok"] and "0x1313" in health["right"]["error"]
+        (fault,) = pair.faults()
+        assert fault["text"].startswith("right sensor (I2C 0x58) is unavailable: R0x00 CHIP_VERSION at I2C")
+        emulated.right.chip_id = spec.CHIP_ID
+        assert pair.check()["ok"]
+    assert [r.getMessage()[:40] for r in caplog.records] == [
+        "camera sensor right: no acknowledge read",
+        "camera sensor right: R0x00 CHIP_VERSION ",
+        "camera sensor right: answers again after",
+    ]
 
 
 # -- the Linux bus, with the device faked ------------------------------------------------------------------
