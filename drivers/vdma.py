@@ -135,6 +135,7 @@ class _Channel:
         self.lock = threading.RLock()
         self.config: Optional[ChannelConfig] = None
         self.buffers: Tuple[Any, ...] = ()
+        self.parked: Optional[int] = None  # the store a parked channel was told to show (kept by recover)
         self._owned = False  # buffers allocated (and to be freed) by the driver
 
     def __repr__(self) -> str:
@@ -213,6 +214,7 @@ class _Channel:
         given = None if buffers is None else self._check_buffers(buffers, width, height)
         with self.lock:
             self.reset(timeout)
+            self.parked = None
             if given is not None:
                 self._free_owned()
                 self.buffers, self._owned = given, False
@@ -343,7 +345,8 @@ class _Channel:
     def recover(self, timeout: Optional[float] = None) -> Recovery:
         """Get a faulted channel running again with its previous configuration and buffers.
 
-        Stop, soft reset, clear the W1C status bits, start again. A channel
+        Stop, soft reset, clear the W1C status bits, start again; a parked
+        channel is parked again on the store it showed. A channel
         that does not halt within ``timeout`` is reset regardless (the
         returned :class:`Recovery` says so); a reset that does not complete
         raises :class:`RegisterTimeout`.
@@ -361,6 +364,8 @@ class _Channel:
             self.reset(timeout)
             self.regs.write(self.SR.name, self._w1c_word())
             self._program(cfg, timeout)
+            if not cfg.circular and self.parked is not None:  # the reset parked it on store 0
+                self._set_park_ref(self.parked)
             return Recovery(errors, halted)
 
     def _set_park_ref(self, store: int) -> None:
@@ -380,6 +385,7 @@ class _Channel:
                     f"{self.vdma.name} {self.name}: store {store} is outside 0..{self.num_fstores - 1}"
                 )
             self._set_park_ref(store)
+            self.parked = store
             if cfg.circular:
                 self.regs.modify(self.CR.name, Circular_Park=0)
                 self.config = ChannelConfig(cfg.width, cfg.height, False, cfg.stride, cfg.addresses)
@@ -523,6 +529,7 @@ class MM2SChannel(_Channel):
                 self.regs.write(
                     park.name, park.encode(RdFrmPtrRef=target, WrFrmPtrRef=park.get(ptr, "WrFrmPtrRef"))
                 )
+                self.parked = target
             if cfg.circular:
                 self.regs.modify(self.CR.name, Circular_Park=0)
                 self.config = ChannelConfig(cfg.width, cfg.height, False, cfg.stride, cfg.addresses)

@@ -301,3 +301,28 @@ def test_the_faults_benchmark_measures_every_kind_against_the_floor() -> None:
     assert result["ok"] == met
     text = "\n".join(text_lines(result))
     assert ("all floors met" in text) == met and "vdma_proc.mm2s" in text
+
+
+async def test_the_virtual_camera_shows_its_input_again_after_an_mm2s_fault(start_daemon) -> None:
+    """The restart parks the channel on the store it showed, not store 0 (an older upload)."""
+    from stereocam.overlays.spec import pixel
+    from stereocam.server.state import VIRTUAL
+
+    from .test_server_api import encode, model_output, pair_form, pattern_pair
+
+    d = await start_daemon(allow_fault_injection=True)
+    await wait_for_frames(d, 3)
+    for seed in (3, 4):  # the second upload goes to another store than the first
+        left, right = pattern_pair(seed)
+        async with d.http.post("/api/virtual-camera", data=pair_form(encode(left), encode(right))) as resp:
+            assert resp.status == 200, await resp.text()
+    expected = model_output(d, pixel.pack(pixel.rgby(left), pixel.rgby(right)))
+    async with d.http.post("/api/faults", json={"kind": "dma_decode", "target": "vdma_proc.mm2s"}) as resp:
+        fault = await resp.json()
+    watch = Observer(d)
+    await until("the MM2S fault reported", lambda: watch.reported("vdma_proc.mm2s"))
+    async with d.http.delete(f"/api/faults/{fault['id']}"):
+        pass
+    await until("recovered", watch.clear)
+    shown = await d.app[VIRTUAL].actual_frame()  # a frame the fabric made after the restart
+    np.testing.assert_array_equal(shown.processed, expected)
