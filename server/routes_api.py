@@ -480,6 +480,8 @@ async def verify_difference(request: web.Request) -> web.Response:
 
 # -- captures ---------------------------------------------------------------------------------------
 
+CHANGE_WAIT_S = 30.0  # how long a capture waits out a calibration change (programming and file write)
+
 async def fresh_raw_frame(app: web.Application) -> FrameSet:
     """The first frame set grabbed after now that carries its raw pair.
 
@@ -493,9 +495,16 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
         known = calibration.for_frame(f.fabric_count) is not None
         return f.timestamp >= asked and f.raw is not None and known
 
+    change_ends = time.monotonic() + CHANGE_WAIT_S
     try:
         with pipeline.raw_wanted(), pipeline.pairs_wanted():
-            return await feed.next_frame(timeout=timeout, accept=wanted)
+            while True:
+                try:
+                    return await feed.next_frame(timeout=timeout, accept=wanted)
+                except asyncio.TimeoutError:
+                    # Frames of a calibration change in progress are refused, not missing: wait it out.
+                    if not (calibration.changing and time.monotonic() < change_ends):
+                        raise
     except asyncio.TimeoutError:
         raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",
                        status=503) from None

@@ -6,12 +6,20 @@
   where it came from, the line-buffer figures, the model and rectification
   matrices and the stereocam calibration file's text.
 - ``PUT`` takes the text of a stereocam calibration file and checks it
-  completely in the work executor (schema, finite values, register ranges,
+  completely on a worker thread (schema, finite values, register ranges,
   frame size = the fabric's, line-buffer fit against the core's ``LB_ROWS``)
-  before touching anything; a refused one leaves the core, the file and
-  ``app[CALIBRATION]`` as they were. An accepted one is programmed into the
-  core, then written atomically to the calibration file (:func:`calibration_path`),
-  then becomes ``app[CALIBRATION]``.
+  and prepares its registers and file text, before touching anything; a
+  refused one leaves the core, the file and ``app[CALIBRATION]`` as they
+  were. An accepted one is programmed into the core, then written atomically
+  to the calibration file (:func:`calibration_path`), then becomes
+  ``app[CALIBRATION]``.
+
+Shutdown (SIGTERM) must end the daemon within 2 s, and checking a large file
+takes seconds: the check changes nothing, so shutdown stops it
+(:meth:`.state.Executors.run_abandonable`) and a PUT still checking then gets
+503, with nothing changed. Programming the registers and writing the file is
+short and is never cut: shutdown waits for a change in progress, so the files
+hold one calibration, the previous or the new one.
 
 :func:`load_configured` is how ``serve --calibration`` reads its argument
 (:func:`.app.program_default_calibration`).
@@ -26,19 +34,22 @@ from typing import Any, Callable, Dict, Optional, Tuple
 
 from aiohttp import web
 
-from ..calibration_file import Calibration, _sniff, load_calibration, parse_yaml
+from ..calibration_file import MAX_FILE_CHARS, Calibration, _sniff, load_calibration, parse_yaml
 from ..calibration_io import CalibrationFileError, atomic_write_text
+from ..drivers.mmio import DriverError
 from ..overlays.model.config import ConfigError
-from ..overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH
+from ..overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH, CoreConfig
 from .errors import parse_json
 from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
 
 log = logging.getLogger(__name__)
 
 __all__ = ["setup", "load_configured", "calibration_path", "activate", "check_runnable", "CalibrationRefused",
-           "ACTIVE", "ActiveCalibration", "CALIBRATION_FILE"]
+           "ACTIVE", "ActiveCalibration", "Prepared", "CALIBRATION_FILE"]
 
 CALIBRATION_FILE = "calibration.yaml"
+STOP_WAIT_S = 1.0  # shutdown waits this long at most for a calibration change being programmed and written
+STOPPING = "the daemon is stopping: the calibration was not applied; the previous calibration stays active"
 YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml", "text/x-yaml", "text/plain",
               "application/octet-stream")
 KINDS = {"stereocam": "calibration file", "matlab": "MATLAB stereoParameters",
@@ -51,11 +62,25 @@ class CalibrationRefused(ValueError):
 
 @dataclass
 class ActiveCalibration:
-    """The :class:`Calibration` behind ``app[CALIBRATION]`` (None: none, or not a file's); where PUT writes."""
+    """The :class:`Calibration` behind ``app[CALIBRATION]`` (None: none, or not a file's); where PUT writes.
+
+    ``lock`` is held by a change from its check to its end; ``stopping`` is set when the daemon
+    starts shutting down (no change starts after it).
+    """
 
     path: Path
     calibration: Optional[Calibration] = None
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    stopping: asyncio.Event = field(default_factory=asyncio.Event)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A checked calibration ready to go live: its register set and the text of its file."""
+
+    calibration: Calibration
+    config: CoreConfig
+    text: str
 
 
 ACTIVE: "web.AppKey[ActiveCalibration]" = web.AppKey("stereocam.calibration.active")
@@ -85,7 +110,8 @@ def load_configured(arg: str, rectify: Any, frame_size: Tuple[int, int]) -> Tupl
         if not p.is_file():
             raise CalibrationFileError(f"{p}: no such file")
     limits = _limits(rectify)
-    cal = load_calibration(paths, image_size=(int(frame_size[0]), int(frame_size[1])), lb_rows=rectify.lb_rows,
+    cal = load_calibration(paths, image_size=(int(frame_size[0]), int(frame_size[1])),
+                           lb_rows=rectify.lb_rows,
                            max_width=limits.get("max_width", DEFAULT_MAX_WIDTH),
                            max_height=limits.get("max_height", DEFAULT_MAX_HEIGHT))
     kind = _sniff(paths[0]) if paths else "unknown"
@@ -186,60 +212,119 @@ def previous_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}.previous{path.suffix or '.yaml'}")
 
 
-def _apply(rectify: Any, cal: Calibration, path: Path) -> Any:
-    """Program the core, then write the file; a failed write puts the previous registers back (blocking).
+def _prepare(check: Callable[[], Calibration], rectify: Any) -> Prepared:
+    """Check (``check``), plan the registers, make the file's text (blocking, seconds for a large file).
 
-    The file being replaced is kept as :func:`previous_path` (one level of undo:
-    a calibration someone trusted is never lost to a click).
+    Changes nothing and takes no lock, so shutdown may stop it anywhere
+    (:meth:`.state.Executors.run_abandonable`). Raises the check's errors, and
+    :class:`CalibrationRefused` for a file this daemon could not read back at its next start.
     """
+    cal = check()
     w, h = cal.image_size
-    previous = rectify.read_config()
-    config, _ = rectify.program(cal.left, cal.right, w, h)
     try:
+        config, _ = rectify.plan(cal.left, cal.right, w, h)
+    except ConfigError as exc:
+        raise CalibrationRefused(str(exc)) from None
+    text = cal.to_yaml()
+    if len(text) > MAX_FILE_CHARS:
+        limit = MAX_FILE_CHARS
+        raise CalibrationRefused(f"its file would be {len(text):,} characters, more than the {limit:,} a "
+                                 "calibration file may have: shorten its quality section")
+    return Prepared(cal, config, text)
+
+
+def _apply(rectify: Any, prepared: Prepared, path: Path) -> CoreConfig:
+    """Program the core, then write the file (blocking; short: a ``work`` job shutdown waits for).
+
+    Any failure (the core refusing the set or not latching it, a write failing) puts the
+    previous registers back and leaves the files as they were. The file being replaced is
+    kept as :func:`previous_path` (one level of undo: a calibration someone trusted is never
+    lost to a click). Both writes are atomic (temporary file, then rename).
+    """
+    previous = rectify.read_config()
+    try:
+        rectify.load(prepared.config)
         if path.is_file():
             atomic_write_text(previous_path(path), path.read_text(encoding="utf-8"))
-        cal.save(path)
-    except OSError as exc:
-        rectify.load(previous)
-        raise OSError(f"cannot write {path} ({exc.strerror or exc}); the previous calibration stays active") \
-            from None
-    return config
+        atomic_write_text(path, prepared.text)
+    except Exception as exc:
+        try:
+            rectify.load(previous)
+        except Exception as undo:  # the error that started this is what the caller needs
+            log.error("could not put the previous calibration's registers back: %s", undo)
+        if isinstance(exc, CalibrationFileError):  # atomic_write_text: "cannot write PATH: why"
+            raise OSError(f"{exc}; the previous calibration stays active") from None
+        if isinstance(exc, OSError):
+            raise OSError(f"cannot write {path} ({exc.strerror or exc}); the previous calibration stays "
+                          "active") from None
+        raise
+    return prepared.config
+
+
+def _refuse_if_stopping(active: ActiveCalibration) -> None:
+    if active.stopping.is_set():
+        raise web.HTTPServiceUnavailable(text=STOPPING)
+
+
+async def _unless_stopping(active: ActiveCalibration, job: "asyncio.Future[Prepared]") -> Prepared:
+    """``job``'s result, or 503 as soon as the daemon starts stopping (``job`` abandoned or cancelled)."""
+    stopping: "asyncio.Future[Any]" = asyncio.ensure_future(active.stopping.wait())
+    try:
+        done, _ = await asyncio.wait([job, stopping], return_when=asyncio.FIRST_COMPLETED)
+    except BaseException:  # the request itself is cancelled
+        job.cancel()
+        raise
+    finally:
+        stopping.cancel()
+    if job not in done or job.cancelled():  # cancelled: Executors.abandon(), the daemon is stopping
+        job.cancel()
+        raise web.HTTPServiceUnavailable(text=STOPPING)
+    return job.result()
 
 
 async def activate(app: web.Application, check: Callable[[], Calibration], how: str) -> Dict[str, Any]:
-    """Validate with ``check`` (blocking, in a worker), then program the core and write the file.
+    """Validate with ``check``, then program the core and write the file.
 
-    ``how`` says where the calibration came from (the log and ``/api/status``
-    show it). Raises ``HTTPException``: 400 for a file that does not parse,
-    422 for one this core cannot run, 500 when the file cannot be written;
-    in every case the previous calibration, registers and file stay.
-    Returns the reply's body.
+    ``check`` blocks and runs on a thread shutdown may abandon: it must change
+    nothing (parse, validate, plan). ``how`` says where the calibration came
+    from (the log and ``/api/status`` show it). Raises ``HTTPException``: 400
+    for a file that does not parse, 422 for one this core cannot run, 500 when
+    the core or the file cannot take it, 503 when the daemon starts stopping
+    before the change begins; in every case the previous calibration,
+    registers and file stay. Returns the reply's body.
     """
     fabric = app[OVERLAY].fabric
     rectify = fabric.rectify
     active = app[ACTIVE]
+    executors = app[EXECUTORS]
     async with active.lock:
+        _refuse_if_stopping(active)
+        log.info("calibration check started (%s)", how)
         try:
-            cal = await app[EXECUTORS].run(check)
+            job = asyncio.ensure_future(executors.run_abandonable(_prepare, check, rectify))
+            prepared = await _unless_stopping(active, job)
         except CalibrationRefused as exc:
             raise web.HTTPUnprocessableEntity(text=f"refused, the previous calibration stays active: {exc}") \
                 from None
         except ValueError as exc:
             raise web.HTTPBadRequest(text=f"refused, the previous calibration stays active: {exc}") from None
+        _refuse_if_stopping(active)
+        cal = prepared.calibration
         state = app[CALIBRATION]
         previous = state.to_json()
-        before = await app[EXECUTORS].run(rectify.regs.read, "FRAME_COUNT")
-        state.changing = True  # frames now may carry either register set: captures wait
+        before = await executors.run(rectify.regs.read, "FRAME_COUNT")
+        state.changing, state.changing_from = True, int(before)  # later frames may carry either set
         try:
-            core_config = await app[EXECUTORS].run(_apply, rectify, cal, active.path)
-            latched = await app[EXECUTORS].run(rectify.regs.read, "FRAME_COUNT")
-        except (OSError, ConfigError) as exc:
+            core_config = await executors.run(_apply, rectify, prepared, active.path)
+            latched = await executors.run(rectify.regs.read, "FRAME_COUNT")
+        except (OSError, ConfigError, DriverError) as exc:
             raise web.HTTPInternalServerError(text=str(exc)) from None
         finally:
             state.changing = False
         state.changed(int(before), (int(latched) + 2) % (1 << 32), previous)
         state.id = cal.id
-        state.description = f"calibration file {active.path} ({how}" + (f"; {cal.source})" if cal.source else ")")
+        state.description = (f"calibration file {active.path} ({how}"
+                             + (f"; {cal.source})" if cal.source else ")"))
         state.rows_needed = cal.rows_needed
         state.lb_rows = rectify.lb_rows
         state.lb_delay = core_config.lb_delay
@@ -259,7 +344,22 @@ async def put_calibration(request: web.Request) -> web.Response:
     return web.json_response(body)
 
 
+async def _stop_changes(app: web.Application) -> None:
+    """Shutdown, before aiohttp waits for handlers: checks end in 503, a change in progress ends first."""
+    active = app[ACTIVE]
+    active.stopping.set()
+    try:
+        await asyncio.wait_for(active.lock.acquire(), STOP_WAIT_S)
+    except asyncio.TimeoutError:
+        log.warning("stopping while a calibration change has run for more than %.1f s: the previous or the "
+                    "new calibration file stays, whichever its atomic write left", STOP_WAIT_S)
+    else:
+        active.lock.release()
+
+
 def setup(app: web.Application) -> None:
-    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]), calibration=app[CALIBRATION].calibration)
+    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]),
+                                    calibration=app[CALIBRATION].calibration)
+    app.on_shutdown.append(_stop_changes)
     app.router.add_get("/api/calibration", get_calibration)
     app.router.add_put("/api/calibration", put_calibration)

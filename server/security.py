@@ -14,7 +14,10 @@ the body:
   otherwise, compared in constant time). GETs stay open.
 - A declared ``Content-Length`` over ``max_upload_bytes`` gets 413 at once;
   bodies without one are cut by aiohttp's ``client_max_size`` and the
-  upload reader.
+  upload reader. A body that cannot be read as sent (a ``Content-Encoding``
+  that does not decode) is a 400, and so is a request whose client went away
+  in the middle of it (nobody reads that answer: it keeps a handler's
+  ``ConnectionResetError`` out of the log as a failure).
 - Every request's ``Host`` must be one of the daemon's names (421
   otherwise): DNS rebinding points an attacker's name at this address, so
   the browser sends the attacker's name; an IP literal cannot be rebound
@@ -34,6 +37,7 @@ from typing import TYPE_CHECKING, Awaitable, Callable, FrozenSet, Iterable, Opti
 from urllib.parse import urlsplit
 
 from aiohttp import web
+from aiohttp.web_protocol import RequestPayloadError
 
 if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
@@ -139,8 +143,9 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
     @web.middleware
     async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
         if not _host_allowed(request, names):
+            host = _shown(request.headers.get("Host", ""))
             raise web.HTTPMisdirectedRequest(
-                text=f"refused: Host {request.headers.get('Host', '')[:80]!r} is not a name of this daemon "
+                text=f"refused: Host '{host}' is not a name of this daemon "
                      "(a page that renamed this address, or a new name: add it to allowed_hosts)")
         changing = request.method in STATE_CHANGING
         upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
@@ -154,7 +159,7 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
                          "'Authorization: Bearer <token>' or add ?token=<token> to the URL"
                          + (" (the token sent is wrong)" if given is not None else ""))
         if (changing or upgrade) and not same_origin(request):
-            origin = request.headers.get("Origin", "a cross-site page")
+            origin = _shown(request.headers.get("Origin", "a cross-site page"))
             raise web.HTTPForbidden(reason="cross-origin request refused",
                                     text=f"refused: {request.method} {request.path} from another origin "
                                          f"({origin}); use the daemon's own page or a script without "
@@ -171,9 +176,38 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
         if changing and request.content_length is not None and request.content_length > max_body:
             raise web.HTTPRequestEntityTooLarge(max_size=max_body, actual_size=request.content_length,
                                                 text=_too_large(max_body, request.content_length))
-        return await handler(request)
+        try:
+            return await handler(request)
+        except RequestPayloadError as exc:  # the body cannot be read as sent (a corrupt gzip body, ...)
+            raise web.HTTPBadRequest(text=_unreadable_body(exc)) from None
+        except ConnectionResetError:
+            transport = request.transport
+            if transport is not None and not transport.is_closing():
+                raise
+            # The client went away in the middle of its request (a body cut short): nobody reads the
+            # answer, and aiohttp would log a handler's ConnectionResetError as a failure with a traceback.
+            raise web.HTTPBadRequest(text="the client closed the connection before its request was read") \
+                from None
 
     return middleware
+
+
+def _shown(text: str, limit: int = 80) -> str:
+    """``text`` from a request fit for a one-line message: at most ``limit`` characters, and the bytes
+    that were not UTF-8 (which arrive as surrogates, and no response can encode) as ``\\xNN``."""
+    text = text[:limit]
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeError:
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _unreadable_body(exc: RequestPayloadError) -> str:
+    cause = exc.__cause__ or exc  # aiohttp's ContentEncodingError, ... with the reason as its message
+    lines = str(getattr(cause, "message", None) or cause).strip().splitlines()
+    detail = lines[0][:200] if lines else type(cause).__name__
+    return (f"malformed request: the body cannot be read ({detail}); send it uncompressed, or encoded as "
+            "its Content-Encoding says")
 
 
 def _too_large(limit: int, size: Optional[int] = None) -> str:

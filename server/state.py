@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional,
 from aiohttp import web
 
 if TYPE_CHECKING:  # pragma: no cover
+    from prometheus_client.metrics_core import Metric
+
     from .captures import CaptureStore
     from .config import Config
     from .encoders import Encoders, FrameFeed
@@ -37,10 +39,22 @@ __all__ = [
 
 @dataclass
 class Executors:
-    """Worker threads: ``encode`` for views and JPEG/PNG (hot path), ``work`` for disk, uploads, verify."""
+    """Worker threads: ``encode`` for views and JPEG/PNG (hot path), ``work`` for disk, uploads, verify.
+
+    The process's exit waits for a job running on ``encode`` or ``work`` (Python joins executor
+    threads at exit), so a job there is short or is one that must finish (a file being written,
+    registers being programmed). Long computation whose only effect is its result (parsing and
+    checking an uploaded calibration) goes to :meth:`run_abandonable`: :meth:`abandon` (shutdown)
+    stops it at once, and SIGTERM's 2 s hold even while one runs.
+    """
 
     encode: concurrent.futures.ThreadPoolExecutor
     work: concurrent.futures.ThreadPoolExecutor
+    abandonable_threads: int = 2  # run_abandonable jobs running at once
+    _slots: Optional[asyncio.Semaphore] = field(default=None, init=False, repr=False)
+    _running: Dict[int, "asyncio.Future[Any]"] = field(default_factory=dict, init=False, repr=False)
+    _guard: Any = field(default=None, init=False, repr=False)  # threading.Lock over _running
+    _closed: bool = field(default=False, init=False, repr=False)
 
     @classmethod
     def create(cls, encode_threads: int) -> "Executors":
@@ -54,7 +68,91 @@ class Executors:
         """``fn(*args)`` on a ``work`` thread, awaited from the event loop."""
         return await asyncio.get_running_loop().run_in_executor(self.work, fn, *args)
 
+    async def run_abandonable(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` on a daemon thread of its own, awaited from the event loop; shutdown stops it.
+
+        Only for work whose sole effect is its result (parsing, validating, planning) and that
+        takes no lock another thread needs: :meth:`abandon` stops ``fn`` at any point (SystemExit
+        raised in its thread) and the await is then cancelled. Never for anything that writes
+        files, registers or shared state, or logs (that goes to :meth:`run`). A cancelled await
+        leaves ``fn`` running to its end, result dropped. At most ``abandonable_threads`` run at
+        once; more calls wait here. ``RuntimeError`` after :meth:`abandon` or :meth:`shutdown`.
+        """
+        import threading
+
+        if self._closed:
+            raise RuntimeError("the worker threads are shut down: the daemon is stopping")
+        loop = asyncio.get_running_loop()
+        if self._slots is None:
+            self._slots = asyncio.Semaphore(self.abandonable_threads)
+            self._guard = threading.Lock()
+        slots, guard, running = self._slots, self._guard, self._running
+        await slots.acquire()
+        future: "asyncio.Future[T]" = loop.create_future()
+
+        def settle(ok: bool, value: Any) -> None:  # on the loop, once fn has returned or raised
+            slots.release()
+            if future.done():  # cancelled (the caller's await, or abandon()): drop the result
+                return
+            if value is None and not ok:  # abandoned, although the await was not cancelled
+                future.cancel()
+                return
+            if ok:
+                future.set_result(value)
+            else:
+                future.set_exception(value)
+
+        def target() -> None:
+            outcome: Tuple[bool, Any]
+            try:
+                try:
+                    outcome = (True, fn(*args))
+                except SystemExit:  # abandon(): nobody waits; fn's half-built data is freed here, at once
+                    outcome = (False, None)
+                except BaseException as exc:
+                    outcome = (False, exc)
+                with guard:  # from here on abandon() no longer interrupts this thread
+                    running.pop(threading.get_ident(), None)
+                try:
+                    loop.call_soon_threadsafe(settle, *outcome)
+                except RuntimeError:  # the loop is closed: the daemon stopped and nobody waits
+                    pass
+            except SystemExit:  # abandon() came as fn returned: nobody waits; the thread just ends
+                pass
+
+        thread = threading.Thread(target=target, name="stereocam-abandonable", daemon=True)
+        with guard:  # registered before the thread can unregister itself
+            try:
+                thread.start()
+            except BaseException:
+                slots.release()
+                raise
+            assert thread.ident is not None
+            running[thread.ident] = future
+        return await future
+
+    def abandon(self) -> None:
+        """Shutdown (loop thread): stop the :meth:`run_abandonable` jobs and refuse new ones.
+
+        Their awaits are cancelled, then ``SystemExit`` is raised in their threads at their next
+        Python instruction (C code runs to its end first), so they stop using the CPU and the
+        GIL the shutdown needs. Returns at once.
+        """
+        import ctypes
+
+        self._closed = True
+        if self._guard is None:
+            return
+        set_async_exc = ctypes.pythonapi.PyThreadState_SetAsyncExc
+        with self._guard:
+            for ident, future in self._running.items():
+                future.cancel()
+                set_async_exc(ctypes.c_ulong(ident), ctypes.py_object(SystemExit))
+            self._running.clear()
+
     def shutdown(self) -> None:
+        """Abandon, cancel queued jobs and return at once; the exit still waits for running ``work`` jobs."""
+        self.abandon()
         self.encode.shutdown(wait=False, cancel_futures=True)
         self.work.shutdown(wait=False, cancel_futures=True)
 
@@ -77,6 +175,7 @@ class CalibrationState:
     # A change in progress (registers being programmed: frames may carry either set), and the
     # calibrations that ran before, each from the FRAME_COUNT it surely took effect.
     changing: bool = field(default=False, compare=False)
+    changing_from: Optional[int] = field(default=None, compare=False)  # FRAME_COUNT read before it began
     history: List[Tuple[int, int, Dict[str, Any]]] = field(default_factory=list, repr=False, compare=False)
 
     def to_json(self) -> Dict[str, Any]:
@@ -97,9 +196,10 @@ class CalibrationState:
 
         Unknown: a frame of a change in progress, or between a change's two counts.
         """
-        if self.changing:
-            return None
-        after = self.to_json()
+        start = self.changing_from
+        if self.changing and (start is None or _not_before(count, start + 1)):
+            return None  # after programming began: either register set
+        after = self.to_json()  # during a change still the old one: the fields change once it is done
         for before, effective, previous in reversed(self.history):
             if _not_before(count, effective):
                 return after
@@ -119,7 +219,10 @@ def _not_before(count: int, mark: int) -> bool:
 
 
 Provider = Callable[[], Dict[str, Any]]
-MetricsProvider = Callable[[], Iterable[str]]
+# Metric families for /metrics, made at each scrape: prometheus_client ``Metric``s
+# (``GaugeMetricFamily``, ``CounterMetricFamily``...) with names in base units, counters without
+# ``_total`` (prometheus_client adds it) and one label set per family.
+MetricsProvider = Callable[[], Iterable["Metric"]]
 # Faults active now, each {"what": a stable name such as "sensor.left", "text": what is wrong,
 # "since": wall-clock seconds when it began}: /healthz, /api/status and /metrics report them.
 FaultProvider = Callable[[], Iterable[Dict[str, Any]]]
@@ -131,7 +234,8 @@ class Extensions:
 
     - ``status``: name -> provider; ``/api/status`` gets ``{name: provider()}``
       (e.g. ``"sensors"``).
-    - ``metrics``: providers of extra Prometheus text lines.
+    - ``metrics``: providers of extra metric families (:data:`MetricsProvider`); a family
+      whose name the daemon or an earlier provider already uses is left out.
     - ``capture_meta``: name -> provider; each capture's meta.json gets
       ``{name: provider()}`` (e.g. ``"sensors"``: exposure and gain).
     - ``faults``: providers of the faults active now (:data:`FaultProvider`).
@@ -172,7 +276,7 @@ class Extensions:
     def active_faults(self) -> List[Dict[str, Any]]:
         return self._chain(self.faults, "fault")
 
-    def metrics_lines(self) -> List[str]:
+    def metric_families(self) -> List["Metric"]:
         return self._chain(self.metrics, "metrics")
 
 

@@ -6,7 +6,10 @@ encode, no per-client queue), skips whatever it missed while its write was
 blocked, and paces itself to the ``fps`` it asked for. A client whose write
 does not complete within ``stream_timeout_s`` is aborted by the sweeper
 (:meth:`StreamClients.sweep`); beyond ``max_streams`` clients (MJPEG and
-WebSocket together) the answer is 503.
+WebSocket together) the answer is 503. Each client records how far the
+frames it was sent lagged the newest frame at the moment they were sent
+(``lag_max_frames``, ``lag_max_s`` in ``/api/status`` ``streams``): the
+newest-frame rule, checked as it runs.
 
 Routes (see API.md): ``GET /stream/{view}``, ``GET /snapshot/{view}.jpg|png``,
 ``GET /ws``.
@@ -59,10 +62,26 @@ class StreamClient:
     writing_since: Optional[float] = None  # monotonic start of the write in progress
     frames: int = 0
     ws: Optional[web.WebSocketResponse] = None
+    last_frame: Optional[int] = None  # the frame number of the last frame sent
+    lag_max_s: float = 0.0  # the most a frame sent lagged the newest frame the daemon had, when it was sent
+    lag_max_frames: int = 0  # the same in frame numbers
+
+    def sending(self, encoded: Encoded, newest: Optional[FrameSet]) -> None:
+        """Note that ``encoded`` is about to be written; ``newest`` is the newest frame set the pipeline
+        has delivered (the feed's ``last_frame``). A frame that lags it is one a client gets late:
+        a slow reader must still get the newest frame when it can take one (issue 10, item 7)."""
+        self.writing_since = time.monotonic()
+        if not encoded.signal:
+            return
+        self.last_frame = encoded.frame
+        if newest is not None:
+            self.lag_max_s = max(self.lag_max_s, newest.timestamp - encoded.timestamp)
+            self.lag_max_frames = max(self.lag_max_frames, newest.frame - encoded.frame)
 
     def to_json(self) -> Dict[str, Any]:
         return {"kind": self.kind, "view": self.view, "peer": self.peer, "frames": self.frames,
-                "seconds": round(time.monotonic() - self.started, 1)}
+                "seconds": round(time.monotonic() - self.started, 1), "last_frame": self.last_frame,
+                "lag_max_s": round(self.lag_max_s, 4), "lag_max_frames": self.lag_max_frames}
 
 
 class StreamClients:
@@ -232,6 +251,7 @@ async def until_taken(client: "StreamClient", limit: int) -> None:
     while queued_bytes(client.transport) > limit:
         await asyncio.sleep(QUEUE_POLL_S)
 
+
 class Pacer:
     """At most ``fps`` frames a second, on a steady schedule that does not burst after a stall."""
 
@@ -277,6 +297,7 @@ async def stream_handler(request: web.Request) -> web.StreamResponse:
         "X-Content-Type-Options": "nosniff",
     })
     loop = asyncio.get_running_loop()
+    feed = request.app[FEED]
     with streams.client(request, "mjpeg", params.view) as client, \
             request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
         try:
@@ -285,7 +306,7 @@ async def stream_handler(request: web.Request) -> web.StreamResponse:
             seq = 0
             while True:
                 seq, encoded = await _next(encoder.output, seq, pacer)
-                client.writing_since = time.monotonic()
+                client.sending(encoded, feed.last_frame)
                 await resp.write(encoded.part)
                 await until_taken(client, len(encoded.part))  # the frame before has reached the client
                 client.writing_since = None
@@ -344,7 +365,10 @@ async def ws_handler(request: web.Request) -> web.StreamResponse:
         return streams.refuse()
     # No permessage-deflate: JPEG does not compress, and deflating every frame per client costs CPU.
     ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=64 * 1024, compress=False)
-    await ws.prepare(request)
+    try:
+        await ws.prepare(request)  # a bad handshake is an HTTPBadRequest, answered as JSON by the app
+    except ValueError:  # aiohttp decodes Sec-WebSocket-Key before checking it: a key that is not ASCII
+        return json_error(400, "WebSocket handshake error: Sec-WebSocket-Key must be 16 bytes in base64")
     senders: Dict[str, "asyncio.Task[None]"] = {}
 
     def stop_senders() -> None:
@@ -401,13 +425,14 @@ def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> Stre
 async def _ws_sender(request: web.Request, ws: web.WebSocketResponse, client: StreamClient,
                      params: StreamParams) -> None:
     loop = asyncio.get_running_loop()
+    feed = request.app[FEED]
     with request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
         pacer = Pacer(params.fps)
         seq = 0
         try:
             while not ws.closed:
                 seq, encoded = await _next(encoder.output, seq, pacer)
-                client.writing_since = time.monotonic()
+                client.sending(encoded, feed.last_frame)
                 await ws.send_bytes(encoded.ws)
                 await until_taken(client, len(encoded.ws))
                 client.writing_since = None

@@ -173,6 +173,16 @@ class ClientStats:
     error: Optional[str] = None
 
 
+def part_headers(block: bytes) -> Dict[bytes, bytes]:
+    """The headers of one multipart part (``name: value`` lines), names lower-cased."""
+    headers = {}
+    for line in block.split(b"\r\n"):
+        name, sep, value = line.partition(b":")
+        if sep:
+            headers[name.strip().lower()] = value.strip()
+    return headers
+
+
 async def _mjpeg_client(session: "object", url: str, stats: ClientStats, stop: asyncio.Event) -> None:
     """Read parts of one multipart/x-mixed-replace stream until ``stop``; record each part."""
     import aiohttp
@@ -186,11 +196,7 @@ async def _mjpeg_client(session: "object", url: str, stats: ClientStats, stop: a
             content = resp.content
             while not stop.is_set():
                 block = await asyncio.wait_for(content.readuntil(b"\r\n\r\n"), STALL_TIMEOUT_S)
-                headers = {}
-                for line in block.split(b"\r\n"):
-                    name, sep, value = line.partition(b":")
-                    if sep:
-                        headers[name.strip().lower()] = value.strip()
+                headers = part_headers(block)
                 if b"content-length" not in headers:
                     continue  # a preamble or a stray blank line before the next boundary
                 length = int(headers[b"content-length"])

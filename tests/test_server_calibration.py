@@ -276,7 +276,7 @@ async def test_a_capture_during_a_calibration_change_names_the_calibration_its_f
 
     from stereocam.overlays.model.fast import RectifyModel
     from stereocam.server.routes_api import core_model_setup
-    from stereocam.server.state import CAPTURES
+    from stereocam.server.state import CALIBRATION, CAPTURES
 
     daemon = await start_daemon(extensions=EXT)
     cals = [rig_calibration(daemon, alpha=0.0), rig_calibration(daemon, alpha=0.6)]
@@ -299,7 +299,10 @@ async def test_a_capture_during_a_calibration_change_names_the_calibration_its_f
                                         options).process(raw).frame
     for cal in cals * 2:
         put = asyncio.ensure_future(daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML))
-        await asyncio.sleep(0.1)  # the PUT is in its slow write now: the core already runs its registers
+        state = daemon.app[CALIBRATION]
+        while not (state.changing or put.done()):  # until the PUT is in its slow write: new registers run
+            await asyncio.sleep(0.005)
+        assert state.changing, "the PUT ended before the capture could be taken during it"
         async with daemon.http.post("/api/captures") as r:
             assert r.status == 201, await r.text()
             info = await r.json()
