@@ -21,6 +21,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional
 
+from prometheus_client.core import CounterMetricFamily, Metric
+
 from ..drivers.mmio import DriverError
 from ..overlays.spec.vdma import FATAL_ERRORS
 
@@ -110,16 +112,23 @@ class FabricHealth:
     def _processed_faulted(self) -> bool:
         return any(self.channels[n].since is not None for n in ("vdma_proc.s2mm",))
 
-    def metrics(self) -> List[str]:
-        lines = ["# HELP stereocam_fabric_faults_total Faults seen on a DMA channel or the mux since start",
-                 "# TYPE stereocam_fabric_faults_total counter"]
-        parts = (*self.channels.values(), self.mux)
-        lines += [f'stereocam_fabric_faults_total{{part="{p.what}"}} {p.faults}' for p in parts]
-        lines += ["# HELP stereocam_fabric_restarts_total Restarts of a halted DMA channel since start",
-                  "# TYPE stereocam_fabric_restarts_total counter"]
-        lines += [f'stereocam_fabric_restarts_total{{part="{p.what}"}} {p.restarts}'
-                  for p in self.channels.values()]
-        return lines
+    def metrics(self) -> List[Metric]:
+        """``stereocam_fabric_faults_total{part}``, ``stereocam_fabric_restarts_total{part}`` (counters only).
+
+        The ``Extensions.metrics`` provider: never touches the fabric, so a scrape never waits on a restart.
+        """
+        with self._lock:
+            faults = [(p.what, p.faults) for p in (*self.channels.values(), self.mux)]
+            restarts = [(p.what, p.restarts) for p in self.channels.values()]
+        seen = CounterMetricFamily("stereocam_fabric_faults",
+                                   "Faults seen on a DMA channel or the mux since start.", labels=["part"])
+        for part, count in faults:
+            seen.add_metric([part], count)
+        restarted = CounterMetricFamily("stereocam_fabric_restarts",
+                                        "Restarts of a halted DMA channel since start.", labels=["part"])
+        for part, count in restarts:
+            restarted.add_metric([part], count)
+        return [seen, restarted]
 
     # -- the mux ------------------------------------------------------------------------
     def mux_refused(self, wanted: str, exc: BaseException) -> None:

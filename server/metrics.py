@@ -1,24 +1,47 @@
 """Operations: counters of the daemon, ``GET /metrics`` (Prometheus text) and ``GET /healthz``.
 
 :class:`Metrics` is written from any thread (encoders time themselves in
-worker threads) and read by the handlers. Names (API.md):
-``stereocam_fps{stage}``, ``stereocam_frames_total``, ``stereocam_drops_total``,
+worker threads) and read by the handlers. ``/metrics`` is prometheus_client's
+text exposition (format 0.0.4) of a :class:`~prometheus_client.CollectorRegistry`
+of the app's own (``app[REGISTRY]``; never the library's global one, so that
+apps in one process do not clash): a :class:`DaemonCollector` that reads the
+daemon's counters and snapshots at each scrape, and prometheus_client's
+process and platform collectors (``process_*``, ``python_info``). Names, in
+base units, counters ending ``_total``, one label set per family (API.md,
+"Operations"): ``stereocam_stage_frames_per_second{stage}``,
+``stereocam_view_encoded_frames_per_second{view}``, ``stereocam_frames_total``,
 ``stereocam_encode_seconds{view}`` (a summary: ``_count`` and ``_sum``),
-``stereocam_clients{kind}``, ``stereocam_uploads_total{result}``,
-``stereocam_errors_total{where}``, plus a few more, and whatever extensions add.
+``stereocam_clients{kind}``, ``stereocam_errors_total{where}``, the faults
+active now, and the families extensions add (``Extensions.metrics``).
+
+A scrape runs on the event loop: every value is a counter or a snapshot the
+daemon already keeps (no register or I2C access), and the process collector
+reads a few files under ``/proc``.
 """
 from __future__ import annotations
 
 import collections
+import logging
 import threading
 import time
-from typing import Any, Deque, Dict, List, Tuple
+from typing import Deque, Dict, Iterable, Iterator, List, Set, Tuple
 
 from aiohttp import web
+from prometheus_client import CollectorRegistry, PlatformCollector, ProcessCollector, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric, SummaryMetricFamily
+from prometheus_client.registry import Collector
 
 from .state import CONFIG, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, STREAMS
 
-__all__ = ["Metrics", "render", "setup_routes", "healthy"]
+__all__ = ["Metrics", "DaemonCollector", "REGISTRY", "CONTENT_TYPE", "make_registry", "render",
+           "setup_routes", "healthy"]
+
+log = logging.getLogger(__name__)
+
+# What generate_latest writes: the text format 0.0.4 (prometheus_client 0.14's CONTENT_TYPE_LATEST;
+# later releases call it CONTENT_TYPE_PLAIN_0_0_4 and mean format 1.0.0 by CONTENT_TYPE_LATEST).
+CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+REGISTRY: "web.AppKey[CollectorRegistry]" = web.AppKey("stereocam.metrics_registry", CollectorRegistry)
 
 
 class Metrics:
@@ -59,69 +82,117 @@ class Metrics:
                     for t, text in self.recent_errors]
 
 
-def _esc(value: Any) -> str:
-    return str(value).replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+class DaemonCollector(Collector):
+    """The daemon's families, read from ``app``'s state at each scrape (loop thread; never blocks).
+
+    Extension families (``Extensions.metrics``) follow the daemon's own; a family whose name is
+    already taken is left out with a warning (two families of one name fail the whole scrape in
+    Prometheus), and so is anything that is not a prometheus_client ``Metric``.
+    """
+
+    def __init__(self, app: web.Application) -> None:
+        self._app = app
+
+    def collect(self) -> Iterator[Metric]:
+        seen: Set[str] = set()
+        for family in (*self._daemon(), *self._app[EXTENSIONS].metric_families()):
+            if not isinstance(family, Metric):
+                log.warning("metrics: an extension gave %r, not a prometheus_client metric family: left out",
+                            family)
+                continue
+            if family.name in seen:
+                log.warning("metrics: a second family named %s: left out", family.name)
+                continue
+            seen.add(family.name)
+            yield family
+
+    def _daemon(self) -> Iterable[Metric]:
+        app = self._app
+        metrics = app[METRICS]
+        pipeline, encoders, streams, feed = app[PIPELINE], app[ENCODERS], app[STREAMS], app[FEED]
+        out: List[Metric] = []
+
+        stages = GaugeMetricFamily("stereocam_stage_frames_per_second",
+                                   "Frames per second through a stage over the last 2 s: the rectify core "
+                                   "(camera), the frames the pipeline published (pipeline), disparity.",
+                                   labels=["stage"])
+        stages.add_metric(["camera"], pipeline.fabric_fps())
+        stages.add_metric(["pipeline"], pipeline.meter.rate())
+        disparity = encoders.disparity
+        stages.add_metric(["disparity"], disparity.meter.rate() if disparity.running else 0.0)
+        out.append(stages)
+        views = GaugeMetricFamily("stereocam_view_encoded_frames_per_second",
+                                  "Frames per second a view is JPEG-encoded at over the last 2 s "
+                                  "(views being encoded now).", labels=["view"])
+        for view, rate in sorted(encoders.fps_by_view().items()):
+            views.add_metric([view], rate)
+        out.append(views)
+        out.append(CounterMetricFamily("stereocam_frames", "Frame sets the pipeline published.",
+                                       value=pipeline.frames))
+        out.append(CounterMetricFamily("stereocam_drops",
+                                       "Frames the fabric completed that the pipeline did not publish.",
+                                       value=pipeline.drops))
+        out.append(GaugeMetricFamily("stereocam_signal",
+                                     "1 while frames arrive, 0 while the no-signal frame shows.",
+                                     value=1.0 if feed.signal else 0.0))
+        with metrics._lock:
+            encode = {k: (int(v[0]), float(v[1])) for k, v in metrics.encode.items()}
+            uploads = dict(metrics.uploads)
+            errors = dict(metrics.errors)
+            requests = dict(metrics.requests)
+            captures = metrics.captures
+        encode_seconds = SummaryMetricFamily("stereocam_encode_seconds",
+                                             "Time to JPEG-encode one frame of a view.", labels=["view"])
+        for view, (count, total) in sorted(encode.items()):
+            encode_seconds.add_metric([view], count_value=count, sum_value=total)
+        out.append(encode_seconds)
+        clients = GaugeMetricFamily("stereocam_clients", "Stream clients connected.", labels=["kind"])
+        for kind, count in sorted(streams.by_kind().items()):
+            clients.add_metric([kind], count)
+        out.append(clients)
+        out.append(CounterMetricFamily("stereocam_stream_clients_dropped",
+                                       "Stream clients dropped for not reading.", value=streams.dropped))
+        out.append(CounterMetricFamily("stereocam_stream_clients_refused",
+                                       "Stream requests refused (max_streams).", value=streams.refused))
+        out.append(_counter_by("stereocam_uploads", "Virtual-camera uploads by result.", "result",
+                               {"ok": 0, **uploads}))
+        errors["pipeline"] = errors.get("pipeline", 0) + pipeline.errors
+        out.append(_counter_by("stereocam_errors", "Errors by where they happened.", "where", errors))
+        out.append(_counter_by("stereocam_http_responses", "HTTP responses by status class.", "class",
+                               requests))
+        out.append(CounterMetricFamily("stereocam_captures", "Captures stored since start.", value=captures))
+        out.append(GaugeMetricFamily("stereocam_uptime_seconds", "Seconds since the daemon started.",
+                                     value=time.time() - metrics.started))
+        faults = app[EXTENSIONS].active_faults()
+        out.append(GaugeMetricFamily("stereocam_faults_active", "Faults active now (see stereocam_fault).",
+                                     value=len(faults)))
+        fault = GaugeMetricFamily("stereocam_fault", "1 for each fault active now, by the part it is on.",
+                                  labels=["what"])
+        for what in sorted({str(f["what"]) for f in faults}):
+            fault.add_metric([what], 1)
+        out.append(fault)
+        return out
 
 
-def render(app: web.Application) -> str:
-    """The Prometheus text exposition of the daemon's state (cheap; loop thread)."""
-    metrics = app[METRICS]
-    pipeline, encoders, streams, feed = app[PIPELINE], app[ENCODERS], app[STREAMS], app[FEED]
-    lines: List[str] = []
+def _counter_by(name: str, documentation: str, label: str, counts: Dict[str, int]) -> CounterMetricFamily:
+    family = CounterMetricFamily(name, documentation, labels=[label])
+    for key, count in sorted(counts.items()):
+        family.add_metric([key], count)
+    return family
 
-    def family(name: str, kind: str, help_text: str, samples: List[Tuple[Dict[str, Any], float]]) -> None:
-        lines.append(f"# HELP {name} {help_text}")
-        lines.append(f"# TYPE {name} {kind}")
-        for labels, value in samples:
-            label_text = ",".join(f'{k}="{_esc(v)}"' for k, v in labels.items())
-            lines.append(f"{name}{{{label_text}}} {value:g}" if label_text else f"{name} {value:g}")
 
-    fps: List[Tuple[Dict[str, Any], float]] = [
-        ({"stage": "camera"}, pipeline.fabric_fps()),
-        ({"stage": "pipeline"}, pipeline.meter.rate()),
-        ({"stage": "disparity"}, encoders.disparity.meter.rate() if encoders.disparity.running else 0.0),
-    ]
-    fps += [({"stage": "encode", "view": view}, rate)
-            for view, rate in sorted(encoders.fps_by_view().items())]
-    family("stereocam_fps", "gauge", "Frames per second per stage over the last 2 s.", fps)
-    family("stereocam_frames_total", "counter", "Frame sets the pipeline published.", [({}, pipeline.frames)])
-    family("stereocam_drops_total", "counter",
-           "Frames the fabric completed that the pipeline did not publish.",
-           [({}, pipeline.drops)])
-    family("stereocam_signal", "gauge", "1 while frames arrive, 0 while the no-signal frame shows.",
-           [({}, 1.0 if feed.signal else 0.0)])
-    with metrics._lock:
-        encode = {k: tuple(v) for k, v in metrics.encode.items()}
-        uploads = dict(metrics.uploads)
-        errors = dict(metrics.errors)
-        requests = dict(metrics.requests)
-    lines.append("# HELP stereocam_encode_seconds Time to JPEG-encode one frame of a view.")
-    lines.append("# TYPE stereocam_encode_seconds summary")
-    for view, (count, total) in sorted(encode.items()):
-        lines.append(f'stereocam_encode_seconds_count{{view="{_esc(view)}"}} {count:g}')
-        lines.append(f'stereocam_encode_seconds_sum{{view="{_esc(view)}"}} {total:.6f}')
-    family("stereocam_clients", "gauge", "Stream clients connected.",
-           [({"kind": k}, float(v)) for k, v in sorted(streams.by_kind().items())])
-    family("stereocam_stream_clients_dropped_total", "counter", "Stream clients dropped for not reading.",
-           [({}, streams.dropped)])
-    family("stereocam_stream_clients_refused_total", "counter", "Stream requests refused (max_streams).",
-           [({}, streams.refused)])
-    family("stereocam_uploads_total", "counter", "Virtual-camera uploads by result.",
-           [({"result": k}, float(v)) for k, v in sorted(uploads.items())] or [({"result": "ok"}, 0.0)])
-    family("stereocam_errors_total", "counter", "Errors by where they happened.",
-           [({"where": k}, float(v)) for k, v in sorted(errors.items())]
-           + [({"where": "pipeline"}, float(pipeline.errors))])
-    family("stereocam_http_responses_total", "counter", "HTTP responses by status class.",
-           [({"class": k}, float(v)) for k, v in sorted(requests.items())])
-    family("stereocam_captures_total", "counter", "Captures stored since start.", [({}, metrics.captures)])
-    family("stereocam_uptime_seconds", "gauge", "Seconds since the daemon started.",
-           [({}, round(time.time() - metrics.started, 3))])
-    faults = app[EXTENSIONS].active_faults()
-    family("stereocam_faults_active", "gauge", "Faults active now (see stereocam_fault).", [({}, len(faults))])
-    family("stereocam_fault", "gauge", "1 for each fault active now, by the part it is on.",
-           [({"what": f["what"]}, 1) for f in faults])
-    lines.extend(app[EXTENSIONS].metrics_lines())
-    return "\n".join(lines) + "\n"
+def make_registry(app: web.Application) -> CollectorRegistry:
+    """A registry of ``app``'s own: the daemon's families, the process's and the platform's."""
+    registry = CollectorRegistry()
+    registry.register(DaemonCollector(app))
+    ProcessCollector(registry=registry)
+    PlatformCollector(registry=registry)
+    return registry
+
+
+def render(app: web.Application) -> bytes:
+    """The text exposition of ``app[REGISTRY]`` (cheap; loop thread)."""
+    return generate_latest(app[REGISTRY])
 
 
 def healthy(app: web.Application) -> Tuple[bool, str]:
@@ -142,9 +213,8 @@ def healthy(app: web.Application) -> Tuple[bool, str]:
 
 
 async def metrics_handler(request: web.Request) -> web.Response:
-    return web.Response(body=render(request.app).encode("utf-8"),
-                        headers={"Content-Type": "text/plain; version=0.0.4; charset=utf-8",
-                                 "Cache-Control": "no-store"})
+    return web.Response(body=render(request.app),
+                        headers={"Content-Type": CONTENT_TYPE, "Cache-Control": "no-store"})
 
 
 async def healthz_handler(request: web.Request) -> web.Response:
@@ -153,6 +223,11 @@ async def healthz_handler(request: web.Request) -> web.Response:
 
 
 def setup_routes(app: web.Application) -> None:
+    """``GET /metrics``, ``GET /healthz`` and ``app[REGISTRY]`` (``app[METRICS]``, ``app[EXTENSIONS]`` first).
+
+    The registry is made here, not at the first scrape: collectors never see a half-built app.
+    """
+    app[REGISTRY] = make_registry(app)
     app.router.add_get("/metrics", metrics_handler)
     app.router.add_get("/healthz", healthz_handler)
 

@@ -24,13 +24,14 @@ import asyncio
 import logging
 import threading
 from dataclasses import dataclass, field
-from typing import Any, AsyncIterator, Callable, Dict, Iterable, List, Optional
+from typing import Any, AsyncIterator, Callable, Dict, List, Optional
 
 from aiohttp import web
+from prometheus_client.core import GaugeMetricFamily, Metric
 
 from ..drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
 from .errors import parse_json
-from .state import EXECUTORS, EXTENSIONS, OVERLAY
+from .state import CONFIG, EXECUTORS, EXTENSIONS, OVERLAY
 from .streams import json_error
 
 log = logging.getLogger(__name__)
@@ -124,28 +125,36 @@ class CameraService:
         snap = self.snapshot()
         return {c: snap[c] for c in CAMERAS}
 
-    def metrics(self) -> Iterable[str]:
+    def metrics(self) -> List[Metric]:
+        """The sensors' gauges (``Extensions.metrics`` provider; from the snapshot, never I2C).
+
+        ``stereocam_sensor_ok{camera}`` always; ``stereocam_sensor_exposure_seconds``,
+        ``stereocam_sensor_gain``, ``stereocam_sensor_auto_exposure_enabled`` and
+        ``stereocam_sensor_auto_gain_enabled`` (each ``{camera}``) for the sensors whose
+        values are known.
+        """
         snap = self.snapshot()
         health = snap["health"]
-        lines: List[str] = [
-            "# HELP stereocam_sensor_ok 1 if the camera sensor answers and is set up",
-            "# TYPE stereocam_sensor_ok gauge",
-        ]
+        ok = GaugeMetricFamily("stereocam_sensor_ok", "1 if the camera sensor answers and is set up.",
+                               labels=["camera"])
         for c in CAMERAS:
-            ok = bool((health.get(c) or {}).get("ok"))
-            lines.append(f'stereocam_sensor_ok{{camera="{c}"}} {int(ok)}')
-        gauges = (("exposure_us", "stereocam_sensor_exposure_us", "exposure in use (microseconds)"),
-                  ("gain", "stereocam_sensor_gain", "analog gain in use"),
-                  ("aec", "stereocam_sensor_aec", "1 if auto exposure is on"),
-                  ("agc", "stereocam_sensor_agc", "1 if auto gain is on"))
-        for key, name, text in gauges:
+            ok.add_metric([c], 1.0 if (health.get(c) or {}).get("ok") else 0.0)
+        out: List[Metric] = [ok]
+        gauges = (  # snapshot key, its units in the base unit, family, help
+            ("exposure_us", 1e6, "stereocam_sensor_exposure_seconds", "The sensor's exposure time in use."),
+            ("gain", 1.0, "stereocam_sensor_gain", "The sensor's analog gain in use (a factor)."),
+            ("aec", 1.0, "stereocam_sensor_auto_exposure_enabled", "1 if the sensor's auto exposure is on."),
+            ("agc", 1.0, "stereocam_sensor_auto_gain_enabled", "1 if the sensor's auto gain is on."))
+        for key, per, name, text in gauges:
             rows = [(c, snap[c][key]) for c in CAMERAS
                     if snap[c] is not None and snap[c].get(key) is not None]
             if not rows:
                 continue
-            lines += [f"# HELP {name} The camera sensor's {text}", f"# TYPE {name} gauge"]
-            lines += [f'{name}{{camera="{c}"}} {float(v):g}' for c, v in rows]
-        return lines
+            family = GaugeMetricFamily(name, text, labels=["camera"])
+            for c, value in rows:
+                family.add_metric([c], float(value) / per)
+            out.append(family)
+        return out
 
 
 CAMERA_SERVICE: "web.AppKey[CameraService]" = web.AppKey("stereocam.cameras", CameraService)
@@ -153,13 +162,19 @@ CAMERA_SERVICE: "web.AppKey[CameraService]" = web.AppKey("stereocam.cameras", Ca
 
 # -- bring-up ------------------------------------------------------------------------------------
 
-def _open_sensors(service: CameraService, overlay: Any, profile: Any, pair_options: Dict[str, Any]) -> None:
-    """Build the bus and the pair for the overlay's backend and start them (blocks; never raises)."""
+def _open_sensors(service: CameraService, overlay: Any, profile: Any, pair_options: Dict[str, Any],
+                  board: Optional[str] = None) -> None:
+    """Build the bus and the pair for the overlay's backend and start them (blocks; never raises).
+
+    ``profile`` None: the file ``board`` names (the config's ``board``, which ``stereocam serve``
+    resolved and checked at start), else the packaged default.
+    """
     try:
         if profile is None:
             from ..board.profile import load_profile
 
-            profile = load_profile()
+            profile = load_profile(board)
+        log.info("board profile %s: %s", profile.name, profile.source)
         backend = getattr(overlay.fabric, "backend", None)
         hw = getattr(overlay, "hw", None)
         if backend == "emulated" and hw is not None:
@@ -208,7 +223,8 @@ def _sensors_ctx(profile: Any, pair_options: Dict[str, Any]
     async def ctx(app: web.Application) -> AsyncIterator[None]:
         service = app[CAMERA_SERVICE]
         loop = asyncio.get_running_loop()
-        await app[EXECUTORS].run(_open_sensors, service, app[OVERLAY], profile, pair_options)
+        board = app[CONFIG].board
+        await app[EXECUTORS].run(_open_sensors, service, app[OVERLAY], profile, pair_options, board)
         task = loop.create_task(_refresh_loop(app, service), name="stereocam-sensors")
         try:
             yield
@@ -264,7 +280,8 @@ async def put_cameras(request: web.Request) -> web.Response:
 
 
 def extension(*, profile: Any = None, **pair_options: Any) -> Callable[[web.Application], None]:
-    """A ``setup`` with another board profile (default: the installed one) or emulated-pair options."""
+    """A ``setup`` with another board profile (default: the config's ``board``, else the packaged one)
+    or emulated-pair options."""
 
     def setup_(app: web.Application) -> None:
         service = CameraService()

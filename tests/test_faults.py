@@ -209,7 +209,7 @@ class Observer:
             text = await resp.text()
             assert resp.status == 503 and what in text, text
         async with self.d.http.get("/metrics") as resp:
-            assert f'stereocam_fault{{what="{what}"}} 1' in await resp.text()
+            assert f'stereocam_fault{{what="{what}"}} 1.0' in await resp.text()
 
 
 async def _works_again(d: Any, what: str) -> None:

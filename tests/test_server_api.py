@@ -99,18 +99,20 @@ async def test_status_reports_the_daemon(start_daemon) -> None:
 
 
 async def test_status_has_extension_sections(start_daemon) -> None:
+    from prometheus_client.core import GaugeMetricFamily
+
     from stereocam.server.state import EXTENSIONS
 
     def setup(app) -> None:
         app[EXTENSIONS].status["sensors"] = lambda: {"exposure_us": 1000}
         app[EXTENSIONS].capture_meta["sensors"] = lambda: {"gain": 2}
-        app[EXTENSIONS].metrics.append(lambda: ["stereocam_sensor_gain 2"])
+        app[EXTENSIONS].metrics.append(lambda: [GaugeMetricFamily("stereocam_sensor_gain", "Gain.", value=2)])
 
     d = await start_daemon(extensions=[setup])
     async with d.http.get("/api/status") as resp:
         assert (await resp.json())["sensors"] == {"exposure_us": 1000}
     async with d.http.get("/metrics") as resp:
-        assert "stereocam_sensor_gain 2" in await resp.text()
+        assert "stereocam_sensor_gain 2.0" in (await resp.text()).splitlines()
     async with d.http.post("/api/captures") as resp:
         cid = (await resp.json())["id"]
     async with d.http.get(f"/api/captures/{cid}") as resp:
@@ -125,10 +127,11 @@ async def test_metrics_are_prometheus_text(start_daemon) -> None:
             assert resp.status == 200
             assert resp.headers["Content-Type"].startswith("text/plain; version=0.0.4")
             text = await resp.text()
-    for name in ('stereocam_fps{stage="camera"}', 'stereocam_fps{stage="pipeline"}',
-                 'stereocam_fps{stage="encode",view="rect_left"}', "stereocam_frames_total",
+    for name in ('stereocam_stage_frames_per_second{stage="camera"}',
+                 'stereocam_stage_frames_per_second{stage="pipeline"}',
+                 'stereocam_view_encoded_frames_per_second{view="rect_left"}', "stereocam_frames_total",
                  "stereocam_drops_total", 'stereocam_encode_seconds_count{view="rect_left"}',
-                 'stereocam_encode_seconds_sum{view="rect_left"}', 'stereocam_clients{kind="mjpeg"} 1',
+                 'stereocam_encode_seconds_sum{view="rect_left"}', 'stereocam_clients{kind="mjpeg"} 1.0',
                  "stereocam_uploads_total", "stereocam_errors_total"):
         assert name in text, name
     for line in text.splitlines():

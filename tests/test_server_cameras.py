@@ -163,8 +163,8 @@ async def test_a_sensor_not_answering(start_daemon) -> None:
         await read_parts(stream, 2)
     async with d.http.get("/metrics") as resp:
         text = await resp.text()
-    assert 'stereocam_sensor_ok{camera="right"} 0' in text
-    assert 'stereocam_sensor_ok{camera="left"} 1' in text
+    assert 'stereocam_sensor_ok{camera="right"} 0.0' in text
+    assert 'stereocam_sensor_ok{camera="left"} 1.0' in text
 
 
 async def test_a_missing_sensor_at_startup_does_not_stop_the_daemon(start_daemon) -> None:
@@ -196,8 +196,9 @@ async def test_captures_and_metrics_carry_the_values(start_daemon) -> None:
     async with d.http.get("/metrics") as resp:
         text = await resp.text()
     assert 'stereocam_sensor_gain{camera="left"} 2.5' in text
-    assert f'stereocam_sensor_exposure_us{{camera="right"}} {values["right"]["exposure_us"]:g}' in text
-    assert 'stereocam_sensor_ok{camera="left"} 1' in text
+    exposure_s = values["right"]["exposure_us"] / 1e6
+    assert f'stereocam_sensor_exposure_seconds{{camera="right"}} {exposure_s!r}' in text
+    assert 'stereocam_sensor_ok{camera="left"} 1.0' in text
 
 
 # -- a sensor that stops answering, then answers again (issue 10, item 6) --------------------------------
