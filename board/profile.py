@@ -9,6 +9,12 @@ and the MT9V034 can do, so a wrong profile stops the daemon at once with a
 :class:`ProfileError` saying what to fix, instead of a hang or a timeout at
 the first frame. (Whether a sensor really answers at the address given is
 found at start by :meth:`stereocam.drivers.mt9v034.StereoSensors.start`.)
+
+Which file (:func:`find_profile`, what ``stereocam serve`` does at start):
+``--board FILE`` (or the settings file's ``board`` key), else ``board.yaml``
+in the machine's settings folder (``/etc/stereocam``, or ``$STEREOCAM_ETC``)
+if it exists, else the packaged default. The machine's copy is what an
+upgrade of the package never touches.
 """
 from __future__ import annotations
 
@@ -22,9 +28,13 @@ from ..drivers.mt9v034 import SETTINGS_FIELDS, SYNC_MODES, SensorSettings
 from ..overlays.spec import mt9v034 as spec
 from ..safe_yaml import YamlRefused, load
 
-__all__ = ["BoardProfile", "ProfileError", "DEFAULT_PROFILE", "load_profile", "profile_from_dict"]
+__all__ = ["BoardProfile", "ProfileError", "DEFAULT_PROFILE", "ETC_ENV", "DEFAULT_ETC", "BOARD_FILE",
+           "etc_dir", "find_profile", "load_board_profile", "load_profile", "profile_from_dict"]
 
 DEFAULT_PROFILE = Path(__file__).resolve().with_name("zynq-stereo.yaml")
+ETC_ENV = "STEREOCAM_ETC"  # the machine's settings folder; tests point it at a temporary one
+DEFAULT_ETC = Path("/etc/stereocam")
+BOARD_FILE = "board.yaml"  # the machine's own profile in that folder
 
 _KEYS: Dict[str, Tuple[str, ...]] = {
     "": ("name", "overlay", "frame", "i2c", "sensors", "controls"),
@@ -76,15 +86,46 @@ def load_profile(path: Union[str, "os.PathLike[str]", None] = None) -> BoardProf
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ProfileError(f"board profile {p} does not exist: give the path of a profile "
-                           f"(the default is {DEFAULT_PROFILE})") from None
+        raise ProfileError(f"board profile {p} does not exist: give the path of a profile (--board FILE or "
+                           f"the settings' board key; without one, {etc_dir() / BOARD_FILE} if it exists, "
+                           f"else {DEFAULT_PROFILE})") from None
+    except IsADirectoryError:
+        raise ProfileError(f"board profile {p} is a folder: give the profile's file, "
+                           f"e.g. {p / BOARD_FILE}") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ProfileError(f"cannot read board profile {p}: {exc}") from None
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise ProfileError(f"cannot read board profile {p}: {reason}") from None
     try:
         data = load(text)
     except YamlRefused as exc:
         raise ProfileError(f"board profile {p}: {exc}") from None
     return profile_from_dict(data, source=str(p))
+
+
+def etc_dir(env: Optional[Mapping[str, str]] = None) -> Path:
+    """The machine's settings folder: ``$STEREOCAM_ETC`` if set, else ``/etc/stereocam``."""
+    value = (os.environ if env is None else env).get(ETC_ENV)
+    return Path(value) if value else DEFAULT_ETC
+
+
+def find_profile(board: Union[str, "os.PathLike[str]", None] = None, *,
+                 etc: Union[str, "os.PathLike[str]", None] = None) -> Path:
+    """The profile to use: ``board`` if given, else ``<etc>/board.yaml`` if it exists, else the default.
+
+    ``etc`` defaults to :func:`etc_dir`. Only stats files; :func:`load_profile`
+    reads and checks the one returned (a ``board`` that does not exist is
+    reported there, with this search order).
+    """
+    if board is not None and str(board) != "":
+        return Path(board)
+    machine = Path(etc if etc is not None else etc_dir()) / BOARD_FILE
+    return machine if machine.exists() else DEFAULT_PROFILE
+
+
+def load_board_profile(board: Union[str, "os.PathLike[str]", None] = None, *,
+                       etc: Union[str, "os.PathLike[str]", None] = None) -> BoardProfile:
+    """:func:`load_profile` of :func:`find_profile`: what ``stereocam serve`` checks at start."""
+    return load_profile(find_profile(board, etc=etc))
 
 
 def profile_from_dict(data: Any, *, source: str = "<dict>") -> BoardProfile:

@@ -323,13 +323,14 @@ class _Channel:
         """Soft-reset the channel: write ``VDMACR.Reset`` and wait for it to clear itself.
 
         Afterwards the channel is halted and all its registers hold their
-        reset values (error flags included). Keeps the configuration. A
-        reset still in progress (an earlier one timed out) is waited for, not
-        written again: the IP takes no register write until it finishes.
+        reset values (error flags included). Keeps the configuration.
         """
         with self.lock:
-            if not self.resetting():
-                self.regs.write(self.CR.name, self.CR.encode(Reset=1))
+            self.regs.write(self.CR.name, self.CR.encode(Reset=1))
+            self._wait_reset(timeout)
+
+    def _wait_reset(self, timeout: Optional[float]) -> None:
+        with self.lock:
             self._forget_frames()
             self.regs.wait(
                 self.CR.name,
@@ -354,14 +355,16 @@ class _Channel:
         with self.lock:
             cfg = self._require_config()
             errors = self.errors()
-            try:
-                if self.resetting():  # an earlier reset that timed out: only waiting for it is allowed
-                    raise RegisterTimeout(self.vdma.name, self.CR.name, "cleared Reset", 1, 0.0)
-                self.stop(timeout)
-                halted = True
-            except RegisterTimeout:
-                halted = False  # the reset below ends whatever the channel was doing
-            self.reset(timeout)
+            if self.resetting():  # an earlier reset timed out: the IP takes no write until it ends
+                self._wait_reset(timeout)
+                halted = False
+            else:
+                try:
+                    self.stop(timeout)
+                    halted = True
+                except RegisterTimeout:
+                    halted = False  # the reset below ends whatever the channel was doing
+                self.reset(timeout)
             self.regs.write(self.SR.name, self._w1c_word())
             self._program(cfg, timeout)
             if not cfg.circular and self.parked is not None:  # the reset parked it on store 0

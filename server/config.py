@@ -19,9 +19,10 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 from ..overlays.spec.rectify import BUILDS
 
-__all__ = ["Config", "ConfigError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "MAX_FPS"]
+__all__ = ["Config", "ConfigError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "LOG_LEVELS", "MAX_FPS"]
 
 BACKENDS = ("auto", "pynq", "emulated")
+LOG_LEVELS = ("debug", "info", "warning", "error")  # debug adds every HTTP request (aiohttp's access log)
 CORES = ("model", "rtl")  # what stands behind the emulated fabric's rectify core
 MAX_FPS = 120.0
 DEFAULT_CAPTURES = "~/.local/share/stereocam/captures"
@@ -59,7 +60,10 @@ class Config:
     ``protect: all``, the default, every stream, snapshot, capture and status read too; ``protect: control``
     leaves reads open), ``allowed_hosts`` (names besides loopback, the
     listening host and, on 0.0.0.0, the machine's own, that a request's Host
-    may carry: the DNS-rebinding guard), ``max_upload_bytes``.
+    may carry: the DNS-rebinding guard), ``max_upload_bytes``. Board: ``board`` (the board
+    profile's file; default ``/etc/stereocam/board.yaml`` if it exists, else the packaged
+    one: see :func:`stereocam.board.profile.find_profile`). Logs: ``log_level`` (one of
+    :data:`LOG_LEVELS`; ``debug`` also logs every HTTP request).
     """
 
     host: str = "127.0.0.1"
@@ -86,6 +90,8 @@ class Config:
     protect: str = "all"
     allowed_hosts: Tuple[str, ...] = ()
     max_upload_bytes: int = 16 * 1024 * 1024
+    board: Optional[str] = None
+    log_level: str = "info"
     allow_fault_injection: bool = False  # the --allow-fault-injection flag only: never from a file
     extra: Mapping[str, Any] = field(default_factory=dict)  # sections owned by extensions (issues 4, 5)
 
@@ -240,7 +246,13 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
         return value
     if key in ("host", "source", "captures"):
         return _text(origin, key, value, optional=False)
-    if key in ("bitstream", "calibration", "state_dir", "rtl_dir"):
+    if key == "log_level":
+        level = value.strip().lower() if isinstance(value, str) else value
+        if level not in LOG_LEVELS:
+            raise ConfigError(f"{_where(origin)}log_level must be one of {', '.join(LOG_LEVELS)}, "
+                              f"got {value!r}")
+        return level
+    if key in ("bitstream", "calibration", "state_dir", "rtl_dir", "board"):
         return _text(origin, key, value, optional=True)
     if key == "access_token":
         token = _text(origin, key, value, optional=True)

@@ -5,13 +5,24 @@ runs the daemon as ``Type=notify``: it says ``READY=1`` once it listens, and
 sends ``WATCHDOG=1`` only while the frame pipeline's thread is alive and
 iterating, so a pipeline stuck in a driver call gets the service killed and
 restarted (``Restart=on-failure``). It runs in the PYNQ image's virtual
-environment (``/usr/local/share/pynq-venv``) with the environment PYNQ's
-own shells get: ``/etc/environment`` and ``/etc/profile.d/pynq_venv.sh``
-(which activates the venv and exports ``BOARD``, ``XILINX_XRT``...). That
-file is a shell script, not an ``EnvironmentFile``, so the unit sources it
-in ``bash -c`` and then ``exec``s the daemon (which keeps the main PID, as
-``NotifyAccess=main`` needs). Port 8080: the PYNQ image serves on 80 and
-Jupyter on 9090.
+environment (``/usr/local/share/pynq-venv``) with the environment a login
+shell on the image gets: ``/etc/environment`` (exported, as pam_env does),
+then every ``/etc/profile.d/*.sh`` in order, as ``/etc/profile`` does. On a
+PYNQ 3 image those are ``pynq_venv.sh`` (activates the venv), ``xrt_setup.sh``
+(``XILINX_XRT=/usr``: without it pynq registers no device, "No Devices Found")
+and ``boardname.sh`` (``BOARD``). They are shell scripts, not
+``EnvironmentFile``s, so the unit sources them in ``bash -c`` and then
+``exec``s the daemon (which keeps the main PID, as ``NotifyAccess=main``
+needs). Port 8080: the PYNQ image serves on 80 and Jupyter on 9090.
+
+Hardened to what the daemon needs (``systemd-analyze security``: 2.2, "OK";
+a test keeps it at most 5.0): root with only ``CAP_SYS_RAWIO`` (pynq maps the
+fabric's registers through ``/dev/mem``, and insists on root), a read-only
+system but for the state folder, ``/run/stereocam`` (the fabric lock), and
+what pynq writes when it programs the fabric (``/lib/firmware`` and its own
+record in the venv), only the devices the board needs (``/dev/mem``,
+``/dev/uio*``, ``/dev/i2c-*``, XRT's ``/dev/dri/renderD*``), a system-call
+filter. Its log lines carry syslog priorities (see :func:`stereocam.cli.setup_logging`).
 """
 from __future__ import annotations
 
@@ -24,11 +35,10 @@ from typing import Callable, List, Optional, Sequence
 
 __all__ = [
     "notify", "watchdog_interval", "unit_text", "default_config_text", "install_service", "ServiceError",
-    "PYNQ_VENV", "PYNQ_ENV_FILE", "UNIT_NAME", "RESERVED_PORTS",
+    "PYNQ_VENV", "UNIT_NAME", "RESERVED_PORTS", "DEVICES",
 ]
 
 PYNQ_VENV = "/usr/local/share/pynq-venv"
-PYNQ_ENV_FILE = "/etc/profile.d/pynq_venv.sh"
 UNIT_NAME = "stereocam.service"
 DEFAULT_UNIT_DIR = Path("/etc/systemd/system")
 DEFAULT_CONFIG = Path("/etc/stereocam/stereocam.yaml")
@@ -36,6 +46,13 @@ DEFAULT_CAPTURES = "/var/lib/stereocam/captures"  # StateDirectory=stereocam
 DEFAULT_PORT = 8080
 WATCHDOG_SEC = 10
 RESERVED_PORTS = {80: "the PYNQ image's web server", 9090: "Jupyter on the PYNQ image"}
+# DeviceAllow= of the unit: what pynq and our drivers open (read from pynq 3/4's sources).
+DEVICES = (
+    ("/dev/mem", "the fabric's registers (pynq's MMIO maps them)"),
+    ("char-uio", "/dev/uio*, the fabric's interrupts"),
+    ("char-i2c", "/dev/i2c-*, the sensors' two-wire bus"),
+    ("char-drm", "/dev/dri/renderD*, XRT's zocl, which allocates the frame buffers"),
+)
 
 
 class ServiceError(Exception):
@@ -81,22 +98,33 @@ def watchdog_interval(env: Optional[dict] = None) -> Optional[float]:
 
 # -- the unit ------------------------------------------------------------------------------
 
-def unit_text(*, venv: str = PYNQ_VENV, env_file: str = PYNQ_ENV_FILE, config: Path = DEFAULT_CONFIG,
-              watchdog_sec: int = WATCHDOG_SEC) -> str:
-    """The systemd unit; host, port and captures are in the config file it names."""
+def unit_text(*, venv: str = PYNQ_VENV, config: Path = DEFAULT_CONFIG, watchdog_sec: int = WATCHDOG_SEC,
+              etc: str = "/etc") -> str:
+    """The systemd unit; host, port and captures are in the config file it names.
+
+    ``etc`` is where ``environment`` and ``profile.d/`` are read from (tests give a folder of their own).
+    """
     stereocam = f"{venv.rstrip('/')}/bin/stereocam"
+    etc = etc.rstrip("/") or "/"
+    # In a unit, "$$" is a literal "$": systemd expands nothing in the script, bash does.
     script = (
-        "if [ -r /etc/environment ]; then set -a; . /etc/environment; set +a; fi; "
-        f". {shlex.quote(env_file)}; "
+        f"set -a; if [ -r {etc}/environment ]; then . {etc}/environment; fi; set +a; "
+        f"for f in {etc}/profile.d/*.sh; do if [ -r $$f ]; then . $$f; fi; done; "
         f"exec {shlex.quote(stereocam)} serve --config {shlex.quote(str(config))}"
     )
-    for bad in ("$", "%", '"', "\\"):
-        if bad in script:
-            raise ServiceError(f"paths with {bad!r} cannot go into the unit's ExecStart: {script}")
+    for path in (venv, str(config), etc):
+        for bad in ("$", "%", '"', "'", "\\", " ", ";"):
+            if bad in path:
+                raise ServiceError(f"a path with {bad!r} cannot go into the unit's ExecStart: {path}")
+    devices = "\n".join(f"DeviceAllow={name} rw" for name, _ in DEVICES)
+    device_notes = "\n".join(f"#   {name}: {why}" for name, why in DEVICES)
     return f"""\
 # stereocam: the Zynq stereo camera daemon (live rectified video, captures, virtual camera, verify).
-# Installed by `stereocam install-service`; settings (host, port, captures, access token) are in
-# {config}. Logs: journalctl -u {UNIT_NAME}
+# Installed by `stereocam install-service`, which rewrites this file: change settings with a drop-in
+# (`systemctl edit stereocam`), e.g. ReadWritePaths=/home/xilinx/captures for captures elsewhere.
+# Settings (host, port, captures, access token, log_level, board): {config}.
+# The board profile: /etc/stereocam/board.yaml if it exists, else the packaged one.
+# Logs: journalctl -u {UNIT_NAME} (add -p err for errors only).
 [Unit]
 Description=stereocam stereo camera daemon
 After=network-online.target
@@ -105,9 +133,14 @@ Wants=network-online.target
 [Service]
 Type=notify
 NotifyAccess=main
-# PYNQ's environment is a shell script (it activates {venv}), so source it, then exec the daemon.
+# The environment a login shell on the PYNQ image gets: /etc/environment, then every
+# /etc/profile.d/*.sh (pynq_venv.sh activates {venv}; xrt_setup.sh sets XILINX_XRT,
+# without which pynq finds no device).
+# They are shell scripts, so bash sources them and then execs the daemon, which keeps the main PID.
 ExecStart=/bin/bash -c '{script}'
 Environment=PYTHONUNBUFFERED=1
+# The daemon starts each log line with its priority (<3> error, <4> warning, <6> info, <7> debug).
+SyslogIdentifier=stereocam
 # The daemon pings the watchdog only while its frame pipeline runs: a stalled pipeline is restarted.
 WatchdogSec={watchdog_sec}
 Restart=on-failure
@@ -115,8 +148,48 @@ RestartSec=2
 # SIGTERM stops the streams and the VDMA channels and returns the mux to live within 2 s.
 KillSignal=SIGTERM
 TimeoutStopSec=5
+# /var/lib/stereocam: captures, calibration.yaml, calibration-pairs/; /run/stereocam: the fabric lock.
 StateDirectory=stereocam
+RuntimeDirectory=stereocam
 WorkingDirectory=/var/lib/stereocam
+UMask=0027
+
+# Hardening. Root, because pynq maps the fabric's registers through /dev/mem and insists on root,
+# with no capability but the raw I/O that opening /dev/mem needs.
+NoNewPrivileges=yes
+CapabilityBoundingSet=CAP_SYS_RAWIO
+# Read-only system, but for the folders above and what pynq writes when it programs the fabric:
+# the bitstream's .bin in /lib/firmware, and its record of the loaded one in its own package in the
+# venv ("-": if present).
+ProtectSystem=strict
+ReadWritePaths=-/lib/firmware -{venv.rstrip('/')}/lib
+ProtectHome=yes
+PrivateTmp=yes
+PrivateMounts=yes
+# Only these devices, and /dev/null and the like:
+{device_notes}
+DevicePolicy=closed
+{devices}
+# Not PrivateDevices= (it hides those devices) nor ProtectKernelTunables= (it makes /sys read-only, and
+# pynq programs the fabric through /sys/class/fpga_manager). Not MemoryDenyWriteExecute= either: nothing
+# we know of writes code, but a library that does (a ctypes/cffi callback on a libffi without static
+# trampolines) would stop the daemon at start, and the unit has not run on a board yet.
+ProtectKernelModules=yes
+ProtectKernelLogs=yes
+ProtectControlGroups=yes
+ProtectClock=yes
+ProtectHostname=yes
+ProtectProc=invisible
+RestrictNamespaces=yes
+RestrictRealtime=yes
+RestrictSUIDSGID=yes
+LockPersonality=yes
+# IP for the web page; unix for sd_notify and the journal; netlink for glibc's address lookups.
+RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK
+SystemCallArchitectures=native
+SystemCallFilter=@system-service
+SystemCallFilter=~@privileged @resources
+SystemCallErrorNumber=EPERM
 
 [Install]
 WantedBy=multi-user.target
@@ -148,7 +221,6 @@ def install_service(
     unit_dir: Path = DEFAULT_UNIT_DIR,
     config: Path = DEFAULT_CONFIG,
     venv: str = PYNQ_VENV,
-    env_file: str = PYNQ_ENV_FILE,
     host: str = "0.0.0.0",
     port: int = DEFAULT_PORT,
     captures: str = DEFAULT_CAPTURES,
@@ -167,7 +239,7 @@ def install_service(
     done: List[str] = []
     unit = unit_dir / UNIT_NAME
     try:
-        text = unit_text(venv=venv, env_file=env_file, config=config)
+        text = unit_text(venv=venv, config=config)
         _atomic_write(unit, text)
         done.append(f"wrote {unit}")
         if not config.exists():

@@ -63,7 +63,9 @@ from .calibration_io import (
     load_matlab,
     load_opencv_pair,
     load_ros_pair,
+    ros_scale,
     write_opencv_pair,
+    write_ros_pair,
 )
 from .overlays.model.config import LineBufferTooSmall, check_frame_size, check_params
 from .overlays.model.linebuffer import LineBufferFit, rows_needed
@@ -335,6 +337,20 @@ class Calibration:
     def to_opencv(self, outdir: PathLike) -> Tuple[Path, Path]:
         """Write OpenCV stereo_calib files ``outdir/intrinsics.yml`` and ``outdir/extrinsics.yml``."""
         return write_opencv_pair(self.model, self.rect, Path(outdir))
+
+    def to_ros(self, outdir: PathLike) -> Tuple[Path, Path]:
+        """Write ROS camera_info files ``outdir/left.yaml`` and ``outdir/right.yaml``.
+
+        ROS lengths are metres: T (in the projection matrices) is converted
+        from :attr:`units` when that is a known length, and written as it is
+        otherwise (``units`` unknown: say so to the user, :attr:`ros_units_known`).
+        """
+        return write_ros_pair(self.model, self.rect, Path(outdir), scale=ros_scale(self.units) or 1.0)
+
+    @property
+    def ros_units_known(self) -> bool:
+        """Whether :meth:`to_ros` can give T in metres (the calibration's ``units`` is a known length)."""
+        return ros_scale(self.units) is not None
 
     def summary(self) -> str:
         """One line for people: id, size, baseline, line-buffer rows."""

@@ -9,7 +9,8 @@
   save('stereo.mat', 's')`` (or ``save(..., '-struct', 's')``), read with
   :func:`load_matlab`.
 - ROS ``camera_info`` YAML files, one per camera (``left.yaml``,
-  ``right.yaml``), read with :func:`load_ros_pair`.
+  ``right.yaml``), read with :func:`load_ros_pair` and written with
+  :func:`write_ros_pair`.
 
 Every problem is a :class:`CalibrationFileError` whose message names the file
 and the field, so the CLI can print it on one line.
@@ -20,7 +21,7 @@ import contextlib
 import math
 import os
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -90,12 +91,39 @@ def _distortion(path: Path, name: str, value: np.ndarray) -> np.ndarray:
         raise CalibrationFileError(f"{path}: {name} has values that are not finite numbers")
     if d.size not in (4, 5, 8, 12, 14):
         raise CalibrationFileError(f"{path}: {name} has {d.size} coefficients; expected k1, k2, p1, p2[, k3...]")
-    if np.any(d[4:] != 0):
+    extra = [(DISTORTION_NAMES[i], float(v)) for i, v in enumerate(d) if i >= 4 and v != 0]
+    if extra:
+        terms = ", ".join(f"{n} = {v:g}" for n, v in extra)
         raise CalibrationFileError(
-            f"{path}: {name} has k3 = {d[4]:g} (or a higher term) but the core models only k1, k2, p1, p2: "
-            "recalibrate with k3 fixed at 0 (cv2.CALIB_FIX_K3)"
+            f"{path}: {name} has {terms} but the core models only k1, k2, p1, p2: "
+            f"recalibrate {_distortion_fix([n for n, _ in extra])}"
         )
     return d[:4]
+
+
+# OpenCV's distortion coefficients, in order (4, 5, 8, 12 or 14 of them).
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+
+
+def _distortion_fix(names: Sequence[str]) -> str:
+    """The calibration flags that zero the terms ``names``, e.g. ``k6``.
+
+    OpenCV's own stereo_calib sample calibrates with CALIB_RATIONAL_MODEL and fixes
+    k3, k4 and k5, so the term its files carry is k6: the advice names the flags for
+    the terms actually present, not k3 alone.
+    """
+    advice = []
+    if "k3" in names:
+        advice.append("with k3 fixed at 0 (cv2.CALIB_FIX_K3)")
+    rational = [n for n in ("k4", "k5", "k6") if n in names]
+    if rational:
+        flags = " | ".join(f"cv2.CALIB_FIX_{n.upper()}" for n in rational)
+        advice.append(f"without cv2.CALIB_RATIONAL_MODEL (or with {flags})")
+    if any(n.startswith("s") for n in names):
+        advice.append("without cv2.CALIB_THIN_PRISM_MODEL")
+    if any(n.startswith("t") for n in names):
+        advice.append("without cv2.CALIB_TILTED_MODEL")
+    return " and ".join(advice)
 
 
 def _read_opencv_size(path: Path) -> Optional[Tuple[int, int]]:
@@ -189,9 +217,12 @@ def write_opencv_pair(model: StereoModel, rect: Rectification, outdir: Path) -> 
     failure never leaves a half-written file. Raises
     :class:`CalibrationFileError` if the folder cannot be written.
     """
-    outdir = Path(outdir)
-    texts = opencv_pair_text(model, rect)
-    paths = (outdir / "intrinsics.yml", outdir / "extrinsics.yml")
+    return _write_pair(Path(outdir), ("intrinsics.yml", "extrinsics.yml"), opencv_pair_text(model, rect))
+
+
+def _write_pair(outdir: Path, names: Tuple[str, str], texts: Tuple[str, str]) -> Tuple[Path, Path]:
+    """Write two texts into ``outdir`` (created if missing), each atomically; their paths."""
+    paths = (outdir / names[0], outdir / names[1])
     try:
         outdir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -519,6 +550,72 @@ def load_ros_pair(left: Path, right: Path) -> Tuple[StereoModel, Rectification]:
     ])
     model = StereoModel(K1, D1, K2, D2, R, T, s1)
     return model, Rectification(R1, R2, P1, P2, Q, s1)
+
+
+ROS_UNIT = "m"  # REP 103: ROS lengths are metres
+
+
+def ros_scale(units: str) -> Optional[float]:
+    """Metres per unit of a calibration's T (``units``), or None when the unit is not a known length."""
+    if units == ROS_UNIT:
+        return 1.0
+    return WORLD_UNITS.get(units.strip().lower())
+
+
+def _yaml_float(value: float) -> str:
+    """Shortest round-trip text of a double that YAML 1.1 parsers (PyYAML) read as a float, not a string."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise CalibrationFileError(f"cannot write {v} to a ROS camera_info file: values must be finite")
+    mantissa, sep, exp = repr(v).partition("e")
+    if "." not in mantissa:
+        mantissa += ".0"
+    return mantissa + sep + exp
+
+
+def ros_pair_text(
+    model: StereoModel, rect: Rectification, *, scale: float = 1.0,
+    names: Tuple[str, str] = ("left", "right"),
+) -> Tuple[str, str]:
+    """``left.yaml`` and ``right.yaml``: ROS ``camera_info`` text as camera_calibration_parsers writes it.
+
+    One file per camera: ``image_width``, ``image_height``, ``camera_name``,
+    ``camera_matrix`` (K), ``distortion_model: plumb_bob`` with five
+    coefficients (k3 = 0), ``rectification_matrix`` (R1/R2) and
+    ``projection_matrix`` (P1/P2, the right one's Tx in metres: its fourth
+    column times ``scale``, the metres per unit of T). Doubles are written
+    so that reading them back gives the very same values.
+    """
+    w, h = model.image_size
+
+    def matrix(name: str, value: np.ndarray, rows: int, cols: int) -> List[str]:
+        data = ", ".join(_yaml_float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1))
+        return [f"{name}:", f"  rows: {rows}", f"  cols: {cols}", f"  data: [{data}]"]
+
+    texts = []
+    for name, K, D, R, P in ((names[0], model.K1, model.D1, rect.R1, rect.P1),
+                             (names[1], model.K2, model.D2, rect.R2, rect.P2)):
+        P = np.array(P, dtype=np.float64)
+        P[:, 3] *= scale
+        lines = [f"image_width: {int(w)}", f"image_height: {int(h)}", f"camera_name: {name}"]
+        lines += matrix("camera_matrix", K, 3, 3)
+        lines.append("distortion_model: plumb_bob")
+        lines += matrix("distortion_coefficients", np.append(np.asarray(D, dtype=np.float64), 0.0), 1, 5)
+        lines += matrix("rectification_matrix", R, 3, 3)
+        lines += matrix("projection_matrix", P, 3, 4)
+        texts.append("\n".join(lines) + "\n")
+    return texts[0], texts[1]
+
+
+def write_ros_pair(
+    model: StereoModel, rect: Rectification, outdir: Path, *, scale: float = 1.0,
+) -> Tuple[Path, Path]:
+    """Write ``outdir/left.yaml`` and ``outdir/right.yaml`` (:func:`ros_pair_text`); returns their paths.
+
+    Written atomically, like :func:`write_opencv_pair`; :func:`load_ros_pair`
+    reads them back to the same cameras (T in metres).
+    """
+    return _write_pair(Path(outdir), ("left.yaml", "right.yaml"), ros_pair_text(model, rect, scale=scale))
 
 
 def parse_calibration_arg(arg: str) -> Tuple[Path, Path]:

@@ -3,20 +3,112 @@
 Every failure a user can cause (bad files, sizes, calibrations) ends in one
 line on stderr, ``stereocam <command>: error: ...``, and exit code 2: never a
 traceback.
+
+Logs go to stderr: ``time LEVEL logger: message``, or, when stderr is the
+journal stream systemd names in ``$JOURNAL_STREAM`` (the service), each line
+prefixed with its syslog priority (``<3>`` error, ``<4>`` warning, ``<6>``
+info, ``<7>`` debug) and no time, which journald adds (:func:`setup_logging`).
 """
 from __future__ import annotations
 
 import argparse
+import io
 import logging
+import os
 import sys
 from pathlib import Path
-from typing import Any, List, Optional, Sequence
+from typing import IO, Any, Mapping, Optional, Sequence
 
 import numpy as np
+
+from . import __version__
+
+LOG_LEVELS = ("debug", "info", "warning", "error")  # the same as server.config.LOG_LEVELS (a test says so)
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+JOURNAL_FORMAT = "%(name)s: %(message)s"  # journald stamps the time and keeps the priority itself
+_PRIORITIES = ((logging.CRITICAL, 2), (logging.ERROR, 3), (logging.WARNING, 4), (logging.INFO, 6))
+ACCESS_LOGGER = "aiohttp.access"  # aiohttp logs every HTTP request there, at INFO
 
 
 class UserError(Exception):
     """Something the user can fix; printed as one line, exit code 2."""
+
+
+# -- logging ---------------------------------------------------------------------------------
+
+def on_journal(env: Optional[Mapping[str, str]] = None, stream: Optional[IO[str]] = None) -> bool:
+    """True when ``stream`` (default stderr) is the journal stream named by ``$JOURNAL_STREAM``.
+
+    systemd sets ``JOURNAL_STREAM=DEVICE:INODE`` for a service whose output goes
+    to the journal. A child whose stderr was redirected elsewhere (a test, a pipe)
+    inherits the variable, so the pair must be the stream's own (sd_journal_stream_fd(3)).
+    """
+    dev, _, ino = (os.environ if env is None else env).get("JOURNAL_STREAM", "").partition(":")
+    if not (dev.isdigit() and ino.isdigit()):
+        return False
+    try:
+        st = os.fstat((stream if stream is not None else sys.stderr).fileno())
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        return False
+    return (st.st_dev, st.st_ino) == (int(dev), int(ino))
+
+
+def syslog_priority(levelno: int) -> int:
+    """The syslog priority of a logging level: 3 error, 4 warning, 6 info, 7 debug (2 critical)."""
+    return next((p for floor, p in _PRIORITIES if levelno >= floor), 7)
+
+
+class JournalFormatter(logging.Formatter):
+    """``<N>logger: message`` on every line (a traceback's too), so ``journalctl -p err`` finds errors."""
+
+    def __init__(self) -> None:
+        super().__init__(JOURNAL_FORMAT)
+
+    def format(self, record: logging.LogRecord) -> str:
+        prefix = f"<{syslog_priority(record.levelno)}>"
+        return "\n".join(prefix + line for line in (super().format(record).splitlines() or [""]))
+
+
+class _AccessAtDebug(logging.Filter):
+    """aiohttp logs each request at INFO: make it DEBUG (a line per request wears the board's SD card)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return True
+
+
+_ACCESS_AT_DEBUG = _AccessAtDebug()
+
+
+def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = None,
+                  stream: Optional[IO[str]] = None) -> bool:
+    """Log at ``level`` (one of :data:`LOG_LEVELS`) to ``stream`` (stderr); may be called again.
+
+    HTTP requests (aiohttp's access log) are logged at DEBUG: at any other level
+    aiohttp does not even format them. Like ``logging.basicConfig``, leaves a
+    logging set up by someone else (pytest, a program embedding us) alone and
+    returns False then.
+    """
+    root = logging.getLogger()
+    ours = [h for h in root.handlers if getattr(h, "stereocam", False)]
+    if len(ours) != len(root.handlers):
+        return False
+    for handler in ours:
+        root.removeHandler(handler)
+    out = stream if stream is not None else sys.stderr
+    handler = logging.StreamHandler(out)
+    handler.stereocam = True  # type: ignore[attr-defined]  # marks the handler this function owns
+    handler.setFormatter(JournalFormatter() if on_journal(env, out) else logging.Formatter(LOG_FORMAT))
+    numeric = logging.getLevelName(level.upper())
+    if not isinstance(numeric, int):
+        raise UserError(f"log level {level!r} is not one of {', '.join(LOG_LEVELS)}")
+    root.setLevel(numeric)
+    root.addHandler(handler)
+    logging.captureWarnings(True)  # Python's warnings as log lines too (a priority under journald)
+    access = logging.getLogger(ACCESS_LOGGER)
+    access.setLevel(logging.DEBUG if numeric <= logging.DEBUG else logging.WARNING)
+    access.addFilter(_ACCESS_AT_DEBUG)  # filters are a set: adding twice keeps one
+    return True
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -253,9 +345,18 @@ def cmd_calibration_import(args: argparse.Namespace) -> int:
 def cmd_calibration_export(args: argparse.Namespace) -> int:
     from .calibration_file import load_calibration
 
+    if args.opencv is None and args.ros is None:
+        raise UserError("say what to write: --opencv OUTDIR, --ros OUTDIR or both")
     cal = load_calibration(args.calibration, lb_rows=None)
-    intr, extr = cal.to_opencv(Path(args.opencv))
-    print(f"wrote {intr} and {extr} (calibration {cal.id})")
+    if args.opencv is not None:
+        intr, extr = cal.to_opencv(Path(args.opencv))
+        print(f"wrote {intr} and {extr} (calibration {cal.id})")
+    if args.ros is not None:
+        left, right = cal.to_ros(Path(args.ros))
+        note = "" if cal.ros_units_known else (
+            f"; note: the calibration's lengths are in {cal.units!r}, not a known unit, so T is written as "
+            "it is, while ROS expects metres")
+        print(f"wrote {left} and {right} (ROS camera_info, calibration {cal.id}){note}")
     return 0
 
 
@@ -277,12 +378,32 @@ def cmd_serve(args: argparse.Namespace) -> int:
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
                              bitstream=args.bitstream, source=args.source, fps=args.fps,
                              core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir,
-                             allow_fault_injection=args.allow_fault_injection)
+                             allow_fault_injection=args.allow_fault_injection,
+                             board=args.board, log_level=_cli_log_level(args))
+        setup_logging(config.log_level)
+        config = config.replace(board=_check_board(config.board))
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:
         raise UserError(str(exc)) from None
     except CaptureError as exc:
         raise UserError(exc.message) from None
+
+
+def _cli_log_level(args: argparse.Namespace) -> Optional[str]:
+    """``--log-level`` (of ``stereocam`` or of the command; the command's wins), ``-v``: debug, else None."""
+    level = getattr(args, "log_level", None)
+    return str(level) if level is not None else ("debug" if getattr(args, "verbose", False) else None)
+
+
+def _check_board(board: Optional[str]) -> str:
+    """The board profile the daemon will use (``--board``, ``/etc/stereocam/board.yaml``, the packaged one),
+    read and checked now, so a wrong one stops ``serve`` with one line before the fabric is touched."""
+    from .board.profile import ProfileError, find_profile, load_profile
+
+    try:
+        return load_profile(find_profile(board)).source  # the daemon logs it when it loads it again
+    except ProfileError as exc:
+        raise UserError(str(exc)) from None
 
 
 def cmd_install_service(args: argparse.Namespace) -> int:
@@ -333,6 +454,11 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
     s.add_argument("--rtl-dir", metavar="DIR",
                    help="with --core rtl: build this copy of overlays/rtl instead (e.g. one being changed)")
+    s.add_argument("--board", metavar="FILE",
+                   help="the board profile (I2C bus and addresses, sensors; default "
+                        "/etc/stereocam/board.yaml if it exists, else the packaged zynq-stereo.yaml)")
+    s.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
+                   help="debug, info (default), warning or error; debug also logs every HTTP request")
     s.add_argument("--allow-fault-injection", action="store_true", default=None,
                    help="emulated fabric only, for testing: /api/faults stalls cameras, faults DMA channels, "
                         "hangs resets, silences sensors, makes the mux refuse (see server/API.md)")
@@ -363,7 +489,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .overlays.spec.rectify import DEFAULT_LB_ROWS
 
     parser = argparse.ArgumentParser(prog="stereocam", description="Zynq stereo camera: rectify core, fabric and daemon")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("--version", action="version", version=f"stereocam {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (--log-level debug)")
+    parser.add_argument("--log-level", choices=LOG_LEVELS, default=None,
+                        help="debug, info (default), warning or error; debug also logs every HTTP request")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -430,10 +559,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"line-buffer rows of the bitstream to check against (default {DEFAULT_LB_ROWS})")
     imp.set_defaults(func=cmd_calibration_import)
     exp = ksub.add_parser("export", help="write another tool's files from a stereocam calibration",
-                          description="Write OpenCV stereo_calib files intrinsics.yml and extrinsics.yml.")
+                          description="Write OpenCV stereo_calib files intrinsics.yml and extrinsics.yml, "
+                                      "ROS camera_info files left.yaml and right.yaml, or both.")
     exp.add_argument("calibration", metavar="CALIBRATION", help="a stereocam calibration file")
-    exp.add_argument("--opencv", required=True, metavar="OUTDIR",
+    exp.add_argument("--opencv", metavar="OUTDIR",
                      help="write OUTDIR/intrinsics.yml and OUTDIR/extrinsics.yml")
+    exp.add_argument("--ros", metavar="OUTDIR",
+                     help="write OUTDIR/left.yaml and OUTDIR/right.yaml (ROS camera_info, plumb_bob, "
+                          "lengths in metres), which camera_info_manager and 'calibration import' read")
     exp.set_defaults(func=cmd_calibration_export)
 
     b = sub.add_parser("bench", help="measure model, fabric and OpenCV throughput",
@@ -445,6 +578,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
+    from .bench_robustness import add_robustness_parser  # stereocam bench robustness
+
+    add_robustness_parser(b.add_subparsers(dest="suite", metavar="SUITE"))
 
     # stereocam hw ...: the rectify core's RTL (overlays/rtl/); each action adds itself to hsub.
     from .hw_synth import add_synth_parser
@@ -466,13 +602,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(list(argv) if argv is not None else None)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging(_cli_log_level(args) or "info")
     try:
         return int(args.func(args))
     except (UserError, CalibrationFileError, CalibrationError, ConfigError) as exc:
         command = args.command if args.command != "calibration" else f"calibration {args.action}"
-        print(f"stereocam {command}: error: {exc}", file=sys.stderr)
+        priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
+        print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

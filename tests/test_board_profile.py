@@ -9,9 +9,24 @@ from typing import Any, Dict
 import pytest
 import yaml
 
-from stereocam.board.profile import DEFAULT_PROFILE, ProfileError, load_profile, profile_from_dict
+from stereocam import cli
+from stereocam.board.profile import (
+    DEFAULT_ETC,
+    DEFAULT_PROFILE,
+    ETC_ENV,
+    ProfileError,
+    etc_dir,
+    find_profile,
+    load_board_profile,
+    load_profile,
+    profile_from_dict,
+)
 from stereocam.drivers.i2c import LinuxI2CBus
 from stereocam.drivers.mt9v034 import StereoSensors
+from stereocam.server import app as app_module
+from stereocam.server import routes_cameras
+
+from .server_fixtures import start_daemon_fixture  # noqa: F401
 
 
 @pytest.fixture
@@ -119,3 +134,103 @@ def test_a_profile_naming_a_missing_bus_fails_fast_at_start(tmp_path: Path) -> N
             f"{tmp_path}/i2c-7 does not exist (buses present: {tmp_path}/i2c-0): "
             "check the board profile's i2c.bus, and that the i2c-dev module is loaded")
     assert sensors.read() == {"left": None, "right": None}
+
+
+# -- which profile: --board, the settings' board, /etc/stereocam/board.yaml, the packaged one --------
+
+def profile_file(path: Path, **changes: Any) -> Path:
+    """The default profile, its ``name`` and ``controls.exposure_us`` changed, written to ``path``."""
+    data = yaml.safe_load(DEFAULT_PROFILE.read_text(encoding="utf-8"))
+    data["name"] = changes.get("name", data["name"])
+    data["controls"]["exposure_us"] = changes.get("exposure_us", data["controls"]["exposure_us"])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+def test_the_search_order(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    etc = tmp_path / "etc"
+    etc.mkdir()
+    assert find_profile(etc=etc) == DEFAULT_PROFILE, "no machine profile: the packaged one"
+    machine = profile_file(etc / "board.yaml", name="machine")
+    assert find_profile(etc=etc) == machine and load_board_profile(etc=etc).name == "machine"
+    given = profile_file(tmp_path / "given.yaml", name="given")
+    assert find_profile(given, etc=etc) == given and load_board_profile(str(given), etc=etc).name == "given"
+    monkeypatch.setenv(ETC_ENV, str(etc))
+    assert etc_dir() == etc and find_profile() == machine
+    monkeypatch.delenv(ETC_ENV)
+    assert etc_dir() == DEFAULT_ETC == Path("/etc/stereocam")
+
+
+def test_profile_file_errors_say_what_to_do(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(ETC_ENV, str(tmp_path / "etc"))
+    with pytest.raises(ProfileError) as err:
+        load_board_profile(tmp_path / "nope.yaml")
+    assert str(err.value) == (
+        f"board profile {tmp_path / 'nope.yaml'} does not exist: give the path of a profile (--board FILE or "
+        f"the settings' board key; without one, {tmp_path / 'etc' / 'board.yaml'} if it exists, else "
+        f"{DEFAULT_PROFILE})")
+    with pytest.raises(ProfileError, match=f"board profile {tmp_path} is a folder: give the profile's file, "
+                                           f"e.g. {tmp_path / 'board.yaml'}"):
+        load_board_profile(tmp_path)
+
+
+def serve_error(capsys: pytest.CaptureFixture, *args: str) -> str:
+    """``stereocam serve ARGS`` in this process; the one line it prints on stderr (exit 2, no traceback)."""
+    assert cli.main(["serve", "--backend", "emulated", "--port", "0", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith("stereocam serve: error: "), err
+    return err[len("stereocam serve: error: "):].rstrip("\n")
+
+
+def test_serve_checks_the_profile_at_start_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    etc = tmp_path / "etc"
+    monkeypatch.setenv(ETC_ENV, str(etc))
+    opened: list = []
+    monkeypatch.setattr(app_module, "run", lambda config, **kw: opened.append(config) or 0)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(DEFAULT_PROFILE.read_text(encoding="utf-8").replace("left: 0x48", "left: 0x50"))
+    assert serve_error(capsys, "--board", str(bad)) == (
+        f"board profile {bad}: i2c.left: 0x50 is not an address an MT9V034 can be strapped to "
+        "(0x48, 0x4c, 0x58, 0x5c)")
+    assert serve_error(capsys, "--board", str(tmp_path / "gone.yaml")).startswith(
+        f"board profile {tmp_path / 'gone.yaml'} does not exist: ")
+    settings = tmp_path / "settings.yaml"
+    settings.write_text(f"board: {bad}\n")
+    assert serve_error(capsys, "--config", str(settings)).startswith(f"board profile {bad}: i2c.left: ")
+    etc.mkdir()
+    (etc / "board.yaml").write_text("i2c: {bus: 0}\n")
+    assert serve_error(capsys).startswith(
+        f"board profile {etc / 'board.yaml'}: top level: missing key(s) name")
+    assert opened == [], "nothing is opened with a wrong profile"
+
+
+def test_serve_hands_the_daemon_the_profile_found(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    etc = tmp_path / "etc"
+    monkeypatch.setenv(ETC_ENV, str(etc))
+    opened: list = []
+    monkeypatch.setattr(app_module, "run", lambda config, **kw: opened.append(config.board) or 0)
+    serve = ["serve", "--backend", "emulated", "--port", "0"]
+    assert cli.main(serve) == 0
+    machine = profile_file(etc / "board.yaml", name="machine")
+    assert cli.main(serve) == 0
+    key = profile_file(tmp_path / "key.yaml", name="key")
+    settings = tmp_path / "settings.yaml"
+    settings.write_text(f"board: {key}\n")
+    assert cli.main([*serve, "--config", str(settings)]) == 0
+    flag = profile_file(tmp_path / "flag.yaml", name="flag")
+    assert cli.main([*serve, "--config", str(settings), "--board", str(flag)]) == 0
+    assert opened == [str(DEFAULT_PROFILE), str(machine), str(key), str(flag)]
+
+
+async def test_the_daemon_runs_the_sensors_with_the_configs_profile(start_daemon, tmp_path: Path) -> None:
+    board = profile_file(tmp_path / "board.yaml", name="slow-shutter", exposure_us=5000)
+    d = await start_daemon(extensions=[routes_cameras.setup], board=str(board))
+    async with d.http.get("/api/cameras") as resp:
+        body = await resp.json()
+    assert resp.status == 200, body
+    for cam in ("left", "right"):
+        assert abs(body[cam]["exposure_us"] - 5000) < 60, body[cam]  # whole rows of the sensor

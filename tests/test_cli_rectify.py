@@ -96,7 +96,7 @@ def read_yml(path: Path) -> dict:
 
 @pytest.mark.parametrize("case, message", [
     ("too_few_rows", "needs 63 line-buffer rows but the core buffers 40"),
-    ("k3", "D1 has k3 = 0.1 (or a higher term) but the core models only k1, k2, p1, p2"),
+    ("k3", "D1 has k3 = 0.1 but the core models only k1, k2, p1, p2: recalibrate with k3 fixed at 0"),
     ("missing", "missing R2"),
     ("nan", "P1 has values that are not finite numbers"),
     ("singular", "rectification.P1 is not the projection of a rectified camera"),
