@@ -2,7 +2,12 @@
 
 Debian's ``/usr/bin/chromium`` is driven by the ``playwright`` package (never
 ``playwright install``: its browser download does not work here). Every
-Playwright wait is bounded (20 s unless a test says otherwise).
+Playwright wait, ``expect()`` assertions included, waits for its condition, bounded by
+:data:`TIMEOUT_MS` (60 s): a generous last-resort bound, so that a busy machine makes a
+browser test slower, not red. A browser test module sets :data:`BROWSER_TEST_TIMEOUT` as its
+per-test timeout (pytestmark), as its many bounded waits add up to more than the default's.
+
+The daemon runs with :data:`DAEMON_SETTINGS` (a settings file, ``--config``): see there why.
 """
 from __future__ import annotations
 
@@ -12,18 +17,39 @@ import urllib.request
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Sequence
 
-from playwright.sync_api import BrowserContext, Page, sync_playwright
+import pytest
+from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
 
 from stereocam.bench_serve import running_daemon
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-TIMEOUT_MS = 20_000
+TIMEOUT_MS = 60_000
+# pytest-timeout for a whole browser test (pyproject's 120 s is for one test that does not start
+# a daemon and Chromium and wait for dozens of page conditions).
+BROWSER_TEST_TIMEOUT = pytest.mark.timeout(900)
+
+
+# On a busy machine the emulated fabric may deliver under a frame a second. With the default
+# no_signal_s (0.5 s) a capture, a calibration pair or a snapshot then waits only 1 s for a fresh
+# frame and answers 503 "no signal: no frame came within 1 s" (the daemon waits max(1 s,
+# 2 * no_signal_s)), and the streams show the no-signal frame between frames. 15 s: they wait up
+# to 30 s, a last resort that only a stopped fabric reaches (what the daemon itself does for its
+# slow simulated core: server/app.py, RTL_NO_SIGNAL_S). No browser test is about no-signal timing.
+DAEMON_SETTINGS: Dict[str, Any] = {"no_signal_s": 15.0}
+
+
+def daemon_config(folder: Path, **settings: Any) -> Path:
+    """A settings file for ``stereocam serve --config``: :data:`DAEMON_SETTINGS` and ``settings``."""
+    path = folder / "stereocam.yaml"
+    lines = [f"{key}: {json.dumps(value)}\n" for key, value in {**DAEMON_SETTINGS, **settings}.items()]
+    path.write_text("".join(lines))
+    return path
 
 
 def get_json(url: str) -> Dict[str, Any]:
-    with urllib.request.urlopen(url, timeout=10) as resp:
+    with urllib.request.urlopen(url, timeout=60) as resp:
         result: Dict[str, Any] = json.loads(resp.read())
         return result
 
@@ -31,22 +57,28 @@ def get_json(url: str) -> Dict[str, Any]:
 @contextlib.contextmanager
 def daemon_serving(tmp_path: Path, artifacts_dir: Path, *, fps: float, extra_args: Sequence[str] = ()
                    ) -> Iterator[str]:
-    """``stereocam serve`` on a free port (emulated fabric, captures in ``tmp_path``); yields its base URL."""
+    """``stereocam serve`` on a free port; yields its base URL.
+
+    Emulated fabric, captures in ``tmp_path``, :data:`DAEMON_SETTINGS`.
+    """
+    args = ["--config", str(daemon_config(tmp_path)), *extra_args]
     with running_daemon(fps=fps, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
-                        health_timeout=60.0, extra_args=extra_args) as (_proc, base):
+                        health_timeout=TIMEOUT_MS / 1000, extra_args=args) as (_proc, base):
         yield base
 
 
 @contextlib.contextmanager
 def chromium(profile: Path) -> Iterator[BrowserContext]:
-    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to 20 s."""
+    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to ``TIMEOUT_MS``."""
     with sync_playwright() as pw:
         context = pw.chromium.launch_persistent_context(
             str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS,
-            viewport={"width": 1400, "height": 1000})
+            viewport={"width": 1400, "height": 1000}, timeout=TIMEOUT_MS)
         try:
             context.set_default_timeout(TIMEOUT_MS)
             context.set_default_navigation_timeout(TIMEOUT_MS)
+            # expect() has its own default (5 s), which the context's does not change.
+            expect.set_options(timeout=TIMEOUT_MS)
             yield context
         finally:
             context.close()

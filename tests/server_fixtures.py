@@ -14,6 +14,10 @@ Import what a module needs; the fixture is ``start_daemon``, imported as
   ``.overlay`` the overlay. Every daemon is stopped (and its overlay closed)
   at the end of the test; ``await daemon.stop()`` stops one earlier and
   returns the seconds the shutdown took.
+
+Every wait here waits for its condition; its bound (:data:`WAIT_S` unless a test says
+otherwise) is a last resort that only a hang reaches, so a busy machine makes a test slower,
+not red.
 """
 from __future__ import annotations
 
@@ -37,6 +41,7 @@ from stereocam.server.config import Config
 SMALL = (376, 240)
 FULL = (752, 480)
 TEST_FPS = 25.0
+WAIT_S = 60.0  # last-resort bound of a wait for something that does happen (start, stop, frames, parts)
 
 
 @functools.lru_cache(maxsize=4)
@@ -108,10 +113,10 @@ class Daemon:
             await self.close_sessions()
         t0 = time.monotonic()
         self._stop.set()
-        await asyncio.wait_for(self._task, 10)
+        await asyncio.wait_for(self._task, WAIT_S)
         took = time.monotonic() - t0
         if close_overlay:
-            self.overlay.close()
+            close_overlay_when_idle(self.overlay)
         return took
 
     async def close_sessions(self) -> None:
@@ -120,6 +125,16 @@ class Daemon:
 
 
 StartDaemon = Callable[..., Awaitable[Daemon]]
+
+
+def close_overlay_when_idle(overlay: EmulatedOverlay) -> None:
+    """Stop the fabric's frame clock, waiting for the tick in progress, then close the overlay.
+
+    ``overlay.close()`` gives that tick 2 s and then raises ClockStopTimeout; a full-size tick on a
+    busy machine can take longer, so the wait here is WAIT_S (a tick that never ends still fails).
+    """
+    overlay.hw.clock.stop(timeout=WAIT_S)
+    overlay.close()
 
 
 @pytest.fixture(name="start_daemon")
@@ -142,12 +157,12 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
         ready: "asyncio.Future[str]" = loop.create_future()
         task = loop.create_task(serve(app, config, stop=stop, handle_signals=False,
                                       on_ready=lambda url: ready.set_result(url)))
-        done, _ = await asyncio.wait({task, ready}, timeout=20, return_when=asyncio.FIRST_COMPLETED)
+        done, _ = await asyncio.wait({task, ready}, timeout=WAIT_S, return_when=asyncio.FIRST_COMPLETED)
         if ready not in done:
             overlay.close()
             if task in done:
                 task.result()  # raises what went wrong
-            raise TimeoutError("the daemon did not start within 20 s")
+            raise TimeoutError(f"the daemon did not start within {WAIT_S} s")
         url = ready.result()
         daemon = Daemon(app=app, overlay=overlay, config=config, url=url,
                         http=aiohttp.ClientSession(base_url=url), _stop=stop, _task=task)
@@ -158,10 +173,10 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
     for daemon in running:
         await daemon.stop()
         await daemon.close_sessions()
-        daemon.overlay.close()
+        close_overlay_when_idle(daemon.overlay)
 
 
-async def wait_for_frames(daemon: Daemon, n: int = 2, timeout: float = 10.0) -> None:
+async def wait_for_frames(daemon: Daemon, n: int = 2, timeout: float = WAIT_S) -> None:
     """Wait until the pipeline has published ``n`` frames."""
     from stereocam.server.state import PIPELINE
 
@@ -198,7 +213,8 @@ def parse_parts(data: bytes) -> List[Tuple[dict, bytes]]:
     return parts
 
 
-async def read_parts(resp: aiohttp.ClientResponse, n: int, timeout: float = 10.0) -> List[Tuple[dict, bytes]]:
+async def read_parts(resp: aiohttp.ClientResponse, n: int, timeout: float = WAIT_S
+                     ) -> List[Tuple[dict, bytes]]:
     """Read a stream response until ``n`` complete parts arrived."""
     buf = b""
     deadline = time.monotonic() + timeout

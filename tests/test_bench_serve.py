@@ -31,7 +31,7 @@ def test_serve_bench_short_run() -> None:
 def test_tree_cpu_seconds_counts_this_process() -> None:
     # Burn a little CPU and see it in /proc/<pid>/stat.
     before = tree_cpu_seconds(os.getpid())
-    deadline = time.monotonic() + 10.0
+    deadline = time.monotonic() + 60.0  # a last-resort bound: a busy machine gives this process less CPU
     while tree_cpu_seconds(os.getpid()) - before < 0.05:
         sum(range(10000))
         assert time.monotonic() < deadline, "0.05 s of CPU time never showed up in /proc/<pid>/stat"

@@ -16,7 +16,7 @@ modest frame rate: the machine has two shared cores), loads ``/`` in Debian's
   without it shows the daemon's 401, and with it (remembered in localStorage) changes work.
 
 A screenshot of the page goes to the artifacts folder, also when the test fails. Every wait
-is bounded (Playwright's timeout is 20 s).
+waits for a condition on the page, bounded only as a last resort (``browser.TIMEOUT_MS``).
 """
 from __future__ import annotations
 
@@ -30,7 +30,17 @@ from playwright.sync_api import Page, expect
 
 from stereocam.bench_serve import running_daemon
 
-from .browser import chromium, daemon_serving, get_json, watched_page
+from .browser import (
+    BROWSER_TEST_TIMEOUT,
+    TIMEOUT_MS,
+    chromium,
+    daemon_config,
+    daemon_serving,
+    get_json,
+    watched_page,
+)
+
+pytestmark = BROWSER_TEST_TIMEOUT
 
 VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"]
 DAEMON_FPS = 15.0
@@ -138,7 +148,7 @@ def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, 
     assert new_id
     href = captures.first.get_by_test_id("capture-download").get_attribute("href")
     assert href == f"/api/captures/{new_id}.zip"
-    with urllib.request.urlopen(base + href, timeout=10) as resp:
+    with urllib.request.urlopen(base + href, timeout=60) as resp:
         assert resp.status == 200 and resp.read(2) == b"PK"
 
     # 4. Virtual camera (flow 4): without an input the switch says what to do and stays live;
@@ -184,9 +194,9 @@ def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, 
 def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
     """With ``access_token`` set, the page says how to give it, and ``?token=`` makes changes work."""
     token = "browser-test-token"
-    config = tmp_path / "stereocam.yaml"
-    config.write_text(f"access_token: {token}\n")
+    config = daemon_config(tmp_path, access_token=token)
     with running_daemon(fps=5.0, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
+                        health_timeout=TIMEOUT_MS / 1000,
                         extra_args=["--config", str(config)]) as (_proc, base):
         with chromium(tmp_path / "chromium-profile") as context:
             page = context.new_page()

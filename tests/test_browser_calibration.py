@@ -17,11 +17,16 @@ from typing import Iterator
 import pytest
 from playwright.sync_api import Page, expect
 
-from .browser import daemon_serving, get_json, watched_page
+from .browser import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
+
+pytestmark = BROWSER_TEST_TIMEOUT
 
 DAEMON_FPS = 10.0
 PAIRS = 6
-WAIT_S = 90.0
+# Last-resort bounds: PAIRS accepted pairs (the board moves every 1.5 s of the daemon's frame
+# clock, which a busy machine slows down), and the calibration's computation.
+WAIT_S = 400.0
+COMPUTE_TIMEOUT_MS = 300_000
 # Chromium logs every non-2xx fetch. Fine here: the refusals a capture may get while the board is still,
 # a corners poll finding no frame while the 2-core machine is busy (503), no candidate yet (404).
 EXPECTED = ("status of 409", "status of 422", "status of 503", "status of 404")
@@ -51,8 +56,7 @@ def _drive(page: Page, base: str, tmp_path: Path) -> None:
     expect(page.get_by_test_id("calib-count")).to_have_text("0")
 
     # Live corners over both raw views.
-    page.wait_for_function("() => document.getElementById('calib-live-state').dataset.found === 'true'",
-                           timeout=30_000)
+    page.wait_for_function("() => document.getElementById('calib-live-state').dataset.found === 'true'")
     for side in ("left", "right"):  # 54 corners, the first one ringed once more, joined by a line
         page.wait_for_function(
             "id => { const s = document.getElementById(id);"
@@ -89,7 +93,7 @@ def _drive(page: Page, base: str, tmp_path: Path) -> None:
 
     # Compute and review.
     page.get_by_test_id("btn-calib-compute").click()
-    expect(page.get_by_test_id("calib-result")).to_be_visible(timeout=60_000)
+    expect(page.get_by_test_id("calib-result")).to_be_visible(timeout=COMPUTE_TIMEOUT_MS)
     cand = get_json(base + "/api/calibration/candidate")
     report = cand["report"]
     assert report["pairs_used"] == PAIRS and report["rms"] < 0.5 and report["row_error_mean"] < 0.15
@@ -115,4 +119,4 @@ def _drive(page: Page, base: str, tmp_path: Path) -> None:
     assert get_json(base + "/api/calibration")["id"] == cand["id"]
     saved = tmp_path / "calibration.yaml"
     assert saved.is_file() and cand["id"] in saved.read_text()
-    expect(page.get_by_test_id("status-calibration")).to_contain_text(cand["id"], timeout=5_000)
+    expect(page.get_by_test_id("status-calibration")).to_contain_text(cand["id"])

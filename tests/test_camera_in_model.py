@@ -180,11 +180,13 @@ def test_demosaic_is_fast_enough_for_the_live_path() -> None:
     model.demosaic(left, right)
     times = []
     for _ in range(5):
-        start = time.perf_counter()
+        # The thread's CPU time (numpy runs it in this thread): what the work costs, which the other
+        # processes of a busy machine do not lengthen as they do the wall-clock time.
+        start = time.thread_time()
         model.demosaic(left, right)
-        times.append(time.perf_counter() - start)
+        times.append(time.thread_time() - start)
     best = min(times)
-    print(f"752x480 stereo demosaic: {best * 1e3:.1f} ms")
+    print(f"752x480 stereo demosaic: {best * 1e3:.1f} ms of CPU time")
     assert best < 0.030
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+import time
 
 import cv2
 import numpy as np
@@ -27,7 +28,7 @@ from stereocam.server.routes_calibration_panel import PANEL, Candidate
 from stereocam.stereo import rectify
 
 from .sample import SYNTH_SQUARE, synthetic_views
-from .server_fixtures import FULL, make_overlay, start_daemon_fixture  # noqa: F401
+from .server_fixtures import FULL, WAIT_S, make_overlay, start_daemon_fixture  # noqa: F401
 
 EXT = (routes_calibration.setup, routes_calibration_panel.setup)
 PATTERN = Pattern(9, 6, SYNTH_SQUARE)
@@ -39,7 +40,14 @@ def png(gray: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+# Full-size frames at 20 fps: on a busy machine the emulated fabric may take over a second for one,
+# and with the default no_signal_s (0.5 s) a pair or a corners poll waits only 1 s for a fresh frame
+# (max(1 s, 2 * no_signal_s)) and answers 503 "no signal". 5 s: they wait up to 10 s.
+NO_SIGNAL_S = 5.0
+
+
 async def start(start_daemon, **settings):
+    settings.setdefault("no_signal_s", NO_SIGNAL_S)
     return await start_daemon(overlay=make_overlay(size=FULL, fps=20.0, calibrate=False), extensions=EXT,
                               **settings)
 
@@ -57,12 +65,13 @@ async def show_nothing(daemon) -> None:
     """Back to the live cameras (stopped by the test): wait until the daemon says no signal."""
     async with daemon.http.put("/api/source", json={"source": "live"}) as r:
         assert r.status == 200
-    for _ in range(100):
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
         async with daemon.http.get("/api/status") as r:
             if not (await r.json())["signal"]:
                 return
         await asyncio.sleep(0.05)
-    raise AssertionError("the daemon never lost the signal")
+    raise AssertionError(f"the daemon did not lose the signal within {WAIT_S} s")
 
 
 async def session(daemon, token: "str | None" = None) -> dict:
@@ -159,11 +168,12 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     # Without signal the answer is an immediate 503, not a queue of pollers waiting for frames.
     daemon.overlay.hw.cameras_running = False
     await show_nothing(daemon)
-    await asyncio.sleep(1.0)  # longer than a capture waits for a frame
+    capture_wait = max(1.0, 2 * daemon.config.no_signal_s)  # how long a capture waits for a frame
+    await asyncio.sleep(capture_wait)
     t0 = asyncio.get_running_loop().time()
     async with daemon.http.get("/api/calibration/corners") as r:
         assert r.status == 503 and "no signal" in (await r.json())["error"]
-    assert asyncio.get_running_loop().time() - t0 < 0.5
+    assert asyncio.get_running_loop().time() - t0 < capture_wait, "the poll waited for a frame"
     daemon.overlay.hw.cameras_running = True
     await show(daemon, left, right)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import time
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -24,6 +25,16 @@ from stereocam.server.routes_api import core_model_setup
 from stereocam.server.views import VIEWS, ViewUnavailable, render, view_size
 
 from .server_fixtures import SMALL, make_overlay
+
+WAIT_S = 60.0  # last-resort bound of a wait for something that does happen (a busy machine is slow)
+
+
+def wait_until(condition: Callable[[], bool], what: str) -> None:
+    """Poll ``condition()`` (from a test's thread) until true; fail naming ``what`` after WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, f"no {what} within {WAIT_S} s"
+        time.sleep(0.01)
 
 W, H = SMALL
 
@@ -117,19 +128,22 @@ def test_thread_publishes_every_frame_and_beats_without_frames() -> None:
     try:
         with pipeline:
             pipeline.start()  # idempotent
-            deadline = time.monotonic() + 10
-            while len(published) < 8:
-                assert time.monotonic() < deadline
-                time.sleep(0.02)
+            wait_until(lambda: len(published) >= 8, "8 published frames")
             numbers = [fs.frame for fs in published]
             assert numbers == sorted(set(numbers))
-            assert pipeline.meter.rate() > 10 and pipeline.fabric_fps() > 10
+            # Measured rates (a busy machine lowers them: their size is not the point here).
+            assert pipeline.meter.rate() > 0 and pipeline.fabric_fps() > 0
+            ticks = overlay.hw.counters.ticks
             overlay.hw.cameras_running = False
-            time.sleep(0.3)
+            # A tick that began after that one sees no camera frame; then the pipeline drains
+            # what the fabric still holds (at most a frame or two, each followed by a beat).
+            wait_until(lambda: overlay.hw.counters.ticks > ticks + 1, "a tick without cameras")
+            b = len(beats)
+            wait_until(lambda: len(beats) >= b + 3, "the pipeline beating after the cameras stopped")
             n, b = len(published), len(beats)
-            time.sleep(0.3)
+            # Each beat without a frame follows a whole wait_s (0.05 s) of waiting for one.
+            wait_until(lambda: len(beats) >= b + 7, "the thread beating while it waits")
             assert len(published) == n, "no frames without cameras"
-            assert len(beats) > b, "the thread keeps beating while it waits"
             assert pipeline.last_frame_age() > 0.25
         assert not pipeline.running
         pipeline.stop()  # idempotent
@@ -157,10 +171,7 @@ def test_a_channel_fault_is_counted_and_left_to_fabric_health(stepped, monkeypat
 
     monkeypatch.setattr(s2mm, "recover", recover)
     with pipeline:
-        deadline = time.monotonic() + 5
-        while calls["wait"] < 3:
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+        wait_until(lambda: calls["wait"] >= 3, "three waits for a frame")
     assert calls["recover"] == 0 and pipeline.errors == 1 and "VDMADecErr" in pipeline.last_error
 
 
@@ -212,14 +223,15 @@ async def test_feed_keeps_the_newest_set_and_marks_no_signal() -> None:
             feed.push(fs)
 
     await asyncio.get_running_loop().run_in_executor(None, push_all)
-    seq, item = await asyncio.wait_for(feed.frames.wait_newer(0), 2)
-    await asyncio.sleep(0.01)
+    seq, item = await asyncio.wait_for(feed.frames.wait_newer(0), WAIT_S)
+    while feed.frames.current()[1] is not sets[-1]:  # the pushes reach the loop one by one
+        seq, item = await asyncio.wait_for(feed.frames.wait_newer(seq), WAIT_S)
     seq, item = feed.frames.current()
     assert item is sets[-1] and feed.signal
     assert seq <= 3 and feed.coalesced + seq >= 3
     watcher = asyncio.create_task(feed.watch())
     try:
-        seq, marker = await asyncio.wait_for(feed.frames.wait_newer(seq), 2)
+        seq, marker = await asyncio.wait_for(feed.frames.wait_newer(seq), WAIT_S)
         assert isinstance(marker, NoSignal) and marker.last_frame == 3 and marker.size == SMALL
         assert not feed.signal
         with pytest.raises(asyncio.TimeoutError):
@@ -294,7 +306,7 @@ async def test_encoders_run_only_while_subscribed_and_encode_each_frame_once() -
                 fs = pipeline.grab()
                 assert fs is not None
                 feed.push(fs)
-                seq, encoded = await asyncio.wait_for(a.output.wait_newer(seq), 5)
+                seq, encoded = await asyncio.wait_for(a.output.wait_newer(seq), WAIT_S)
                 assert encoded.frame == fs.frame and encoded.signal
                 assert encoded.part.startswith(b"--frame\r\nContent-Type: image/jpeg\r\n")
                 assert bytes(encoded.jpeg) == encoded.part[encoded.jpeg_start:-2]
@@ -308,7 +320,7 @@ async def test_encoders_run_only_while_subscribed_and_encode_each_frame_once() -
             feed.push(fs)
             seq = 0
             while True:  # the worker starts with the frame set that was current, then takes the new one
-                seq, encoded = await asyncio.wait_for(d.output.wait_newer(seq), 10)
+                seq, encoded = await asyncio.wait_for(d.output.wait_newer(seq), WAIT_S)
                 if encoded.frame == fs.frame:
                     break
         assert not encoders.disparity.running
@@ -323,14 +335,21 @@ async def test_an_encoder_skips_frames_nobody_wants() -> None:
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
         encoders = Encoders(feed, None, pool, disparity_fps=5)
         with encoders.subscribe(EncoderKey("rect_left", 50), 10) as enc:
-            t = time.monotonic()
+            loop = asyncio.get_running_loop()
+            t, began = time.monotonic(), loop.time()
             for i in range(1, 13):  # 12 frames at 60 fps for a client that wants 10
                 fs = frame_set(frame, n=i)
                 fs.monotonic = t + i / 60
                 feed.frames.publish(fs)
                 await asyncio.sleep(0.01)
-            await asyncio.sleep(0.1)
-            assert 2 <= enc.frames <= 3
+            # Latest wins: the encoder ends on the last frame, however busy the machine.
+            seq, encoded = enc.output.current()
+            while encoded is None or encoded.frame != 12:
+                seq, encoded = await asyncio.wait_for(enc.output.wait_newer(seq), WAIT_S)
+            took = loop.time() - began
+            # At most one encode per 0.75 / 10 s (the encoder's limit for 10 fps) since the first:
+            # 2 or 3 of the 12 on an idle machine (about 0.13 s); more only if publishing them took longer.
+            assert 2 <= enc.frames <= 1 + int(took / 0.075)
         await encoders.close()
 
 

@@ -11,6 +11,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from typing import Callable, Tuple
 
 import cv2
 import numpy as np
@@ -22,12 +23,21 @@ from stereocam.server.state import ENCODERS, FEED, METRICS, PIPELINE, STREAMS
 
 from .server_fixtures import (
     SMALL,
+    WAIT_S,
     read_parts,
     start_daemon_fixture,  # noqa: F401
     wait_for_frames,
 )
 
 W, H = SMALL
+
+
+async def until(condition: Callable[[], bool], what: str) -> None:
+    """Wait (on the loop) until ``condition()``; fail naming ``what`` after the last-resort WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, f"{what}: not within {WAIT_S} s"
+        await asyncio.sleep(0.02)
 
 
 def jpeg_size(data: bytes) -> tuple:
@@ -151,11 +161,8 @@ async def test_nothing_is_encoded_while_nobody_watches(start_daemon) -> None:
     d = await start_daemon()
     async with d.http.get("/stream/anaglyph") as resp:
         await read_parts(resp, 2)
-    for _ in range(100):  # the server notices the disconnect at its next write
-        if not d.app[ENCODERS].active():
-            break
-        await asyncio.sleep(0.02)
-    assert not d.app[ENCODERS].active()
+    # The server notices the disconnect at its next write.
+    await until(lambda: not d.app[ENCODERS].active(), "the encoder stopping")
     count = d.app[METRICS].encode["anaglyph"][0]
     await wait_for_frames(d, d.app[PIPELINE].frames + 5)
     assert d.app[METRICS].encode["anaglyph"][0] == count
@@ -184,17 +191,15 @@ async def test_more_streams_than_max_streams_get_503(start_daemon) -> None:
         assert resp.status == 503
     assert len(d.app[STREAMS]) == 2
     responses[0].close()
-    for _ in range(100):
-        if len(d.app[STREAMS]) < 2:
-            break
-        await asyncio.sleep(0.02)
+    await until(lambda: len(d.app[STREAMS]) < 2, "the closed stream leaving")
     async with d.http.get("/stream/raw_left") as resp:
         assert resp.status == 200
     responses[1].close()
 
 
 async def test_a_client_that_stops_reading_is_dropped_and_others_go_on(start_daemon) -> None:
-    d = await start_daemon(stream_timeout_s=0.5, fps=25)
+    # 2 s: ample for the reading client's writes on a busy machine; the stuck one never drains.
+    d = await start_daemon(stream_timeout_s=2.0, fps=25)
     sock = socket.socket()
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     sock.connect(("127.0.0.1", d.port))
@@ -203,7 +208,7 @@ async def test_a_client_that_stops_reading_is_dropped_and_others_go_on(start_dae
         async with d.http.get("/stream/rect_left") as good:
             await read_parts(good, 2)
             streams = d.app[STREAMS]
-            deadline = time.monotonic() + 20
+            deadline = time.monotonic() + WAIT_S
             while streams.dropped == 0:
                 assert time.monotonic() < deadline, "the stuck client was never dropped"
                 await read_parts(good, 1)  # the reading client keeps getting frames meanwhile
@@ -223,9 +228,10 @@ async def test_no_signal_frame_within_a_second_and_recovery(start_daemon) -> Non
         d.overlay.hw.cameras_running = False
         t0 = time.monotonic()
         while True:
-            headers, body = (await read_parts(resp, 1, timeout=2.0))[0]
+            headers, body = (await read_parts(resp, 1))[0]
             if headers.get("x-signal") == "none":
                 break
+            assert time.monotonic() - t0 < WAIT_S, "no no-signal frame"
         assert time.monotonic() - t0 < 1.0
         assert jpeg_size(body) == (H, W, 3)
         await asyncio.sleep(0.7)
@@ -235,7 +241,7 @@ async def test_no_signal_frame_within_a_second_and_recovery(start_daemon) -> Non
             assert snap.status == 503 and "no signal" in (await snap.json())["error"]
         assert d.app[FEED].signal is False
         d.overlay.hw.cameras_running = True
-        deadline = time.monotonic() + 5
+        deadline = time.monotonic() + WAIT_S
         while True:
             headers, _ = (await read_parts(resp, 1))[0]
             if "x-signal" not in headers:
@@ -251,10 +257,10 @@ async def test_websocket_sends_header_and_jpeg_per_view(start_daemon) -> None:
         assert ws.compress == 0, "JPEG frames are not deflated"
         await ws.send_str(json.dumps({"views": ["rect_left", "raw_right"], "fps": 10}))
         seen: dict = {}
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + WAIT_S
         while len(seen) < 2 or min(len(v) for v in seen.values()) < 2:
             assert time.monotonic() < deadline
-            msg = await ws.receive(timeout=5)
+            msg = await ws.receive(timeout=WAIT_S)
             assert msg.type == WSMsgType.BINARY
             (n,) = struct.unpack(">I", msg.data[:4])
             header = json.loads(msg.data[4:4 + n])
@@ -266,16 +272,12 @@ async def test_websocket_sends_header_and_jpeg_per_view(start_daemon) -> None:
             assert frames == sorted(set(frames))
         await ws.send_str(json.dumps({"views": ["nope"]}))
         while True:
-            msg = await ws.receive(timeout=5)
+            msg = await ws.receive(timeout=WAIT_S)
             if msg.type == WSMsgType.TEXT:
                 assert "unknown view" in json.loads(msg.data)["error"]
                 break
         await ws.send_str(json.dumps({"views": []}))
-    for _ in range(100):
-        if not d.app[ENCODERS].active() and not len(d.app[STREAMS]):
-            break
-        await asyncio.sleep(0.02)
-    assert not d.app[ENCODERS].active()
+    await until(lambda: not d.app[ENCODERS].active() and not len(d.app[STREAMS]), "the socket ending")
 
 
 async def test_websocket_from_another_origin_is_refused(start_daemon) -> None:
@@ -325,23 +327,47 @@ async def test_vlc_plays_a_stream(start_daemon) -> None:
         if os.geteuid() == 0:
             command = ["setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups", "env",
                        f"HOME={folder}", *command]
-        proc = await asyncio.create_subprocess_exec(*command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        log = folder / "vlc.log"  # a file, not a pipe nobody reads while VLC plays
+        with open(log, "wb") as errors:
+            proc = await asyncio.create_subprocess_exec(*command, stdout=subprocess.DEVNULL, stderr=errors)
         try:
-            await asyncio.sleep(5.0)  # a live stream never ends: let VLC play for a while
+            # A live stream never ends: VLC plays until its file holds 10 frames (a busy machine: later).
+            deadline = time.monotonic() + WAIT_S
+            while (await _probe(out))[0][2] < 10:
+                assert proc.returncode is None, f"VLC exited: {log.read_text(errors='replace')[-2000:]}"
+                assert time.monotonic() < deadline, f"VLC wrote under 10 frames in {WAIT_S} s"
+                await asyncio.sleep(0.5)
         finally:
             proc.terminate()
-            _, err = await asyncio.wait_for(proc.communicate(), 20)
-        probe = await asyncio.create_subprocess_exec(
-            shutil.which("ffprobe") or "/usr/bin/ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0",
-            "-show_entries", "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(out),
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        text, perr = await asyncio.wait_for(probe.communicate(), 30)
-        assert probe.returncode == 0, (perr.decode(), err.decode()[-2000:])
-        first = next(line for line in text.decode().splitlines() if line.strip())  # the stream (ts repeats it)
-        width, height, frames = (int(x) for x in first.split(",")[:3])
-        assert (width, height) == (W, H) and frames >= 10, (text, err.decode()[-2000:])
+            await asyncio.wait_for(proc.wait(), WAIT_S)
+        err = log.read_text(errors="replace")[-2000:]
+        (width, height, frames), text, perr = await _probe(out)
+        assert text, (perr, err)
+        assert (width, height) == (W, H) and frames >= 10, (text, err)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+async def _probe(path: Path) -> Tuple[Tuple[int, int, int], str, str]:
+    """``((width, height, frames), ffprobe's output, its errors)`` of the video in ``path``.
+
+    Zeros while there is no readable video stream yet.
+    """
+    if not path.is_file():
+        return (0, 0, 0), "", "no file yet"
+    probe = await asyncio.create_subprocess_exec(
+        shutil.which("ffprobe") or "/usr/bin/ffprobe", "-v", "error", "-count_frames",
+        "-select_streams", "v:0", "-show_entries", "stream=nb_read_frames,width,height", "-of", "csv=p=0",
+        str(path),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    out, err = await asyncio.wait_for(probe.communicate(), WAIT_S)
+    text = out.decode()
+    lines = [line for line in text.splitlines() if line.strip()]  # the first: the stream (ts repeats it)
+    fields = lines[0].split(",")[:3] if probe.returncode == 0 and lines else []
+    if len(fields) < 3 or not all(f.strip().isdigit() for f in fields):
+        return (0, 0, 0), text, err.decode()
+    width, height, frames = (int(f) for f in fields)
+    return (width, height, frames), text, err.decode()
 
 
 def _videocapture_frames(url: str, n: int) -> list:
@@ -371,13 +397,13 @@ async def test_streams_end_and_the_daemon_stops_within_two_seconds(start_daemon)
     await read_parts(resp, 2)
     ws = await d.session().ws_connect("/ws")
     await ws.send_str(json.dumps({"views": ["rect_right"]}))
-    await ws.receive(timeout=5)
+    await ws.receive(timeout=WAIT_S)
     d.overlay.fabric.select("virtual")
     took = await d.stop(close_sessions=False, close_overlay=False)
     assert took < 2.0
-    rest = await asyncio.wait_for(resp.content.read(), 2)  # the stream ended
+    rest = await asyncio.wait_for(resp.content.read(), WAIT_S)  # the stream ended
     assert isinstance(rest, bytes)
-    msg = await ws.receive(timeout=2)
+    msg = await ws.receive(timeout=WAIT_S)
     assert msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.CLOSING)
     assert d.overlay.fabric.source == "live"
     assert not d.overlay.fabric.streaming

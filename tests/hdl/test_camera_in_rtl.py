@@ -122,7 +122,8 @@ def test_camera_in_resources() -> None:
         stat = Path(tmp) / "stat.txt"
         script = (f"read_verilog -sv -I {camera_dir()} {' '.join(map(str, camera_sources()))}; "
                   f"synth_xilinx -family xc7 -top {spec.TOP}; tee -q -o {stat} stat")
-        subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=600, check=True)
+        subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=1500,
+                       check=True)
         out = stat.read_text()
     block = out[out.rindex("=== design hierarchy ==="):] if "=== design hierarchy ===" in out else out
     cells = {m[1]: int(m[2]) for m in re.finditer(r"^\s+(\w+)\s+(\d+)\s*$", block, re.M)}

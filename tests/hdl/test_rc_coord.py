@@ -419,7 +419,7 @@ def yosys_cells() -> Dict[str, int]:
         script = (f"read_verilog -sv -I {RTL} {reads}; synth_xilinx -family xc7 -top rc_coord; "
                   f"tee -q -o {folder / 'stat.json'} stat -json")
         out = subprocess.run([str(yosys), "-q", "-l", str(folder / "yosys.log"), "-p", script],
-                             capture_output=True, text=True, timeout=600, check=False)
+                             capture_output=True, text=True, timeout=1500, check=False)
         assert out.returncode == 0, out.stdout + out.stderr
         from stereocam.hw_synth import parse_stat_json
 

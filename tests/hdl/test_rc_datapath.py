@@ -89,7 +89,7 @@ def yosys_stat(top: str, files: list[Path], chparams: dict[str, int]) -> dict[st
         stat = Path(tmp) / "stat.txt"
         script = (f"read_verilog -sv -I {hdl.rtl_dir()} {' '.join(map(str, files))}; {sets}"
                   f"synth_xilinx -family xc7 -top {top}; tee -q -o {stat} stat")
-        subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=1200, check=True)
+        subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=1500, check=True)
         out = stat.read_text()
     # the whole design's counts follow the hierarchy (a flat design has only its own block)
     block = out[out.rindex("=== design hierarchy ==="):] if "=== design hierarchy ===" in out else out

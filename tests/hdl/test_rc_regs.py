@@ -123,7 +123,7 @@ def test_rc_regs_synthesizes_small_with_yosys(tmp_path: Path) -> None:
         f"check -assert; tee -q -o {stat_file} stat"
     )
     result = subprocess.run(
-        [str(yosys), "-q", "-p", script], capture_output=True, text=True, timeout=300, check=False, cwd=tmp_path
+        [str(yosys), "-q", "-p", script], capture_output=True, text=True, timeout=1500, check=False, cwd=tmp_path
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     stat = stat_file.read_text()
