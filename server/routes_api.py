@@ -98,6 +98,9 @@ class VerifyResult:
     difference_png: bytes
 
 
+PARK_WAIT_S = 5.0
+
+
 class MuxRefused(ApiError):
     """The mux did not commit a change of source: 503, the daemon's source stays what it was."""
 
@@ -159,7 +162,9 @@ class VirtualCamera:
             log.warning("virtual camera: MM2S channel fault (%s): restarting it", exc)
             mm2s.recover()
             self.fabric.send_virtual(frame)
-        self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(1.0, self._frames(3), self.round_trip_timeout / 2))
+        # Healthy, the channel takes it at the next frame; the bound only ends a wait for a broken one
+        # (a loaded machine's frame clock can run late by a second or more).
+        mm2s.wait_parked(timeout=max(PARK_WAIT_S, self._frames(3), self.round_trip_timeout / 2))
         return int(self.pipeline.frame_count())
 
     def _select_blocking(self, source: str) -> None:

@@ -33,6 +33,8 @@ from .vdma import EmulatedVDMA
 
 log = logging.getLogger(__name__)
 
+CLOSE_TIMEOUT_S = 30.0  # a full-size tick on a loaded machine can take seconds: close waits it out
+
 
 class FrameSensors(Protocol):
     """The emulated image sensors, told about every camera frame (:class:`.sensors.EmulatedSensorPair`).
@@ -164,7 +166,7 @@ class EmulatedFabric:
         self.clock.stop()
 
     def close(self) -> None:
-        self.clock.stop()
+        self.clock.stop(timeout=CLOSE_TIMEOUT_S)
         self.source.close()
         close_core = getattr(self.core, "close", None)
         if close_core is not None:
