@@ -35,6 +35,7 @@ from aiohttp.web_protocol import RequestPayloadError
 from . import routes_faults
 from .captures import CaptureStore
 from .config import Config
+from .cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
 from .encoders import Encoders, FrameFeed
 from .fabric_health import FabricHealth
 from .metrics import Metrics
@@ -44,6 +45,7 @@ from .routes_api import VirtualCamera
 from .routes_api import setup_routes as setup_api_routes
 from .security import allowed_host_names, guard
 from .state import (
+    BUDGET,
     CALIBRATION,
     CAPTURES,
     CONFIG,
@@ -201,8 +203,11 @@ def create_app(
         client_max_size=config.max_upload_bytes,
     )
     fabric = overlay.fabric
+    cores = config.cpu_budget if config.cpu_budget is not None else default_cores(fabric.backend)
+    emulation = tuple(getattr(overlay, "emulation_threads", ()))
+    budget = CpuBudget(cores, excluded_threads=lambda: emulation)
     feed = FrameFeed(frame_size=tuple(fabric.frame_size), no_signal_s=config.no_signal_s)
-    pipeline = Pipeline(fabric, publish=feed.push)
+    pipeline = Pipeline(fabric, publish=feed.push, alive=feed.alive, charge=budget.charge)
     executors = Executors.create(config.encode_threads)
     app[CONFIG] = config
     app[OVERLAY] = overlay
@@ -210,9 +215,11 @@ def create_app(
     app[FEED] = feed
     app[PIPELINE] = pipeline
     app[EXECUTORS] = executors
-    app[ENCODERS] = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
-                             observe=metrics.observe_encode,
-                             on_error=lambda text: metrics.error(text, "encode"))
+    app[BUDGET] = budget
+    app[ENCODERS] = encoders = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
+                                        observe=metrics.observe_encode,
+                                        on_error=lambda text: metrics.error(text, "encode"), budget=budget)
+    pipeline.set_copy_rate(encoders.copy_rate)
     app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
     app[CAPTURES] = captures if captures is not None else CaptureStore(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
@@ -261,6 +268,7 @@ async def _fabric_ctx(app: web.Application) -> AsyncIterator[None]:
     await loop.run_in_executor(app[EXECUTORS].work, overlay.start)
     pipeline.start()
     tasks = [loop.create_task(feed.watch(), name="stereocam-no-signal"),
+             loop.create_task(_plan_budget(app), name="stereocam-cpu-budget"),
              loop.create_task(streams.sweep(), name="stereocam-sweeper"),
              loop.create_task(_give_back_memory(), name="stereocam-malloc-trim")]
     interval = watchdog_interval()
@@ -320,6 +328,18 @@ async def _give_back_memory() -> None:
     while True:
         await asyncio.sleep(TRIM_S)
         await loop.run_in_executor(None, trim, 0)  # a heap walk: off the loop (ctypes drops the GIL)
+
+
+async def _plan_budget(app: web.Application) -> None:
+    """Re-plan the views' frame rates within the CPU budget every :data:`PLAN_PERIOD_S` (cpu_budget.py)."""
+    budget, encoders, pipeline = app[BUDGET], app[ENCODERS], app[PIPELINE]
+    size = tuple(app[OVERLAY].fabric.frame_size)
+    frame_bytes = size[0] * size[1] * 8
+    with single_threaded_opencv():
+        while True:
+            demands = encoders.demands(pipeline.fabric_fps(), size)
+            encoders.apply(budget.plan(demands, frame_bytes=frame_bytes))
+            await asyncio.sleep(PLAN_PERIOD_S)
 
 
 async def _watchdog(pipeline: Pipeline, interval: float) -> None:

@@ -54,7 +54,9 @@ class Config:
     client whose frame write takes longer is dropped), ``default_fps`` /
     ``default_quality`` (when the query gives none), ``disparity_fps``,
     ``no_signal_s`` (no frame for that long shows the no-signal frame),
-    ``encode_threads``. Tests: ``allow_fault_injection`` (the ``--allow-fault-injection``
+    ``encode_threads``, ``cpu_budget`` (cores the daemon may spend on the views; unset: 1 core on the
+    board, the whole machine off it; see ``cpu_budget.py``).
+    Tests: ``allow_fault_injection`` (the ``--allow-fault-injection``
     flag of ``serve``, emulated fabric only: ``/api/faults`` injects faults). Safety:
     ``access_token`` (when set, every state-changing request needs it, and with
     ``protect: all``, the default, every stream, snapshot, capture and status read too; ``protect: control``
@@ -86,6 +88,7 @@ class Config:
     disparity_fps: float = 10.0
     no_signal_s: float = 0.5
     encode_threads: int = 2
+    cpu_budget: Optional[float] = None
     access_token: Optional[str] = None
     protect: str = "all"
     allowed_hosts: Tuple[str, ...] = ()
@@ -220,6 +223,7 @@ _RANGES: Dict[str, Tuple[float, float, bool, bool]] = {
     "disparity_fps": (0, MAX_FPS, False, True),
     "no_signal_s": (0.05, 60, False, False),
     "encode_threads": (1, 64, True, False),
+    "cpu_budget": (0.05, 1024, False, False),
     "max_upload_bytes": (1024, 1 << 31, True, False),
 }
 
@@ -229,6 +233,8 @@ FLAG_ONLY = ("allow_fault_injection",)
 
 def _check(origin: Optional[str], key: str, value: Any) -> Any:
     """``value`` if valid for ``key`` (ints widened to float where a float is wanted), else ConfigError."""
+    if key == "cpu_budget" and value is None:
+        return None
     if key in _RANGES:
         lo, hi, integer, lo_open = _RANGES[key]
         return _number(origin, key, value, lo, hi, integer=integer, lo_open=lo_open)

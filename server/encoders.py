@@ -33,6 +33,7 @@ import concurrent.futures
 import contextlib
 import json
 import logging
+import math
 import struct
 import threading
 import time
@@ -42,6 +43,7 @@ from typing import Any, Callable, Dict, Generic, Iterator, List, Optional, Tuple
 import cv2
 import numpy as np
 
+from .cpu_budget import PRIOR_ENCODE_S_PER_BYTE, PRIOR_MATCH_S_PER_PIXEL, CpuBudget, Demand, ViewPlan
 from .pipeline import FrameSet, NoSignal, Pipeline, RateMeter
 from .views import (
     RAW_VIEWS,
@@ -148,6 +150,7 @@ class FrameFeed:
         self.started_wall = time.time()
         self.coalesced = 0
         self._marker_seq = 0
+        self._waiters = 0
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
         """Deliver to ``loop`` from now on (call on the loop before the pipeline starts)."""
@@ -174,6 +177,16 @@ class FrameFeed:
             loop.call_soon_threadsafe(self._deliver)
         except RuntimeError:  # the loop is closed: the daemon is stopping
             pass
+
+    def alive(self) -> None:
+        """The fabric completed a frame that nobody needed copied (pipeline thread): the signal is on."""
+        with self._lock:
+            self.last_frame_at = time.monotonic()
+
+    @property
+    def waiting(self) -> bool:
+        """Whether a capture, snapshot or round trip waits for a frame now: the pipeline copies every one."""
+        return self._waiters > 0
 
     def _deliver(self) -> None:
         with self._lock:
@@ -226,7 +239,11 @@ class FrameFeed:
                 if isinstance(item, FrameSet) and accept(item):
                     return item
 
-        return await asyncio.wait_for(wait(), timeout)
+        self._waiters += 1
+        try:
+            return await asyncio.wait_for(wait(), timeout)
+        finally:
+            self._waiters -= 1
 
     def close(self) -> None:
         self.frames.close()
@@ -239,6 +256,26 @@ class EncoderKey:
     view: str
     quality: int
     gray: bool = False
+    scale: float = 1.0  # of the view's size: thumbnails cost a fraction of the full view
+
+
+class Pacer:
+    """At most ``fps`` frames a second, on a steady schedule that does not burst after a stall."""
+
+    def __init__(self, fps: float) -> None:
+        self.interval = 1.0 / fps
+        self.due = 0.0
+
+    def set_rate(self, fps: float) -> None:
+        self.interval = 1.0 / fps
+
+    def wait(self, now: float) -> float:
+        """Seconds to wait before the next frame (0: now)."""
+        early = self.due - now
+        return early if early > 0.25 * self.interval else 0.0
+
+    def sent(self, now: float) -> None:
+        self.due = max(self.due + self.interval, now + 0.5 * self.interval)
 
 
 @dataclass(eq=False)
@@ -293,35 +330,41 @@ def _package(key: EncoderKey, frame: int, timestamp: float, signal: bool, jpeg: 
 
 
 def encoded_for(key: EncoderKey, item: FeedItem,
-                observe: Optional[Callable[[str, float], None]] = None) -> Encoded:
+                observe: Optional[Callable[[str, float], None]] = None,
+                charge: Optional[Callable[[EncoderKey, float], None]] = None) -> Encoded:
     """The :class:`Encoded` frame of ``key`` for a feed item; blocks (worker thread).
 
     For a frame set the result is cached in the set, so a stream and any
-    number of snapshots of the same frame share one encode.
+    number of snapshots of the same frame share one encode. ``observe`` gets
+    the encode's wall time, ``charge`` the CPU seconds of render, scaling and
+    encode together (the CPU budget's cost of a frame of ``key``).
     """
     if isinstance(item, NoSignal):
-        size = view_size(key.view, item.size)
+        size = view_size(key.view, item.size, key.scale)
         image = no_signal_image(size, no_signal_detail(item.since, item.last_frame))
         jpeg = encode_image(image, ".jpg", key.quality)
         return _package(key, item.last_frame or 0, item.timestamp, False, jpeg)
 
     def compute() -> Encoded:
-        image = render(item, key.view, key.gray)
+        cpu = time.thread_time()
+        image = render(item, key.view, key.gray, key.scale)
         t0 = time.perf_counter()
         jpeg = encode_image(image, ".jpg", key.quality)
         if observe is not None:
             observe(key.view, time.perf_counter() - t0)
+        if charge is not None:
+            charge(key, time.thread_time() - cpu)
         return _package(key, item.frame, item.timestamp, True, jpeg)
 
     return item.cache.get(("jpeg", key), compute)
 
 
-def png_for(frame_set: FrameSet, view: str, gray: bool = False) -> bytes:
+def png_for(frame_set: FrameSet, view: str, gray: bool = False, scale: float = 1.0) -> bytes:
     """Lossless PNG bytes of a view of ``frame_set`` (cached in the set); blocks (worker thread)."""
     def compute() -> bytes:
-        return encode_image(render(frame_set, view, gray), ".png")
+        return encode_image(render(frame_set, view, gray, scale), ".png")
 
-    png: bytes = frame_set.cache.get(("png", view, bool(gray)), compute)
+    png: bytes = frame_set.cache.get(("png", view, bool(gray), scale), compute)
     return png
 
 
@@ -330,22 +373,31 @@ class Encoder:
 
     def __init__(self, key: EncoderKey, source: Latest[FeedItem], executor: concurrent.futures.Executor, *,
                  observe: Optional[Callable[[str, float], None]] = None,
+                 charge: Optional[Callable[[EncoderKey, float], None]] = None,
                  on_error: Optional[Callable[[str], None]] = None) -> None:
         self.key = key
         self.source = source
         self.output: Latest[Encoded] = Latest()
         self._executor = executor
         self._observe = observe
+        self._charge = charge
         self._on_error = on_error
         self._rates: List[float] = []
         self._task: Optional[asyncio.Task[None]] = None
         self.meter = RateMeter()
         self.frames = 0
+        self.limit: Optional[float] = None  # the CPU budget's planned rate (None: no limit)
 
     @property
     def fps(self) -> float:
         """The highest rate a subscriber asked for."""
         return max(self._rates, default=0.0)
+
+    @property
+    def rate(self) -> float:
+        """The rate it encodes at: what its clients asked, within the CPU budget's plan."""
+        fps = self.fps
+        return fps if self.limit is None else min(fps, self.limit)
 
     @property
     def subscribers(self) -> int:
@@ -375,19 +427,22 @@ class Encoder:
     async def _encode_loop(self) -> None:
         loop = asyncio.get_running_loop()
         seq = 0
-        last: Optional[float] = None  # loop time the last frame's encode started
+        pacer: Optional[Pacer] = None
         while True:
             seq, item = await self.source.wait_newer(seq)
-            fps = self.fps
-            if isinstance(item, FrameSet) and last is not None and fps > 0:
-                early = last + 0.75 / fps - loop.time()
+            rate = self.rate
+            if isinstance(item, FrameSet) and rate > 0:
+                if pacer is None:
+                    pacer = Pacer(rate)
+                pacer.set_rate(rate)
+                early = pacer.wait(loop.time())
                 if early > 0:  # nobody wants frames this often: wait, then take the newest
                     await asyncio.sleep(early)
                     seq, item = self.source.current()
             started = loop.time()
             try:
                 encoded = await loop.run_in_executor(self._executor, encoded_for, self.key, item,
-                                                     self._observe)
+                                                     self._observe, self._charge)
             except ViewUnavailable:
                 continue  # the raw copy starts with the next frame
             except Exception as exc:
@@ -396,7 +451,8 @@ class Encoder:
                     self._on_error(f"encoding {self.key.view}: {exc}")
                 continue
             if isinstance(item, FrameSet):
-                last = started
+                if pacer is not None:
+                    pacer.sent(started)
                 self.frames += 1
                 self.meter.mark()
             self.output.publish(encoded)
@@ -408,14 +464,17 @@ class Encoders:
     def __init__(self, feed: FrameFeed, pipeline: Optional[Pipeline],
                  executor: concurrent.futures.Executor, *, disparity_fps: float,
                  observe: Optional[Callable[[str, float], None]] = None,
-                 on_error: Optional[Callable[[str], None]] = None) -> None:
+                 on_error: Optional[Callable[[str], None]] = None,
+                 budget: Optional[CpuBudget] = None) -> None:
         self.feed = feed
         self.pipeline = pipeline
         self.executor = executor
         self.observe = observe
         self.on_error = on_error
+        self.budget = budget
         self.disparity_output: Latest[FeedItem] = Latest()
-        self.disparity = DisparityWorker(feed.frames, self.disparity_output, fps=disparity_fps)
+        self.disparity = DisparityWorker(feed.frames, self.disparity_output, fps=disparity_fps,
+                                         charge=budget.charge if budget is not None else None)
         self._encoders: Dict[EncoderKey, Encoder] = {}
         self._raw_holds: Dict[EncoderKey, contextlib.ExitStack] = {}
 
@@ -445,7 +504,13 @@ class Encoders:
             stack = contextlib.ExitStack()
             stack.enter_context(self.pipeline.raw_wanted())
             self._raw_holds[key] = stack
-        encoder = Encoder(key, source, self.executor, observe=self.observe, on_error=self.on_error)
+        charge = self.budget.charge if self.budget is not None else None
+        encoder = Encoder(key, source, self.executor, observe=self.observe, charge=charge,
+                          on_error=self.on_error)
+        plan = self.budget.plans.get(key) if self.budget is not None else None
+        if self.budget is not None and self.budget.plans and plan is None:
+            # A new view while the budget is tight starts at the common rate, not at full speed.
+            encoder.limit = None if math.isinf(self.budget.rate_cap) else self.budget.rate_cap
         self._encoders[key] = encoder
         return encoder
 
@@ -457,6 +522,61 @@ class Encoders:
         hold = self._raw_holds.pop(key, None)
         if hold is not None:
             hold.close()
+
+    # -- the CPU budget ----------------------------------------------------------------------
+    def demands(self, fabric_fps: float, frame_size: Tuple[int, int]) -> List[Demand]:
+        """What every running encoder needs, for :meth:`CpuBudget.plan` (see cpu_budget.py)."""
+        budget = self.budget
+        assert budget is not None
+        out: List[Demand] = []
+        for key, encoder in self._encoders.items():
+            asked = encoder.fps
+            target = min(asked, fabric_fps) if fabric_fps > 0 else asked
+            match = 0.0
+            if key.view == "disparity":
+                target = min(target, self.disparity.fps)
+                w, h = frame_size
+                match = budget.cost("match", PRIOR_MATCH_S_PER_PIXEL * w * h)
+            w, h = view_size(key.view, frame_size, key.scale)
+            prior = PRIOR_ENCODE_S_PER_BYTE * w * h * (1 if key.gray else 3)
+            out.append(Demand(key=key, asked=asked, target=target, cost=budget.cost(key, prior),
+                              raw=key.view in RAW_VIEWS, match=match))
+        return out
+
+    def apply(self, plans: Dict[Any, ViewPlan]) -> None:
+        """Give every encoder (and the disparity worker) its planned rate."""
+        disparity: Optional[float] = None
+        for key, encoder in self._encoders.items():
+            plan = plans.get(key)
+            encoder.limit = None if plan is None or not plan.limited else plan.planned
+            if key.view == "disparity" and plan is not None:
+                disparity = max(disparity or 0.0, plan.planned)
+        self.disparity.limit = disparity
+
+    def copy_rate(self) -> Optional[float]:
+        """Frames per second the pipeline must copy (pipeline thread): every frame while somebody
+        waits for one (captures, snapshots, Verify), else what the budget's fastest view needs."""
+        if self.feed.waiting or self.budget is None:
+            return None
+        if self._encoders and not self.budget.plans:
+            return None  # watched, not yet planned
+        return self.budget.copy_rate
+
+    def status(self) -> List[Dict[str, Any]]:
+        """Each running encoder: its key, clients, the rate asked, planned and delivered, and why lower."""
+        plans = self.budget.plans if self.budget is not None else {}
+        out: List[Dict[str, Any]] = []
+        for key, enc in self._encoders.items():
+            plan = plans.get(key)
+            out.append({
+                "view": key.view, "quality": key.quality, "gray": key.gray, "scale": key.scale,
+                "subscribers": enc.subscribers, "asked_fps": round(enc.fps, 2),
+                "target_fps": round(plan.target, 2) if plan is not None else round(enc.fps, 2),
+                "planned_fps": round(enc.rate, 2), "delivered_fps": round(enc.meter.rate(), 2),
+                "cost_ms": round(plan.cost_s * 1e3, 3) if plan is not None else None,
+                "limited_by": plan.reason if plan is not None else "",
+            })
+        return out
 
     def fps_by_view(self) -> Dict[str, float]:
         """Encoded frames per second per view (the fastest encoder of each view)."""

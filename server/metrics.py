@@ -11,7 +11,10 @@ base units, counters ending ``_total``, one label set per family (API.md,
 "Operations"): ``stereocam_stage_frames_per_second{stage}``,
 ``stereocam_view_encoded_frames_per_second{view}``, ``stereocam_frames_total``,
 ``stereocam_encode_seconds{view}`` (a summary: ``_count`` and ``_sum``),
-``stereocam_clients{kind}``, ``stereocam_errors_total{where}``, the faults
+``stereocam_clients{kind}``, the CPU budget (``stereocam_cpu_budget_cores``,
+``stereocam_cpu_used_cores``) and each watched view under it
+(``stereocam_view_{target,planned}_frames_per_second{view}``, ``stereocam_view_cost_seconds{view}``,
+``stereocam_view_limited{view,reason}``), ``stereocam_errors_total{where}``, the faults
 active now, and the families extensions add (``Extensions.metrics``).
 
 A scrape runs on the event loop: every value is a counter or a snapshot the
@@ -24,14 +27,17 @@ import collections
 import logging
 import threading
 import time
-from typing import Deque, Dict, Iterable, Iterator, List, Set, Tuple
+from typing import TYPE_CHECKING, Any, Deque, Dict, Iterable, Iterator, List, Set, Tuple
 
 from aiohttp import web
 from prometheus_client import CollectorRegistry, PlatformCollector, ProcessCollector, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric, SummaryMetricFamily
 from prometheus_client.registry import Collector
 
-from .state import CONFIG, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, STREAMS
+from .state import BUDGET, CONFIG, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, STREAMS
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .cpu_budget import CpuBudget
 
 __all__ = ["Metrics", "DaemonCollector", "REGISTRY", "CONTENT_TYPE", "make_registry", "render",
            "setup_routes", "healthy"]
@@ -127,8 +133,12 @@ class DaemonCollector(Collector):
         for view, rate in sorted(encoders.fps_by_view().items()):
             views.add_metric([view], rate)
         out.append(views)
+        out.extend(_budget_families(app[BUDGET], encoders.status()))
         out.append(CounterMetricFamily("stereocam_frames", "Frame sets the pipeline published.",
                                        value=pipeline.frames))
+        out.append(CounterMetricFamily("stereocam_frames_seen",
+                                       "Frames the pipeline saw complete, copied or not.",
+                                       value=pipeline.frames_seen))
         out.append(CounterMetricFamily("stereocam_drops",
                                        "Frames the fabric completed that the pipeline did not publish.",
                                        value=pipeline.drops))
@@ -172,6 +182,43 @@ class DaemonCollector(Collector):
             fault.add_metric([what], 1)
         out.append(fault)
         return out
+
+
+def _budget_families(budget: "CpuBudget", encoders: List[Dict[str, Any]]) -> List[Metric]:
+    """The CPU budget and each watched view's rates under it (the fastest encoder of each view)."""
+    out: List[Metric] = [
+        GaugeMetricFamily("stereocam_cpu_budget_cores",
+                          "Cores the daemon may spend on the views (cpu_budget).", value=budget.cores),
+        GaugeMetricFamily("stereocam_cpu_used_cores",
+                          "Cores the daemon used over the last 2 s, emulated hardware excluded.",
+                          value=budget.used or 0.0),
+    ]
+    by_view: Dict[str, Dict[str, Any]] = {}
+    for e in encoders:
+        best = by_view.get(e["view"])
+        if best is None or e["planned_fps"] > best["planned_fps"]:
+            by_view[e["view"]] = e
+    families = (("stereocam_view_target_frames_per_second",
+                 "Frames per second a view's clients asked for, at most the fabric's rate.", "target_fps"),
+                ("stereocam_view_planned_frames_per_second",
+                 "Frames per second the CPU budget plans for a view.", "planned_fps"))
+    for name, documentation, field in families:
+        family = GaugeMetricFamily(name, documentation, labels=["view"])
+        for view, e in sorted(by_view.items()):
+            family.add_metric([view], float(e[field]))
+        out.append(family)
+    cost = GaugeMetricFamily("stereocam_view_cost_seconds",
+                             "CPU seconds one frame of a view costs (render, encode, matching).",
+                             labels=["view"])
+    limited = GaugeMetricFamily("stereocam_view_limited",
+                                "1 for a view planned below its target, with the reason.",
+                                labels=["view", "reason"])
+    for view, e in sorted(by_view.items()):
+        if e["cost_ms"] is not None:
+            cost.add_metric([view], e["cost_ms"] / 1e3)
+        if e["limited_by"] and e["planned_fps"] < e["target_fps"]:
+            limited.add_metric([view, e["limited_by"]], 1.0)
+    return out + [cost, limited]
 
 
 def _counter_by(name: str, documentation: str, label: str, counts: Dict[str, int]) -> CounterMetricFamily:

@@ -10,7 +10,11 @@ flight, and a store stays valid until the channel comes round to it again.
 The pipeline reads the core's ``FRAME_COUNT`` before and after copying; if
 it moved, the copy may straddle a frame boundary (and the raw and processed
 frames may not be a pair), so it copies again from the newer stores (at most
-three times, then the frame counts as dropped). Never twice: ``wait_frame``
+three times, then the frame counts as dropped). Only as many frames are
+copied as somebody needs (``copy_rate``: the CPU budget's fastest view, and
+every frame while a capture or a snapshot waits for one); the others are only
+seen: numbered, counted, and reported to ``alive`` so the feed knows the
+fabric delivers. Never twice: ``wait_frame``
 returns only after a new completion, and a store already published is not
 published again. Frames the fabric completed that the pipeline never
 published (it was late) are counted as drops from ``FRAME_COUNT``.
@@ -181,10 +185,19 @@ class Pipeline:
         heartbeat: Optional[Callable[[], None]] = None,
         wait_s: float = 0.25,
         clock: Callable[[], float] = time.time,
+        copy_rate: Optional[Callable[[], Optional[float]]] = None,
+        alive: Optional[Callable[[], None]] = None,
+        charge: Optional[Callable[[str, float], None]] = None,
     ) -> None:
         self.fabric = fabric
         self._publish = publish
         self._heartbeat = heartbeat
+        # Frames per second somebody needs copied (None: every frame); frames beyond it are only seen:
+        # counted and numbered, ``alive`` called instead of ``publish`` (the CPU budget, cpu_budget.py).
+        self._copy_rate = copy_rate
+        self._alive = alive
+        self._charge = charge  # CPU seconds of each copy, by what: "copy" or "raw_copy"
+        self._copy_due = 0.0
         self.wait_s = wait_s
         self._clock = clock
         self._lock = threading.Lock()
@@ -196,12 +209,13 @@ class Pipeline:
         self.source_state = SourceState()
         # Counters.
         self.frames = 0
+        self.seen = 0  # frames completed by the fabric that the pipeline saw but did not copy (not wanted)
         self.drops = 0
         self.retries = 0
         self.errors = 0
         self.last_error = ""
-        self.last_frame_at: Optional[float] = None  # monotonic
-        self.last_frame_number: Optional[int] = None
+        self.last_frame_at: Optional[float] = None  # monotonic, of the last frame seen (copied or not)
+        self.last_frame_number: Optional[int] = None  # its number
         self.heartbeat_at = time.monotonic()
         self.period: Optional[float] = None  # seconds between fabric frames (smoothed)
         self.meter = RateMeter()
@@ -269,6 +283,15 @@ class Pipeline:
                 self._pairs_wanted -= 1
 
     @property
+    def frames_seen(self) -> int:
+        """Frames the pipeline saw complete: copied and published, or seen only (nobody needed them)."""
+        return self.frames + self.seen
+
+    def set_copy_rate(self, copy_rate: Optional[Callable[[], Optional[float]]]) -> None:
+        """Copy only as many frames a second as ``copy_rate()`` says (None: every frame)."""
+        self._copy_rate = copy_rate
+
+    @property
     def wants_raw(self) -> bool:
         return self._raw_wanted > 0
 
@@ -282,7 +305,7 @@ class Pipeline:
 
     # -- stats --------------------------------------------------------------------------
     def last_frame_age(self) -> Optional[float]:
-        """Seconds since the last published frame (None if none yet)."""
+        """Seconds since the pipeline last saw a frame complete, copied or not (None if none yet)."""
         t = self.last_frame_at
         return None if t is None else time.monotonic() - t
 
@@ -328,6 +351,10 @@ class Pipeline:
                 self._stop.wait(self.wait_s)
                 continue
             try:
+                if not self._wanted():
+                    self.see()
+                    self._beat()
+                    continue
                 frame_set = self.grab()
             except (VDMAError, RegisterTimeout) as exc:
                 self._fail("reading a frame", exc)
@@ -344,6 +371,32 @@ class Pipeline:
                     self._fail("publishing a frame", exc)
                     continue
             self._beat()
+
+    def _wanted(self) -> bool:
+        """Whether to copy the frame that just completed: always, or at the rate somebody needs."""
+        if self._copy_rate is None or self._pairs_wanted:
+            return True
+        rate = self._copy_rate()
+        period = self.period
+        if rate is None or (period is not None and rate * period >= 0.95):
+            return True  # every frame is wanted
+        now = time.monotonic()
+        if rate <= 0 or now < self._copy_due - 0.25 * (period or 0.0):
+            return False
+        interval = 1.0 / rate
+        self._copy_due = max(self._copy_due + interval, now + 0.5 * interval)
+        return True
+
+    def see(self) -> None:
+        """Count and number the frame that just completed without copying it (nobody needs it now)."""
+        count = self.frame_count()
+        store, _ = self.fabric.proc_vdma.s2mm.latest_completed()
+        if store == self._last_store and self._last_count is not None and count == self._last_count:
+            return
+        self._advance(count, store)
+        self.seen += 1
+        if self._alive is not None:
+            self._alive()
 
     def _doze(self) -> None:
         """Sleep through most of the frame period instead of polling the status register all of it.
@@ -380,8 +433,11 @@ class Pipeline:
             if (store == self._last_store and self._last_count is not None
                     and (count - self._last_count) % COUNT_MOD < nstores):
                 return None  # the same store as last time, and the channel cannot have come round
+            started = time.thread_time()
             processed = np.empty(buf.shape, dtype=np.uint8)
             np.copyto(processed, buf)
+            if self._charge is not None:
+                self._charge("copy", time.thread_time() - started)
             state = self.source_state
             raw: Optional[np.ndarray] = None
             raw_previous: Optional[np.ndarray] = None
@@ -391,8 +447,11 @@ class Pipeline:
             elif self._raw_wanted and self.channel_ok("vdma_raw.s2mm"):
                 try:
                     rstore, rbuf = self.fabric.raw_vdma.s2mm.latest_completed()
+                    started = time.thread_time()
                     raw = np.empty(rbuf.shape, dtype=np.uint8)
                     np.copyto(raw, rbuf)
+                    if self._charge is not None:
+                        self._charge("raw_copy", time.thread_time() - started)
                     if self._pairs_wanted:
                         raw_s2mm = self.fabric.raw_vdma.s2mm
                         before = raw_s2mm.buffers[(rstore - 1) % raw_s2mm.num_fstores]
@@ -408,7 +467,27 @@ class Pipeline:
             self.retries += 1
         else:
             return None  # the fabric kept moving under the copy: counted as a drop next time
-        now_wall, now = self._clock(), time.monotonic()
+        now_wall = self._clock()
+        number, now = self._advance(count, store)
+        processed.flags.writeable = False
+        for copy in (raw, raw_previous):
+            if copy is not None and copy.flags.writeable:
+                copy.flags.writeable = False
+        self._seq += 1
+        frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
+                             monotonic=now, source=state.source, processed=processed, raw=raw,
+                             raw_previous=raw_previous)
+        self.frames += 1
+        self.meter.mark(now)
+        return frame_set
+
+    def _advance(self, count: int, store: int) -> Tuple[int, float]:
+        """Book-keeping of a frame seen or copied: ``(frame number, monotonic now)``.
+
+        Frames the fabric completed between two the pipeline saw are drops; the
+        period is smoothed from the same counts.
+        """
+        now = time.monotonic()
         if self._last_count is None or self.last_frame_number is None or self.last_frame_at is None:
             number = count
         else:
@@ -419,19 +498,9 @@ class Pipeline:
                 period = (now - self.last_frame_at) / delta
                 self.period = period if self.period is None else 0.8 * self.period + 0.2 * period
         self._last_store, self._last_count = store, count
-        processed.flags.writeable = False
-        for copy in (raw, raw_previous):
-            if copy is not None and copy.flags.writeable:
-                copy.flags.writeable = False
-        self._seq += 1
-        frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
-                             monotonic=now, source=state.source, processed=processed, raw=raw,
-                             raw_previous=raw_previous)
-        self.frames += 1
         self.last_frame_at, self.last_frame_number = now, number
-        self.meter.mark(now)
         self._fabric_samples.append((now, count))
         while self._fabric_samples and now - self._fabric_samples[0][0] > 2.0:
             self._fabric_samples.popleft()
-        return frame_set
+        return number, now
 

@@ -32,6 +32,7 @@ from .encoders import BroadcastClosed, png_for
 from .errors import ApiError, parse_json
 from .pipeline import COUNT_MOD, FrameSet, SourceState
 from .state import (
+    BUDGET,
     CALIBRATION,
     CAPTURES,
     CONFIG,
@@ -288,6 +289,7 @@ async def status_handler(request: web.Request) -> web.Response:
         "last_frame": {"frame": pipeline.last_frame_number, "age_s": None if age is None else round(age, 3)},
         "fps": fps,
         "frames": pipeline.frames,
+        "frames_seen": pipeline.frames_seen,
         "drops": pipeline.drops,
         "core": hw.get("core"),
         "core_impl": getattr(overlay, "core_kind", "hardware"),
@@ -297,8 +299,8 @@ async def status_handler(request: web.Request) -> web.Response:
         "clients": len(streams),
         "max_streams": streams.max_streams,
         "streams": [c.to_json() for c in streams.clients.values()],
-        "encoders": [{"view": k.view, "quality": k.quality, "gray": k.gray, "subscribers": e.subscribers}
-                     for k, e in encoders.active().items()],
+        "encoders": encoders.status(),
+        "cpu": app[BUDGET].status(),
         "uptime_s": round(time.time() - metrics.started, 1),
         "access_token": app[CONFIG].access_token is not None,
         "errors": errors[-20:],

@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from .captures import CaptureStore
     from .config import Config
+    from .cpu_budget import CpuBudget
     from .encoders import Encoders, FrameFeed
     from .fabric_health import FabricHealth
     from .metrics import Metrics
@@ -32,7 +33,8 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 __all__ = [
-    "CONFIG", "OVERLAY", "PIPELINE", "FEED", "ENCODERS", "STREAMS", "METRICS", "CAPTURES", "VIRTUAL",
+    "CONFIG", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "STREAMS", "METRICS", "CAPTURES",
+    "VIRTUAL",
     "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState", "Extensions",
 ]
 
@@ -284,6 +286,7 @@ CONFIG: "web.AppKey[Config]" = web.AppKey("stereocam.config")
 OVERLAY: "web.AppKey[Any]" = web.AppKey("stereocam.overlay")
 PIPELINE: "web.AppKey[Pipeline]" = web.AppKey("stereocam.pipeline")
 FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed")
+BUDGET: "web.AppKey[CpuBudget]" = web.AppKey("stereocam.cpu_budget")
 ENCODERS: "web.AppKey[Encoders]" = web.AppKey("stereocam.encoders")
 STREAMS: "web.AppKey[StreamClients]" = web.AppKey("stereocam.streams")
 METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics")

@@ -29,7 +29,7 @@ from typing import Any, Dict, Iterator, Optional, Tuple
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from .config import MAX_FPS
-from .encoders import BOUNDARY, BroadcastClosed, Encoded, EncoderKey, encoded_for, png_for
+from .encoders import BOUNDARY, BroadcastClosed, Encoded, EncoderKey, Pacer, encoded_for, png_for
 from .errors import parse_json
 from .pipeline import FrameSet
 from .state import CONFIG, ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, STREAMS
@@ -165,10 +165,14 @@ class StreamParams:
     fps: float
     quality: int
     gray: bool
+    scale: float = 1.0
 
     @property
     def key(self) -> EncoderKey:
-        return EncoderKey(self.view, self.quality, self.gray)
+        return EncoderKey(self.view, self.quality, self.gray, self.scale)
+
+
+SCALES = (0.25, 0.5, 1.0)  # a few sizes, so that clients share encoders: thumbnails and the full view
 
 
 class BadParams(Exception):
@@ -192,9 +196,10 @@ def parse_params(view: str, query: Any, *, default_fps: float, default_quality: 
     """Validate a view name and the ``fps``, ``quality`` and ``gray`` query parameters (404 / 400)."""
     if view not in VIEWS:
         raise BadParams(404, f"unknown view {view[:40]!r}: the views are {', '.join(VIEWS)}")
-    unknown = [k for k in query if k not in ("fps", "quality", "gray", "token")]  # token: for security.py
+    # token: for security.py
+    unknown = [k for k in query if k not in ("fps", "quality", "gray", "scale", "token")]
     if unknown:
-        raise BadParams(400, f"unknown query parameter {unknown[0][:40]!r}: use fps, quality and gray")
+        raise BadParams(400, f"unknown query parameter {unknown[0][:40]!r}: use fps, quality, gray and scale")
     fps: float = default_fps
     if "fps" in query:
         try:
@@ -212,7 +217,16 @@ def parse_params(view: str, query: Any, *, default_fps: float, default_quality: 
         if not 1 <= quality <= 100:
             raise BadParams(400, f"quality must be a whole number in 1..100, got {query['quality'][:20]!r}")
     gray = _flag("gray", query.get("gray")) and view in GRAY_VIEWS
-    return StreamParams(view, fps, quality, gray)
+    scale = 1.0
+    if "scale" in query:
+        try:
+            scale = float(query["scale"])
+        except ValueError:
+            scale = float("nan")
+        if scale not in SCALES:
+            raise BadParams(400, f"scale must be one of {', '.join(f'{s:g}' for s in SCALES)} (of the view's "
+                                 f"size), got {query['scale'][:20]!r}")
+    return StreamParams(view, fps, quality, gray, scale)
 
 
 def _params(request: web.Request, view: str) -> StreamParams:
@@ -250,22 +264,6 @@ async def until_taken(client: "StreamClient", limit: int) -> None:
     """
     while queued_bytes(client.transport) > limit:
         await asyncio.sleep(QUEUE_POLL_S)
-
-
-class Pacer:
-    """At most ``fps`` frames a second, on a steady schedule that does not burst after a stall."""
-
-    def __init__(self, fps: float) -> None:
-        self.interval = 1.0 / fps
-        self.due = 0.0
-
-    def wait(self, now: float) -> float:
-        """Seconds to wait before sending (0: send now)."""
-        early = self.due - now
-        return early if early > 0.25 * self.interval else 0.0
-
-    def sent(self, now: float) -> None:
-        self.due = max(self.due + self.interval, now + 0.5 * self.interval)
 
 
 async def _next(encoder_output: Any, seq: int, pacer: Pacer) -> Tuple[int, Encoded]:
@@ -348,7 +346,8 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
                                              app[METRICS].observe_encode)
         body, headers, ctype = bytes(encoded.jpeg), encoded.headers(), "image/jpeg"
     else:
-        body = await loop.run_in_executor(executor, png_for, frame_set, params.view, params.gray)
+        body = await loop.run_in_executor(executor, png_for, frame_set, params.view, params.gray,
+                                          params.scale)
         headers = {"X-Frame-Number": str(frame_set.frame), "X-Timestamp": f"{frame_set.timestamp:.6f}"}
         ctype = "image/png"
     headers["Cache-Control"] = "no-store"
@@ -407,14 +406,21 @@ def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
         raise BadParams(400, 'not JSON: send {"views": ["rect_left", ...], "fps": N}') from None
     if not isinstance(doc, dict):
         raise BadParams(400, 'send a JSON object {"views": [...], "fps": N}')
-    unknown = [k for k in doc if k not in ("views", "fps", "quality", "gray")]
+    unknown = [k for k in doc if k not in ("views", "fps", "quality", "gray", "scale", "full")]
     if unknown:
-        raise BadParams(400, f"unknown key {str(unknown[0])[:40]!r}: use views, fps, quality and gray")
+        raise BadParams(400, f"unknown key {str(unknown[0])[:40]!r}: use views, fps, quality, gray, scale "
+                             "and full")
+    full = doc.get("full", [])
+    if not isinstance(full, list) or not all(isinstance(v, str) and v in VIEWS for v in full):
+        raise BadParams(400, f"full must be a list of view names ({', '.join(VIEWS)}): the views sent at "
+                             "full size whatever scale says")
     views = doc.get("views", [])
     if not isinstance(views, list) or not all(isinstance(v, str) for v in views) or len(views) > len(VIEWS):
         raise BadParams(400, f"views must be a list of view names ({', '.join(VIEWS)})")
-    query = {k: str(int(v) if isinstance(v, bool) else v) for k, v in doc.items() if k != "views"}
-    return [_params_from(request, v, query) for v in dict.fromkeys(views)]
+    query = {k: str(int(v) if isinstance(v, bool) else v) for k, v in doc.items()
+             if k not in ("views", "full")}
+    full_query = {k: v for k, v in query.items() if k != "scale"}
+    return [_params_from(request, v, full_query if v in full else query) for v in dict.fromkeys(views)]
 
 
 def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> StreamParams:

@@ -24,7 +24,7 @@ import concurrent.futures
 import logging
 import threading
 import time
-from typing import Any, Optional, Protocol, Tuple
+from typing import Any, Callable, Optional, Protocol, Tuple
 
 import cv2
 import numpy as np
@@ -53,17 +53,30 @@ class ViewUnavailable(LookupError):
     """The frame set lacks what the view needs (the raw pair was not copied for it)."""
 
 
-def view_size(view: str, frame_size: Tuple[int, int]) -> Tuple[int, int]:
-    """``(width, height)`` of ``view`` for frames of ``frame_size``."""
+def view_size(view: str, frame_size: Tuple[int, int], scale: float = 1.0) -> Tuple[int, int]:
+    """``(width, height)`` of ``view`` for frames of ``frame_size``, scaled by ``scale`` (at least 1 px)."""
     w, h = frame_size
-    return (2 * w, h) if view == "sbs" else (w, h)
+    w = 2 * w if view == "sbs" else w
+    if scale == 1.0:
+        return w, h
+    return max(1, round(w * scale)), max(1, round(h * scale))
 
 
-def render(fs: FrameSet, view: str, gray: bool = False) -> np.ndarray:
-    """The image of ``view`` for ``fs`` (module doc); ViewUnavailable, or KeyError for a bad view."""
+def render(fs: FrameSet, view: str, gray: bool = False, scale: float = 1.0) -> np.ndarray:
+    """The image of ``view`` for ``fs`` (module doc), ``scale`` times its size (area-averaged);
+    ViewUnavailable, or KeyError for a bad view."""
     if view not in VIEWS:
         raise KeyError(f"unknown view {view!r}")
     gray = bool(gray) and view in GRAY_VIEWS
+    if scale != 1.0:
+        def scaled() -> np.ndarray:
+            full = render(fs, view, gray)
+            size = (max(1, round(full.shape[1] * scale)), max(1, round(full.shape[0] * scale)))
+            out = cv2.resize(full, size, interpolation=cv2.INTER_AREA)
+            out.flags.writeable = False
+            return out
+
+        return fs.cache.get(("view", view, gray, scale), scaled)
     return fs.cache.get(("view", view, gray), lambda: _render(fs, view, gray))
 
 
@@ -129,12 +142,18 @@ def colour_disparity(disp16: np.ndarray) -> np.ndarray:
     return out
 
 
-def disparity_view(fs: FrameSet) -> np.ndarray:
-    """The colour-mapped disparity of ``fs`` (cached in the set; blocks for tens of milliseconds)."""
+def disparity_view(fs: FrameSet, charge: Optional[Callable[[str, float], None]] = None) -> np.ndarray:
+    """The colour-mapped disparity of ``fs`` (cached in the set; blocks for tens of milliseconds).
+
+    ``charge("match", seconds)`` gets the CPU time of the computation when it runs.
+    """
     def compute() -> np.ndarray:
+        cpu = time.thread_time()
         p = fs.processed
         out = colour_disparity(disparity_map(p[..., _Y["left"]], p[..., _Y["right"]]))
         out.flags.writeable = False
+        if charge is not None:
+            charge("match", time.thread_time() - cpu)
         return out
 
     return fs.cache.get(("disparity",), compute)
@@ -192,10 +211,13 @@ class DisparityWorker:
     """
 
     def __init__(self, source: _Broadcast, output: _Broadcast, *, fps: float,
-                 executor: Optional[concurrent.futures.Executor] = None) -> None:
+                 executor: Optional[concurrent.futures.Executor] = None,
+                 charge: Optional[Callable[[str, float], None]] = None) -> None:
         self.source = source
         self.output = output
         self.fps = fps
+        self.limit: Optional[float] = None  # the CPU budget's planned rate (None: no limit)
+        self._charge = charge
         self._executor = executor or concurrent.futures.ThreadPoolExecutor(
             1, thread_name_prefix="stereocam-disparity")
         self._own_executor = executor is None
@@ -255,9 +277,10 @@ class DisparityWorker:
                 if not item.signal:
                     continue
             started = loop.time()
-            next_at = started + 1.0 / self.fps
+            rate = self.fps if self.limit is None else min(self.fps, self.limit)
+            next_at = started + 1.0 / max(rate, 1e-3)
             try:
-                await loop.run_in_executor(self._executor, disparity_view, item)
+                await loop.run_in_executor(self._executor, disparity_view, item, self._charge)
             except Exception as exc:  # a bad frame must not stop the view
                 log.warning("disparity of frame %s failed: %s", getattr(item, "frame", "?"), exc)
                 continue

@@ -378,7 +378,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
                              bitstream=args.bitstream, source=args.source, fps=args.fps,
                              core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir,
-                             allow_fault_injection=args.allow_fault_injection,
+                             cpu_budget=args.cpu_budget, allow_fault_injection=args.allow_fault_injection,
                              board=args.board, log_level=_cli_log_level(args))
         setup_logging(config.log_level)
         config = config.replace(board=_check_board(config.board))
@@ -454,6 +454,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
     s.add_argument("--rtl-dir", metavar="DIR",
                    help="with --core rtl: build this copy of overlays/rtl instead (e.g. one being changed)")
+    s.add_argument("--cpu-budget", metavar="CORES", type=float,
+                   help="cores the daemon may spend on the views; over it, views get lower frame rates "
+                        "(default: 1 on the board, all of the machine's off it)")
     s.add_argument("--board", metavar="FILE",
                    help="the board profile (I2C bus and addresses, sensors; default "
                         "/etc/stereocam/board.yaml if it exists, else the packaged zynq-stereo.yaml)")
@@ -578,9 +581,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
+    from .bench_budget import add_budget_parser  # stereocam bench budget
     from .bench_robustness import add_robustness_parser  # stereocam bench robustness
 
-    add_robustness_parser(b.add_subparsers(dest="suite", metavar="SUITE"))
+    suites = b.add_subparsers(dest="suite", metavar="SUITE")
+    add_robustness_parser(suites)
+    add_budget_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (overlays/rtl/); each action adds itself to hsub.
     from .hw_synth import add_synth_parser

@@ -177,14 +177,14 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
 
 
 async def wait_for_frames(daemon: Daemon, n: int = 2, timeout: float = WAIT_S) -> None:
-    """Wait until the pipeline has published ``n`` frames."""
+    """Wait until the pipeline has seen ``n`` frames complete (copied or not: nobody may be watching)."""
     from stereocam.server.state import PIPELINE
 
     pipeline = daemon.app[PIPELINE]
     deadline = time.monotonic() + timeout
-    while pipeline.frames < n:
+    while pipeline.frames_seen < n:
         if time.monotonic() > deadline:
-            raise AssertionError(f"only {pipeline.frames} frames in {timeout} s")
+            raise AssertionError(f"only {pipeline.frames_seen} frames in {timeout} s")
         await asyncio.sleep(0.02)
 
 

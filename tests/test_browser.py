@@ -5,7 +5,7 @@ modest frame rate: the machine has two shared cores), loads ``/`` in Debian's
 ``/usr/bin/chromium`` driven by the ``playwright`` package (never
 ``playwright install``), and checks that
 
-- every view's <img> shows at least two different frames (``data-frame``, set by app.js
+- every view's <img> shows at least two different frames (``data-frame``, set by the page's live.js
   from the WebSocket header);
 - an API error (verify before any upload: 409) shows up in the message area;
 - Capture adds a capture to the list; its zip link points at the daemon;
@@ -20,6 +20,8 @@ waits for a condition on the page, bounded only as a last resort (``browser.TIME
 """
 from __future__ import annotations
 
+import re
+import time
 import urllib.request
 from pathlib import Path
 from typing import Iterator, List, Optional, Set, Tuple
@@ -216,3 +218,42 @@ def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
                 assert _errors(page) == []
             finally:
                 page.screenshot(path=str(artifacts_dir / "page.png"))
+
+
+def test_views_are_thumbnails_until_clicked_and_show_why_the_budget_lowers_them(
+        tmp_path: Path, artifacts_dir: Path) -> None:
+    """Thumbnails on the page, full size on click; each view's rate and why the CPU budget lowers it;
+    nothing encoded while the page is hidden (issue 12, item 1)."""
+    budget = ["--cpu-budget", "0.05"]
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, extra_args=budget) as base:
+        width, height = get_json(base + "/api/status")["frame_size"]
+        with watched_page(tmp_path, artifacts_dir, "page-budget.png") as page:
+            page.goto(base + "/")
+            _wait_new_frames(page, VIEWS)
+            for view in VIEWS:
+                w = width * (2 if view == "sbs" else 1)
+                assert page.get_attribute(f"#view-{view}", "data-size") == f"{w // 2}x{height // 2}", view
+            # The budget of 0.05 cores cannot hold seven views at 15 fps: each says so.
+            rate = page.get_by_test_id("rate-disparity")
+            expect(rate).to_contain_text("fps ▾")
+            why = re.compile(r"lowered to [\d.]+ fps: CPU budget: 0.05 cores")
+            expect(rate).to_have_attribute("title", why)
+            expect(page.get_by_test_id("status-cpu")).to_contain_text("of 0.05 cores (views lowered to")
+            # Click: full size; Escape: back to the thumbnail.
+            page.locator("figure[data-view=rect_left]").click()
+            expect(page.locator("figure[data-view=rect_left]")).to_have_class(re.compile("view-enlarged"))
+            page.wait_for_function(
+                "s => document.getElementById('view-rect_left').dataset.size === s", arg=f"{width}x{height}")
+            assert page.get_attribute("#view-rect_right", "data-size") == f"{width // 2}x{height // 2}"
+            page.keyboard.press("Escape")
+            page.wait_for_function(
+                "s => document.getElementById('view-rect_left').dataset.size === s",
+                arg=f"{width // 2}x{height // 2}")
+            # A hidden page asks for nothing: the daemon stops every encoder.
+            page.evaluate("() => { Object.defineProperty(document, 'hidden', {value: true,"
+                          " configurable: true}); document.dispatchEvent(new Event('visibilitychange')); }")
+            deadline = time.monotonic() + TIMEOUT_MS / 1000
+            while get_json(base + "/api/status")["encoders"]:
+                assert time.monotonic() < deadline, "encoders still running for a hidden page"
+                time.sleep(0.1)
+            assert _errors(page) == []

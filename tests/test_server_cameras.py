@@ -117,9 +117,9 @@ def _mean(png: bytes) -> float:
 async def _snapshot_mean_later(d) -> float:
     from stereocam.server.state import PIPELINE
 
-    start = d.app[PIPELINE].frames
+    start = d.app[PIPELINE].frames_seen
     deadline = time.monotonic() + 10
-    while d.app[PIPELINE].frames < start + 4:  # the new registers latch at a frame start
+    while d.app[PIPELINE].frames_seen < start + 4:  # the new registers latch at a frame start
         assert time.monotonic() < deadline
         await asyncio.sleep(0.02)
     async with d.http.get("/snapshot/raw_left.png") as resp:
@@ -234,7 +234,7 @@ async def _back(d: Any, camera: str) -> bool:
 
 
 async def _frames_from(d: Any, n: int) -> bool:
-    return bool(d.app[PIPELINE].frames >= n)
+    return bool(d.app[PIPELINE].frames_seen >= n)
 
 
 SET_UP = ("COLUMN_START", "ROW_START", "WINDOW_WIDTH", "WINDOW_HEIGHT", "HORIZONTAL_BLANKING",
@@ -254,7 +254,7 @@ async def test_a_silent_sensor_is_reported_refused_and_back_with_the_users_setti
     assert _faults(d) == {}
 
     with caplog.at_level(logging.INFO, logger="stereocam.drivers.mt9v034"):
-        frames_before = d.app[PIPELINE].frames
+        frames_before = d.app[PIPELINE].frames_seen
         wall, t0 = time.time(), time.monotonic()
         pair.left.answering = False
         pair.left.power_on()  # it lost power too: the registers are back at reset
@@ -272,9 +272,10 @@ async def test_a_silent_sensor_is_reported_refused_and_back_with_the_users_setti
         async with d.http.get("/stream/raw_left") as stream:  # the video goes on through the fault
             assert stream.status == 200
             await read_parts(stream, 3)
-        await _until("frames during the fault", time.monotonic(), _frames_from, d, d.app[PIPELINE].frames + 3)
+        await _until("frames during the fault", time.monotonic(), _frames_from, d,
+                     d.app[PIPELINE].frames_seen + 3)
         assert "sensor.left" in _faults(d)
-        frames_in_fault = d.app[PIPELINE].frames
+        frames_in_fault = d.app[PIPELINE].frames_seen
 
         t1 = time.monotonic()
         pair.left.answering = True
@@ -303,7 +304,7 @@ async def test_twenty_silences_in_a_row_are_each_reported_and_recovered(start_da
         camera = ("left", "right")[i % 2]
         sensor = getattr(pair, camera)
         other = "right" if camera == "left" else "left"
-        frames = d.app[PIPELINE].frames
+        frames = d.app[PIPELINE].frames_seen
         t0 = time.monotonic()
         sensor.answering = False
         if i % 4 < 2:

@@ -102,7 +102,7 @@ async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> 
             assert resp.status == 200, how
     async with d.http.ws_connect("/ws", headers={"Cookie": f"stereocam_token={TOKEN}"}) as ws:
         assert not ws.closed
-    for path in ("/", "/healthz", "/static/app.js"):
+    for path in ("/", "/healthz", "/static/js/main.js"):
         async with d.http.get(path) as resp:
             assert resp.status in (200, 503), path  # healthz: 503 before the first frame, never 401
 

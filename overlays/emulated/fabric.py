@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 CLOSE_TIMEOUT_S = 30.0  # a full-size tick on a loaded machine can take seconds: close waits it out
 
 
+CLOCK_THREAD = "emulated-fabric"  # the frame clock's thread: the emulated hardware's work happens on it
+
 class FrameSensors(Protocol):
     """The emulated image sensors, told about every camera frame (:class:`.sensors.EmulatedSensorPair`).
 
@@ -111,7 +113,7 @@ class EmulatedFabric:
         self.cameras_running = True  # tests: False models cameras that stopped sending
         self.counters = FabricCounters()
         self._tick_lock = threading.Lock()
-        self.clock = FrameClock(fps, self.tick, mode=clock, name="emulated-fabric")
+        self.clock = FrameClock(fps, self.tick, mode=clock, name=CLOCK_THREAD)
 
     @property
     def blocks(self) -> Dict[str, "RegisterBlock | StreamCore"]:

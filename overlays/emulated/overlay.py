@@ -9,7 +9,7 @@ from ..spec.axis_switch import VLNV as SWITCH_VLNV
 from ..spec.overlay import ADDRESS_MAP, INSTANCES, WINDOW_SIZE
 from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource
-from .fabric import EmulatedFabric, StreamCore
+from .fabric import CLOCK_THREAD, EmulatedFabric, StreamCore
 from .regblock import EmulationError, RegisterBlock
 
 
@@ -22,6 +22,8 @@ class EmulatedOverlay:
     """
 
     backend = "emulated"
+    # Threads that are the emulated hardware, not the daemon: the CPU budget does not count them.
+    emulation_threads = (CLOCK_THREAD,)
 
     def __init__(self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
                  build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0,

@@ -1,0 +1,154 @@
+// The live views, over one WebSocket (see core.js).
+import { $, VIEWS, WS_FPS, THUMB_SCALE, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt } from "./core.js";
+
+// ---- live views over one WebSocket ----------------------------------------------
+const decoder = new TextDecoder("utf-8");
+const live = {};  // view -> {img, url (current blob URL), frames, caption}
+for (const v of VIEWS) live[v] = { img: $("view-" + v), url: null, caption: $("frame-" + v), frames: 0 };
+
+let ws = null;
+let backoff = BACKOFF_MIN_MS;
+let reconnectTimer = null;
+let everConnected = false;
+
+function setConn(text, cls) {
+  const el = $("conn");
+  el.textContent = text;
+  el.className = "badge " + cls;
+}
+
+function showFallback(text) {
+  const el = $("ws-fallback");
+  if (text) { el.textContent = text; el.hidden = false; } else { el.textContent = ""; el.hidden = true; }
+}
+
+function onFrame(buf) {
+  if (!(buf instanceof ArrayBuffer) || buf.byteLength < 4) return;
+  const hlen = new DataView(buf).getUint32(0, false);
+  if (4 + hlen > buf.byteLength) return;
+  let header;
+  try { header = JSON.parse(decoder.decode(new Uint8Array(buf, 4, hlen))); } catch (e) { return; }
+  const slot = live[header.view];
+  if (!slot) return;
+  const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + hlen)], { type: "image/jpeg" }));
+  const previous = slot.url;
+  slot.url = url;
+  const img = slot.img;
+  slot.frames += 1;
+  const received = slot.frames;
+  img.onload = () => {
+    // data-frame names the frame actually on screen: set once the JPEG has decoded.
+    if (previous) URL.revokeObjectURL(previous);
+    img.onload = img.onerror = null;
+    img.dataset.frame = String(header.frame);
+    // The decoded size, read here because naturalWidth is 0 again while the next src loads.
+    img.dataset.size = img.naturalWidth + "x" + img.naturalHeight;
+    img.dataset.timestamp = String(header.timestamp);
+    img.dataset.received = String(received);
+    if (slot.caption) slot.caption.textContent = "#" + header.frame;
+  };
+  img.onerror = () => {
+    if (previous) URL.revokeObjectURL(previous);
+    img.onload = img.onerror = null;
+  };
+  img.src = url;
+}
+
+// What the socket asks for: every view as a half-size thumbnail (a quarter of the encode and
+// copy work: the daemon's CPU budget goes further), the enlarged view at full size, and nothing
+// while the page is hidden (a background tab costs the daemon nothing).
+let enlarged = null;
+function subscribe() {
+  if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  const views = document.hidden ? [] : VIEWS;
+  ws.send(JSON.stringify({ views: views, fps: WS_FPS, scale: THUMB_SCALE, full: enlarged ? [enlarged] : [] }));
+}
+
+function enlarge(view) {
+  enlarged = enlarged === view ? null : view;
+  for (const fig of document.querySelectorAll("#views figure.view")) {
+    const on = fig.dataset.view === enlarged;
+    fig.classList.toggle("view-enlarged", on);
+    fig.setAttribute("aria-expanded", on ? "true" : "false");
+  }
+  if (enlarged) $("view-" + enlarged).closest("figure").scrollIntoView({ block: "nearest" });
+  subscribe();
+}
+
+for (const fig of document.querySelectorAll("#views figure.view")) {
+  fig.tabIndex = 0;
+  fig.setAttribute("role", "button");
+  fig.setAttribute("aria-expanded", "false");
+  fig.title = "click: full size; click again: back to the thumbnail";
+  fig.addEventListener("click", () => enlarge(fig.dataset.view));
+  fig.addEventListener("keydown", (ev) => {
+    if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); enlarge(fig.dataset.view); }
+  });
+}
+document.addEventListener("keydown", (ev) => {
+  if (ev.key === "Escape" && enlarged) enlarge(enlarged);
+});
+document.addEventListener("visibilitychange", subscribe);
+
+// Each view's delivered and planned rate, and why it is below what the page asked (/api/status).
+export function renderViewRates(st) {
+  const byView = {};
+  for (const e of (st.encoders || [])) {
+    const best = byView[e.view];
+    if (!best || e.planned_fps > best.planned_fps) byView[e.view] = e;
+  }
+  for (const v of VIEWS) {
+    const el = $("rate-" + v);
+    if (!el) continue;
+    const e = byView[v];
+    if (!e) { el.textContent = ""; el.title = ""; el.className = "view-rate"; continue; }
+    const limited = e.limited_by && e.planned_fps < e.target_fps;
+    el.textContent = fmt(e.delivered_fps) + " / " + fmt(e.target_fps) + " fps" + (limited ? " ▾" : "");
+    el.title = limited ? "lowered to " + fmt(e.planned_fps) + " fps: " + e.limited_by
+      : (e.limited_by ? "at most " + fmt(e.target_fps) + " fps: " + e.limited_by : "");
+    el.className = "view-rate" + (limited ? " limited" : "");
+    el.dataset.planned = String(e.planned_fps);
+    el.dataset.limitedBy = e.limited_by || "";
+  }
+}
+
+export function connect() {
+  reconnectTimer = null;
+  const proto = window.location.protocol === "https:" ? "wss:" : "ws:";
+  const sock = new WebSocket(proto + "//" + window.location.host + "/ws");
+  sock.binaryType = "arraybuffer";
+  ws = sock;
+  setConn(everConnected ? "reconnecting…" : "connecting…", "badge-warn");
+  sock.onopen = () => {
+    everConnected = true;
+    backoff = BACKOFF_MIN_MS;
+    setConn("live", "badge-ok");
+    showFallback("");
+    subscribe();
+  };
+  sock.onmessage = (ev) => {
+    if (typeof ev.data === "string") {
+      // The daemon may send a JSON text message (e.g. {"error": ...}).
+      try {
+        const msg = JSON.parse(ev.data);
+        if (msg && msg.error) showError("live view: " + msg.error);
+      } catch (e) { /* not JSON: ignore */ }
+      return;
+    }
+    onFrame(ev.data);
+  };
+  sock.onclose = (ev) => {
+    if (ws !== sock) return;
+    ws = null;
+    const wait = backoff;
+    backoff = Math.min(BACKOFF_MAX_MS, backoff * 2);
+    setConn("disconnected", "badge-bad");
+    showFallback("Live view disconnected" + (ev.reason ? " (" + ev.reason + ")" : "") +
+                 ": reconnecting in " + (wait / 1000).toFixed(1) + " s. The last frames stay on screen.");
+    reconnectTimer = setTimeout(connect, wait);
+  };
+  sock.onerror = () => { /* onclose follows and schedules the reconnect */ };
+}
+
+
+export function closeLive() { if (ws) ws.close(); }

@@ -1,0 +1,83 @@
+// The virtual camera's upload and Verify (POST /api/virtual-camera, POST /api/verify).
+import { $, ApiError, api, action, bust, fmt, loadImage } from "./core.js";
+import { setSourceRadios } from "./source.js";
+
+// ---- virtual camera and verify --------------------------------------------------
+async function upload(ev) {
+  ev.preventDefault();
+  const btn = $("btn-upload");
+  await action(btn, async () => {
+    const l = $("upload-left").files[0], r = $("upload-right").files[0], s = $("upload-sbs").files[0];
+    const form = new FormData();
+    if (l && r) {
+      form.append("left", l, l.name);
+      form.append("right", r, r.name);
+    } else if (s && !l && !r) {
+      form.append("sbs", s, s.name);
+    } else {
+      throw new ApiError("choose a left and a right image, or one side-by-side image");
+    }
+    const res = await api("POST", "/api/virtual-camera", form);
+    setSourceRadios(res && res.source ? res.source : "virtual");
+    $("upload-info").textContent = "frame " + fmt(res.frame) + ", " + fmt(res.width) + "×" + fmt(res.height) +
+                                   ", source " + fmt(res.source);
+    const box = $("upload-result");
+    box.dataset.frame = String(res.frame);
+    await Promise.all(["left", "right"].map((side) => loadImage($("vc-result-" + side),
+      bust("/api/virtual-camera/result/" + side + ".png"))));
+    box.hidden = false;
+  });
+}
+
+
+function renderVerify(res) {
+  const box = $("verify-result");
+  const yes = !!res.identical;
+  const strong = $("verify-identical");
+  strong.textContent = yes ? "yes — identical" : "no — differs";
+  strong.className = yes ? "ok" : "bad";
+  box.dataset.identical = String(yes);
+  const tbody = $("verify-table").tBodies[0];
+  const frag = document.createDocumentFragment();
+  const row = (name, c, cls) => {
+    const tr = document.createElement("tr");
+    if (cls) tr.className = cls;
+    tr.setAttribute("data-testid", "verify-row-" + name);
+    const psnr = c.psnr_db === null || c.psnr_db === undefined ? "∞" : fmt(c.psnr_db);
+    const share = typeof c.share === "number" ? (c.share * 100).toFixed(3) + " %" : fmt(c.share);
+    for (const cell of [name, fmt(c.differing), share, fmt(c.max_diff), psnr]) {
+      const td = document.createElement("td");
+      td.textContent = cell;
+      tr.append(td);
+    }
+    frag.append(tr);
+  };
+  for (const [name, c] of Object.entries(res.channels || {})) row(name, c, c.differing ? "bad" : "");
+  row("all", res, "total");
+  tbody.replaceChildren(frag);
+  const where = $("verify-where");
+  const parts = [];
+  for (const [cam, r] of Object.entries(res.regions || {})) {
+    if (r) parts.push(cam + " camera: x " + r.x0 + "–" + r.x1 + ", y " + r.y0 + "–" + r.y1);
+  }
+  const first = res.first_difference;
+  if (first) parts.unshift("first at (" + first.x + ", " + first.y + ")");
+  where.textContent = parts.length ? "differences: " + parts.join("; ") : "";
+  where.hidden = !parts.length;
+  box.hidden = false;
+  return loadImage($("verify-difference"), bust("/api/verify/difference.png"));
+}
+
+async function verify() {
+  const btn = $("btn-verify");
+  await action(btn, async () => {
+    const res = await api("POST", "/api/verify");
+    await renderVerify(res);
+  });
+}
+
+
+export function initVirtual() {
+  $("upload-form").addEventListener("submit", upload);
+  $("btn-verify").addEventListener("click", verify);
+}
