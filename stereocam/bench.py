@@ -88,7 +88,7 @@ CHANNELS = 8
 FABRIC_LATENCY = 1  # calls: the fabric peer returns the output of the frame sent one call earlier
 COSIM_NOTE = ("RTL frame pairs per second at 752x480 under Verilator (the colour build, "
               "stereocam.rtl_core.RtlCore), against the model on the same frames")
-COSIM_MIN_ROUNDS = 3  # an RTL frame pair takes about 0.43 s: enough to time, no more
+COSIM_MIN_ROUNDS = 3  # an RTL frame pair takes about 0.27 s (0.4 s with g++): enough to time, no more
 
 Maps = List[Tuple[np.ndarray, np.ndarray]]
 

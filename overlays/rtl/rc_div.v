@@ -72,25 +72,40 @@ module rc_div #(
                         assign nlo_in = {IBW{1'b0}};
                     end
                 end
-                // Next state in one procedural block (Icarus runs that much faster than the
-                // same logic in continuous assignments; synthesis is the same), registers below.
-                reg           neg;      // P_(j-1) < 0: add the divisor
-                reg           b;        // the next bit of the dividend num * 2**SH
-                reg  [RW:0]   sum;      // {2 P_(j-1) + b, 1} + {+-den, carry}: one adder for +den and -den
-                always @* begin
-                    neg = (j == 1) ? 1'b0 : rem_in[RW-1];
-                    b = (j <= IB) ? nlo_in[IBW-1] : 1'b0;
-                    sum = {rem_in[RW-2:0], b, 1'b1} + {{1'b0, den_in} ^ {RW{~neg}}, ~neg};
-                end
-                reg [j-1:0] q_r;        // the quotient bits found by stages 1 .. j, newest at the bottom
+                // The stage's adder and its registers in one clocked block, the sum a variable of
+                // it: a simulator then keeps the sum in a machine register instead of storing it
+                // in the model and reading it back (Icarus also runs one block faster than the same
+                // logic in continuous assignments; synthesis is the same).
+                wire          neg = (j == 1) ? 1'b0 : rem_in[RW-1];  // P_(j-1) < 0: add the divisor
+                wire          b = (j <= IB) ? nlo_in[IBW-1] : 1'b0;  // the next bit of the dividend num * 2**SH
+                reg [j-1:0]   q_r;      // the quotient bits found by stages 1 .. j, newest at the bottom
+                wire [j-1:0]  q_in;     // the bits found by stages 1 .. j-1, and a dummy bit for j = 1
                 if (j == 1) begin : q_first
-                    always @(posedge clk) q_r <= ~sum[RW];
+                    assign q_in = 1'b0;
                 end else begin : q_next
-                    always @(posedge clk) q_r <= {stage[j-1].lane[l].q_r, ~sum[RW]};
+                    assign q_in = {stage[j-1].lane[l].q_r, 1'b0};
                 end
                 if (j < QB) begin : keep_rem
                     reg [RW-1:0] rem_r;
-                    always @(posedge clk) rem_r <= sum[RW:1];
+                    always @(posedge clk) begin : step
+                        // {2 P_(j-1) + b, 1} + {+-den, carry}: one adder for +den and -den
+                        reg [RW:0]  sum;
+                        reg [j-1:0] qb;   // the new quotient bit, at the bottom
+                        sum = {rem_in[RW-2:0], b, 1'b1} + {{1'b0, den_in} ^ {RW{~neg}}, ~neg};
+                        qb = {j{1'b0}};
+                        qb[0] = ~sum[RW];
+                        rem_r <= sum[RW:1];
+                        q_r <= q_in | qb;
+                    end
+                end else begin : last
+                    always @(posedge clk) begin : step
+                        reg [RW:0]  sum;
+                        reg [j-1:0] qb;
+                        sum = {rem_in[RW-2:0], b, 1'b1} + {{1'b0, den_in} ^ {RW{~neg}}, ~neg};
+                        qb = {j{1'b0}};
+                        qb[0] = ~sum[RW];
+                        q_r <= q_in | qb;
+                    end
                 end
                 if (j < IB) begin : keep_nlo
                     reg [IBW-1:0] nlo_r;
