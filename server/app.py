@@ -400,7 +400,7 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
         if rig_model is None:
             log.warning("no calibration given: the rectify core passes frames through (give --calibration)")
             return CalibrationState(lb_rows=rectify.lb_rows)
-        cal = Calibration.derive(rig_model, stereo_rectify(rig_model, alpha=0.0), alpha=0.0,
+        cal = Calibration.derive(rig_model, stereo_rectify(rig_model, alpha=0.0), alpha=0.0, units="m",
                                  source="the synthetic rig's known calibration (emulated fabric)")
         state_id = _calibration_id("synthetic-rig", cal.left, cal.right)
         description = "the synthetic rig's known calibration (emulated fabric)"

@@ -26,7 +26,12 @@ same filesystem, fsyncs every file and the folder, then renames it to
 ``<id>``: a capture is listed complete or not at all. Any failure removes
 the temporary folder; so does the next :class:`CaptureStore` on start-up
 after a crash. :meth:`CaptureStore.delete` renames ``<id>`` to a hidden
-``.deleting-*`` folder first, then removes it. Names starting with ``.``
+``.deleting-*`` folder first, then removes it. :meth:`CaptureStore.trash` (what
+``DELETE /api/captures/{id}`` does, so that the page can undo it) renames it
+into the hidden ``.trash/`` folder instead, as ``<id>.<nanoseconds>``, from
+where :meth:`CaptureStore.restore` renames it back; what stays there longer
+than :data:`TRASH_KEEP_S` is removed (at the next trash, and at start-up),
+and so is the whole trash when a save is short of space. Names starting with ``.``
 and anything that is not a capture id are never listed. One daemon per
 capture folder: a new store clears the hidden folders of a previous one.
 
@@ -77,10 +82,14 @@ __all__ = [
     "InvalidCaptureId",
     "CaptureDiskFull",
     "CaptureDamaged",
+    "CaptureConflict",
     "FRAME_NAMES",
     "META_FILE",
     "ID_PATTERN",
     "DEFAULT_MIN_FREE_BYTES",
+    "TRASH_DIR",
+    "TRASH_KEEP_S",
+    "THUMB_WIDTH",
 ]
 
 FRAME_NAMES = ("raw_left", "raw_right", "rect_left", "rect_right")
@@ -93,6 +102,11 @@ DEFAULT_MIN_FREE_BYTES = 64 * 1024 * 1024
 RESERVED_META_KEYS = ("format", "id", "created", "images", "files")
 INCOMING_PREFIX = ".incoming-"
 DELETING_PREFIX = ".deleting-"
+TRASH_DIR = ".trash"
+TRASH_KEEP_S = 600.0  # a trashed capture can be restored for 10 minutes
+THUMB_WIDTH = 160  # pixels: the capture list's thumbnails (shown at 80 CSS px, sharp on a 2x screen)
+_THUMB_QUALITY = 80
+_TRASH_RE = re.compile(r"(" + ID_PATTERN + r")\.([0-9]{1,20})")
 
 _ID_RE = re.compile(ID_PATTERN)
 _MAX_ID_LENGTH = 32
@@ -138,6 +152,12 @@ class CaptureDiskFull(CaptureError):
     """Not enough space to store the capture; nothing was written (507)."""
 
     status = 507
+
+
+class CaptureConflict(CaptureError):
+    """The request clashes with what is stored (a restore of a capture that exists) (409)."""
+
+    status = 409
 
 
 class CaptureDamaged(CaptureError):
@@ -385,6 +405,7 @@ class CaptureStore:
             stale = [Path(e.path) for e in entries if e.name.startswith((INCOMING_PREFIX, DELETING_PREFIX))]
         for path in stale:
             _remove_tree(path)
+        self.purge_trash()
 
     # -- ids ---------------------------------------------------------------
 
@@ -487,6 +508,11 @@ class CaptureStore:
             raise CaptureError(
                 f"cannot check the free space in {self.root} ({exc.strerror or exc}); nothing was stored"
             ) from exc
+        if free - need < self.min_free_bytes and self.purge_trash(0.0):
+            try:  # deleted captures waiting for an undo give their space first
+                free = self._free_bytes()
+            except OSError:
+                pass
         if free - need < self.min_free_bytes:
             raise CaptureDiskFull(
                 f"not enough free space for a capture in {self.root}: {_mb(free)} free, the capture needs "
@@ -824,6 +850,145 @@ class CaptureStore:
         except OSError:
             pass
         _remove_tree(trash)
+
+    # -- trash (delete with undo) ---------------------------------------------
+
+    def _trash_dir(self, create: bool) -> Optional[Path]:
+        """``root/.trash`` (a real folder, never a symbolic link), made if ``create``; else None if absent."""
+        folder = self.root / TRASH_DIR
+        try:
+            st = os.lstat(folder)
+        except FileNotFoundError:
+            if not create:
+                return None
+            try:
+                os.mkdir(folder, 0o755)
+            except FileExistsError:
+                pass
+            st = os.lstat(folder)
+        if not stat.S_ISDIR(st.st_mode):
+            raise CaptureError(f"{folder} is not a folder: remove it so that deleted captures can be kept "
+                               f"for an undo")
+        return folder
+
+    def _trashed(self, folder: Path) -> List[Tuple[str, int, Path]]:
+        """``(id, deleted at (ns since the epoch), path)`` of every capture in the trash folder."""
+        out = []
+        with os.scandir(folder) as entries:
+            for e in entries:
+                m = _TRASH_RE.fullmatch(e.name)
+                if m and e.is_dir(follow_symlinks=False):
+                    out.append((m.group(1), int(m.group(2)), Path(e.path)))
+        return out
+
+    def trash(self, capture_id: object) -> None:
+        """Delete a capture so that :meth:`restore` can bring it back (for :data:`TRASH_KEEP_S`).
+
+        400 malformed id, 404 absent. From the rename on, the capture is no longer listed and
+        every other call says 404; nothing is copied (one rename on the same filesystem), so a
+        page closed before its undo loses nothing: the delete stands and the files stay
+        restorable until the trash is purged.
+        """
+        folder = self.path(capture_id)
+        cid = folder.name
+        try:
+            trash = self._trash_dir(create=True)
+            assert trash is not None
+            stamp = int(self._clock().timestamp() * 1e9)
+            while os.path.lexists(trash / f"{cid}.{stamp}"):  # deleted, restored, deleted in one clock tick
+                stamp += 1
+            os.rename(folder, trash / f"{cid}.{stamp}")
+        except FileNotFoundError:
+            raise _not_found(cid) from None
+        except OSError as exc:
+            raise CaptureError(f"cannot delete capture {cid}: {exc.strerror or exc}") from exc
+        for path in (self.root, trash):
+            try:
+                _fsync_dir(path)
+            except OSError:
+                pass
+        self.purge_trash()
+
+    def restore(self, capture_id: object) -> CaptureInfo:
+        """Bring back a capture :meth:`trash` deleted (the latest delete of that id) and return it.
+
+        400 malformed id; 404 when it is not in the trash (never deleted, purged, or restored
+        already); 409 when a capture of that id exists.
+        """
+        cid = self.check_id(capture_id)
+        trash = self._trash_dir(create=False)
+        found = sorted(t for t in (self._trashed(trash) if trash is not None else []) if t[0] == cid)
+        if not found:
+            raise CaptureNotFound(f"capture {cid} is not in the trash: it was never deleted, was restored "
+                                  f"already, or was deleted more than {TRASH_KEEP_S / 60:g} minutes ago")
+        final = self.root / cid
+        if os.path.lexists(final):
+            raise CaptureConflict(f"capture {cid} exists already: it was restored before")
+        try:
+            os.rename(found[-1][2], final)
+        except FileNotFoundError:
+            raise CaptureNotFound(f"capture {cid} was purged from the trash meanwhile") from None
+        except OSError as exc:
+            raise CaptureError(f"cannot restore capture {cid}: {exc.strerror or exc}") from exc
+        try:
+            _fsync_dir(self.root)
+        except OSError:
+            pass
+        return self.get(cid)
+
+    def purge_trash(self, keep_s: float = TRASH_KEEP_S) -> int:
+        """Remove what has been in the trash for ``keep_s`` seconds or more (0: everything).
+
+        Returns how many captures were removed. Never raises.
+        """
+        try:
+            trash = self._trash_dir(create=False)
+            if trash is None:
+                return 0
+            now_ns = self._clock().timestamp() * 1e9
+            keep_ns = keep_s * 1e9  # a clock set back (a board without RTC) ages entries too
+            old = [path for _, deleted, path in self._trashed(trash) if abs(now_ns - deleted) >= keep_ns]
+        except (OSError, CaptureError):
+            return 0
+        for path in old:
+            _remove_tree(path)
+        return len(old)
+
+    # -- thumbnails ----------------------------------------------------------
+
+    def thumbnail(self, capture_id: object, width: int = THUMB_WIDTH) -> bytes:
+        """A small JPEG of the capture: its rectified left frame (its raw left one when that cannot
+        be read), ``width`` pixels wide (never wider than the frame), aspect kept.
+
+        400/404 as :meth:`path`; :class:`CaptureDamaged` (422) when neither image can be read.
+        Files are read by fixed names, never following a symbolic link.
+        """
+        folder = self.path(capture_id)
+        cid = folder.name
+        image = None
+        for name in ("rect_left.png", "raw_left.png"):
+            try:
+                data = _read_member(folder, name, 64 << 20)
+            except FileNotFoundError:
+                continue
+            except (OSError, ValueError):
+                continue
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+            if image is not None:
+                break
+        if image is None:
+            if not os.path.isdir(folder):
+                raise _not_found(cid)
+            raise CaptureDamaged(f"capture {cid} has no readable rect_left.png or raw_left.png for a "
+                                 f"thumbnail")
+        h, w = image.shape[:2]
+        tw = max(1, min(int(width), w))
+        th = max(1, round(h * tw / w))
+        small = cv2.resize(image, (tw, th), interpolation=cv2.INTER_AREA) if tw != w else image
+        ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, _THUMB_QUALITY])
+        if not ok:
+            raise CaptureError(f"cannot encode the thumbnail of capture {cid}")
+        return buf.tobytes()
 
 
 class _Sink:

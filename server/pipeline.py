@@ -12,7 +12,8 @@ it moved, the copy may straddle a frame boundary (and the raw and processed
 frames may not be a pair), so it copies again from the newer stores (at most
 three times, then the frame counts as dropped). Only as many frames are
 copied as somebody needs (``copy_rate``: the CPU budget's fastest view, and
-every frame while a capture or a snapshot waits for one); the others are only
+every frame while a capture or a snapshot waits for one, or while a consumer
+such as a recording holds :meth:`Pipeline.every_frame`); the others are only
 seen: numbered, counted, and reported to ``alive`` so the feed knows the
 fabric delivers. Never twice: ``wait_frame``
 returns only after a new completion, and a store already published is not
@@ -107,6 +108,10 @@ class FrameSet:
     # The raw store before ``raw``'s, copied with it while a capture asks (:meth:`Pipeline.pairs_wanted`):
     # the raw channel may complete the next frame before the core has finished this one.
     raw_previous: Optional[np.ndarray] = field(default=None, repr=False)
+    # The raw channel's frame store ``raw`` was copied from (None: no raw pair, or the virtual input). The
+    # raw channel may complete the next frame before the core finishes this one, so two sets in a row
+    # can carry the same raw frame: the same store within fewer frames than there are stores.
+    raw_store: Optional[int] = field(default=None, repr=False)
     signal = True
 
     @property
@@ -205,6 +210,7 @@ class Pipeline:
         self._thread: Optional[threading.Thread] = None
         self._raw_wanted = 0
         self._pairs_wanted = 0
+        self._sinks: Tuple[Callable[[FrameSet], None], ...] = ()  # every_frame consumers
         self.channel_ok: Callable[[str], bool] = lambda name: True  # FabricHealth.channel_ok, once set
         self.source_state = SourceState()
         # Counters.
@@ -281,6 +287,27 @@ class Pipeline:
         finally:
             with self._lock:
                 self._pairs_wanted -= 1
+
+    @contextlib.contextmanager
+    def every_frame(self, sink: Callable[[FrameSet], None]) -> Iterator[None]:
+        """While inside, every frame that completes is copied (whatever ``copy_rate`` says) and handed to
+        ``sink`` on the pipeline thread, before it is published.
+
+        For consumers that must see each frame, not the latest (a recording): the feed keeps only
+        the newest set. ``sink`` must return at once (queue the set; the arrays are read-only and
+        shared) and should not raise (an exception is logged and counted; the frame is still
+        published). Frames the pipeline itself misses are ``FRAME_COUNT`` gaps, counted in
+        :attr:`drops`. Hold :meth:`raw_wanted` too for the raw pairs.
+        """
+        with self._lock:
+            self._sinks = self._sinks + (sink,)
+        try:
+            yield
+        finally:
+            with self._lock:
+                sinks = list(self._sinks)
+                sinks.remove(sink)
+                self._sinks = tuple(sinks)
 
     @property
     def frames_seen(self) -> int:
@@ -365,6 +392,11 @@ class Pipeline:
                 self._stop.wait(self.wait_s)
                 continue
             if frame_set is not None:
+                for sink in self._sinks:
+                    try:
+                        sink(frame_set)
+                    except Exception as exc:
+                        self._fail("handing a frame to a consumer", exc)
                 try:
                     self._publish(frame_set)
                 except Exception as exc:
@@ -374,7 +406,7 @@ class Pipeline:
 
     def _wanted(self) -> bool:
         """Whether to copy the frame that just completed: always, or at the rate somebody needs."""
-        if self._copy_rate is None or self._pairs_wanted:
+        if self._copy_rate is None or self._pairs_wanted or self._sinks:
             return True
         rate = self._copy_rate()
         period = self.period
@@ -441,6 +473,7 @@ class Pipeline:
             state = self.source_state
             raw: Optional[np.ndarray] = None
             raw_previous: Optional[np.ndarray] = None
+            raw_store: Optional[int] = None
             if state.source == "virtual" and state.virtual_input is not None and \
                     (count - state.effective_count) % COUNT_MOD < COUNT_MOD // 2:
                 raw = state.virtual_input
@@ -452,15 +485,16 @@ class Pipeline:
                     np.copyto(raw, rbuf)
                     if self._charge is not None:
                         self._charge("raw_copy", time.thread_time() - started)
+                    raw_store = rstore
                     if self._pairs_wanted:
                         raw_s2mm = self.fabric.raw_vdma.s2mm
                         before = raw_s2mm.buffers[(rstore - 1) % raw_s2mm.num_fstores]
                         raw_previous = np.empty(before.shape, dtype=np.uint8)
                         np.copyto(raw_previous, before)
                 except NoFrameYet:
-                    raw = None
+                    raw = raw_store = None
                 except ChannelFault as exc:  # the processed frames go on; FabricHealth restarts it
-                    raw = raw_previous = None
+                    raw = raw_previous = raw_store = None
                     self._fault("raw frames channel fault", exc)
             if self.frame_count() == count:
                 break
@@ -476,7 +510,7 @@ class Pipeline:
         self._seq += 1
         frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
                              monotonic=now, source=state.source, processed=processed, raw=raw,
-                             raw_previous=raw_previous)
+                             raw_previous=raw_previous, raw_store=raw_store)
         self.frames += 1
         self.meter.mark(now)
         return frame_set

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import mimetypes
 import os
@@ -31,6 +32,7 @@ from .captures import CaptureError, CaptureStore
 from .encoders import BroadcastClosed, png_for
 from .errors import ApiError, parse_json
 from .pipeline import COUNT_MOD, FrameSet, SourceState
+from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
     BUDGET,
     CALIBRATION,
@@ -47,10 +49,19 @@ from .state import (
     VIRTUAL,
 )
 from .streams import error_response, json_error
-from .uploads import PAIR_FIELDS, SBS_FIELD, UploadError, decode_pair, parse_json_capture_request
+from .uploads import (
+    PAIR_FIELDS,
+    SBS_FIELD,
+    Fit,
+    UploadError,
+    decode_pair_fitted,
+    parse_fit,
+    parse_json_replay_request,
+)
 from .verify import VerifyError, compare, difference_image
 
 log = logging.getLogger(__name__)
+FIT_FIELD = "fit"  # the upload's optional text field naming the fit (or ?fit= in the URL)
 
 __all__ = ["VirtualCamera", "setup_routes", "core_model_setup", "fresh_raw_frame", "store_capture"]
 
@@ -131,15 +142,18 @@ class VirtualCamera:
         self.verify: Optional[VerifyResult] = None
         self.models = _ModelCache()
         self.round_trip_timeout = round_trip_timeout
+        self.player: Any = None  # a RecordingPlayer while a recording plays (recordings.py)
         # FabricHealth's, once set: a commit the mux refused is a fault until one lands.
         self.mux_refused: Callable[[str, BaseException], None] = lambda source, exc: None
         self.mux_committed: Callable[[], None] = lambda: None
 
     def to_json(self) -> Dict[str, Any]:
         w, h = self.fabric.frame_size
+        player = self.player
         return {"source": self.source, "input": self.origin,
                 "frame": self.result.frame if self.result is not None else None,
-                "width": w, "height": h}
+                "width": w, "height": h,
+                "playing": player.to_json() if player is not None and player.running else None}
 
     def _frames(self, n: float) -> float:
         """Seconds for ``n`` frame periods at the rate the fabric runs (1/60 s before one is known)."""
@@ -180,9 +194,13 @@ class VirtualCamera:
         self._select_blocking("live")
 
     async def send(self, loop_executor: Any, frame: np.ndarray, origin: str) -> FrameSet:
-        """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError 504 if none came)."""
+        """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError 504 if none came).
+
+        A recording playing through the virtual camera stops first.
+        """
         frame.flags.writeable = False
         loop = asyncio.get_running_loop()
+        await self.stop_player()
         async with self.lock:
             try:
                 count = await loop.run_in_executor(loop_executor, self._send_blocking, frame)
@@ -239,6 +257,7 @@ class VirtualCamera:
         await self._select(executor, source)
 
     async def _select(self, executor: Any, source: str) -> None:
+        await self.stop_player()
         async with self.lock:
             if source == "live":
                 await self._back_to_live(executor)
@@ -248,6 +267,34 @@ class VirtualCamera:
                                "or send a capture to it first; the source stays live", status=409)
             frame = self.input
         await self.send(executor, frame, self.origin or "upload")
+
+    # -- a recording played through the core (issue 13) ----------------------------------------------
+    async def stop_player(self) -> None:
+        """Stop the recording playing, if one is (its last frame stays the input)."""
+        player, self.player = self.player, None
+        if player is not None:
+            await player.stop()
+
+    def _next_blocking(self, frame: np.ndarray) -> int:
+        """The next frame of a sequence down MM2S (the mux is already on virtual); FRAME_COUNT then."""
+        self.fabric.send_virtual(frame)
+        self.fabric.proc_vdma.mm2s.wait_parked(timeout=max(PARK_WAIT_S, self._frames(3)))
+        return int(self.pipeline.frame_count())
+
+    async def show_next(self, executor: Any, frame: np.ndarray) -> None:
+        """Put the next frame of a playing sequence on the virtual camera (no round trip waited for).
+
+        The pipeline labels the processed frames from ``ROUND_TRIP_FRAMES`` later with it as
+        their raw pair, as for an upload.
+        """
+        frame.flags.writeable = False
+        async with self.lock:
+            if self.source != "virtual":
+                raise ApiError("the source is no longer virtual", status=409)
+            count = await asyncio.get_running_loop().run_in_executor(executor, self._next_blocking, frame)
+            effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
+            self.pipeline.set_source(SourceState("virtual", frame, effective))
+            self.input, self.effective_count = frame, effective
 
     async def actual_frame(self) -> FrameSet:
         """The fabric's output for the current input: a fresh frame while virtual, else the stored result."""
@@ -355,9 +402,10 @@ async def _read_fields(request: web.Request, limit: int) -> Dict[str, bytes]:
                 raise ApiError("nested multipart bodies are not accepted: "
                                "send the fields left and right, or sbs", status=400)
             name = part.name
-            if name not in PAIR_FIELDS and name != SBS_FIELD:
+            if name not in PAIR_FIELDS and name != SBS_FIELD and name != FIT_FIELD:
                 raise ApiError(f"unknown field {str(name)[:40]!r}: send the fields left and right "
-                               "(a stereo pair) or one field sbs (a side-by-side image)", status=400)
+                               "(a stereo pair) or one field sbs (a side-by-side image), and optionally fit",
+                               status=400)
             if name in fields:
                 raise ApiError(f"field {name} was sent twice", status=400)
             data = bytearray()
@@ -378,47 +426,134 @@ async def _read_fields(request: web.Request, limit: int) -> Dict[str, bytes]:
     return fields
 
 
+def _fit_choice(request: web.Request, fields: Dict[str, bytes]) -> str:
+    """The fit asked: ``?fit=`` or the form field ``fit`` (removed from ``fields``); 400 if they differ."""
+    in_url = request.query.get(FIT_FIELD)
+    in_form: Optional[str] = None
+    raw = fields.pop(FIT_FIELD, None)
+    if raw is not None:
+        try:
+            in_form = raw.decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise UploadError(400, "the fit field must be exact, crop, pad or scale") from None
+    if in_url is not None and in_form is not None and parse_fit(in_url) != parse_fit(in_form):
+        raise UploadError(400, f"fit is {in_url[:20]!r} in the URL but {in_form[:20]!r} in the form: "
+                               "send one")
+    return parse_fit(in_url if in_url is not None else in_form)
+
+
+async def _uploaded_frame(request: web.Request) -> Tuple[np.ndarray, str, Fit]:
+    """The stream frame of a multipart upload, fitted as asked: ``(frame, origin, fit)``."""
+    app = request.app
+    limit = app[CONFIG].max_upload_bytes
+    fields = await _read_fields(request, limit)
+    fit = _fit_choice(request, fields)
+    frame, done = await _run(request, _decode, fields, app[OVERLAY].fabric.frame_size, limit, fit)
+    return frame, "upload (" + ", ".join(sorted(fields)) + ")", done
+
+
 async def post_virtual_camera(request: web.Request) -> web.Response:
     app = request.app
     fabric = app[OVERLAY].fabric
     metrics = app[METRICS]
-    limit = app[CONFIG].max_upload_bytes
+    fit: Optional[Fit] = None
+    replay: Any = None  # a recording's ReplaySource, to play after its first frame
     try:
         ctype = request.content_type
         if ctype == "application/json":
-            capture_id = parse_json_capture_request(await _json_body(request))
-            store: CaptureStore = app[CAPTURES]
-            left, right = await _run(request, store.raw_pair, capture_id)
-            if left.shape[:2] != (fabric.frame_size[1], fabric.frame_size[0]):
-                raise ApiError(f"capture {capture_id} is {left.shape[1]}x{left.shape[0]}, "
-                               f"the fabric takes {fabric.frame_size[0]}x{fabric.frame_size[1]}", status=422)
-            frame = pixel.pack(left, right)
-            origin = f"capture {capture_id}"
+            if parse_fit(request.query.get(FIT_FIELD)) != "exact":
+                raise ApiError("fit applies to uploaded images: captures and recordings are replayed as "
+                               "they were stored", status=400)
+            kind, ident = parse_json_replay_request(await _json_body(request))
+            if kind == "recording":
+                from .routes_recordings import open_replay
+
+                replay = await open_replay(app, ident)
+                frame = await _run(request, replay.frame, 0)
+                origin = f"recording {ident}"
+            else:
+                store: CaptureStore = app[CAPTURES]
+                left, right = await _run(request, store.raw_pair, ident)
+                if left.shape[:2] != (fabric.frame_size[1], fabric.frame_size[0]):
+                    fw, fh = fabric.frame_size
+                    raise ApiError(f"capture {ident} is {left.shape[1]}x{left.shape[0]}, "
+                                   f"the fabric takes {fw}x{fh}", status=422)
+                frame = pixel.pack(left, right)
+                origin = f"capture {ident}"
         elif ctype.startswith("multipart/"):
-            fields = await _read_fields(request, limit)
-            frame = await _run(request, _decode, fields, fabric.frame_size, limit)
-            origin = "upload (" + ", ".join(sorted(fields)) + ")"
+            frame, origin, fit = await _uploaded_frame(request)
         else:
             raise ApiError("send multipart/form-data with fields left and right (or sbs), "
-                           'or JSON {"capture": "<id>"}', status=415)
+                           'or JSON {"capture": "<id>"} or {"recording": "<id>"}', status=415)
     except (ApiError, UploadError, CaptureError) as exc:
+        if replay is not None:
+            replay.close()
         metrics.upload("rejected")
         return error_response(exc)
     metrics.upload("ok")
+    vc = app[VIRTUAL]
     try:
-        result = await app[VIRTUAL].send(app[EXECUTORS].work, frame, origin)
+        result = await vc.send(app[EXECUTORS].work, frame, origin)
     except ApiError as exc:
+        if replay is not None:
+            replay.close()
         metrics.error(exc.message, "virtual-camera")
         return error_response(exc)
     except BroadcastClosed:
+        if replay is not None:
+            replay.close()
         return json_error(503, "the daemon is shutting down")
     w, h = fabric.frame_size
-    return web.json_response({"frame": result.frame, "source": "virtual", "width": w, "height": h,
-                              "input": origin})
+    body: Dict[str, Any] = {"frame": result.frame, "source": "virtual", "width": w, "height": h,
+                            "input": origin}
+    if fit is not None:
+        body["fit"] = fit.to_json()
+    if replay is not None:
+        from .recordings import RecordingPlayer
+
+        source = replay
+        player = RecordingPlayer(
+            origin.split(" ", 1)[1], source, read=lambda k: app[EXECUTORS].run(source.frame, k),
+            show=lambda f: vc.show_next(app[EXECUTORS].work, f))
+        if player.frames > 1 and vc.input is frame:
+            vc.player = player
+            player.start()
+        else:
+            source.close()
+        body["playing"] = player.to_json() if player.running else None
+    return web.json_response(body)
 
 
-def _decode(fields: Dict[str, bytes], size: Tuple[int, int], limit: int) -> np.ndarray:
-    return decode_pair(fields, size=size, max_bytes=limit)
+def _decode(fields: Dict[str, bytes], size: Tuple[int, int], limit: int, fit: str) -> Tuple[np.ndarray, Fit]:
+    return decode_pair_fitted(fields, size=size, fit=fit, max_bytes=limit)
+
+
+def _preview_png(frame: np.ndarray) -> bytes:
+    """The fitted pair side by side (left | right), as PNG: gray when both cameras are gray."""
+    from .encoders import encode_image
+
+    left, right = frame[..., pixel.LEFT], frame[..., pixel.RIGHT]
+    sbs = np.hstack([left, right])
+    rgb = sbs[..., :3]
+    if np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2]):
+        return encode_image(np.ascontiguousarray(sbs[..., 0]), ".png")
+    return encode_image(np.ascontiguousarray(rgb[..., ::-1]), ".png")
+
+
+async def preview_virtual_camera(request: web.Request) -> web.Response:
+    """What an upload would put on the virtual camera, fitted: a PNG, the fabric untouched."""
+    if not request.content_type.startswith("multipart/"):
+        return json_error(415, "send multipart/form-data with fields left and right (or sbs), "
+                               "as for an upload")
+    try:
+        frame, _, fit = await _uploaded_frame(request)
+    except (ApiError, UploadError) as exc:
+        return error_response(exc)
+    body = await _run(request, _preview_png, frame)
+    w, h = fit.size
+    return web.Response(body=body, content_type="image/png",
+                        headers={"X-Fit": json.dumps(fit.to_json()), "X-Frame-Size": f"{w}x{h}",
+                                 "Cache-Control": "no-store"})
 
 
 async def get_virtual_camera(request: web.Request) -> web.Response:
@@ -463,6 +598,9 @@ async def post_verify(request: web.Request) -> web.Response:
     vc = request.app[VIRTUAL]
     if vc.input is None or vc.result is None:
         return json_error(409, "there is no virtual-camera input yet: POST /api/virtual-camera first")
+    if vc.player is not None and vc.player.running:
+        return json_error(409, f"recording {vc.player.id} is playing through the virtual camera: Verify "
+                               "checks a still input; upload a pair or replay a capture, then verify")
     try:
         actual = await vc.actual_frame()
     except asyncio.TimeoutError:
@@ -672,7 +810,8 @@ async def capture_file(request: web.Request) -> web.Response:
 async def delete_capture(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
     try:
-        await _run(request, store.delete, request.match_info["id"])
+        # Into the store's trash: POST /api/captures/{id}/restore undoes it (routes_viewer.py).
+        await _run(request, store.trash, request.match_info["id"])
     except CaptureError as exc:
         return error_response(exc)
     return web.Response(status=204)
@@ -685,12 +824,17 @@ def setup_routes(app: web.Application) -> None:
     r.add_put("/api/source", put_source)
     r.add_get("/api/virtual-camera", get_virtual_camera)
     r.add_post("/api/virtual-camera", post_virtual_camera)
+    r.add_post("/api/virtual-camera/preview", preview_virtual_camera)
     r.add_get(r"/api/virtual-camera/result/{side:left|right}.png", virtual_result)
     r.add_post("/api/verify", post_verify)
     r.add_get("/api/verify/difference.png", verify_difference)
     r.add_get("/api/captures", list_captures)
     r.add_post("/api/captures", post_capture)
     r.add_get(r"/api/captures/{id:[^/]+}.zip", capture_zip)
+    setup_viewer_routes(app)  # thumb.jpg, restore, /api/point: before the {file} route below
     r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)
     r.add_get(r"/api/captures/{id:[^/]+}", get_capture)
     r.add_delete(r"/api/captures/{id:[^/]+}", delete_capture)
+    from . import routes_recordings
+
+    routes_recordings.setup(app)

@@ -6,7 +6,9 @@
 - ``GET /api/calibration/corners``: corners on a frame newer than the
   request (fast detector). Detection runs at most every
   :data:`LIVE_MIN_INTERVAL_S` whatever the number of clients: polling
-  clients share the latest result.
+  clients share the latest result. ``GET /api/calibration/corners/{frame}/{side}.jpg``:
+  the raw image of a recent detection's frame, so the page draws the corners on the
+  very frame they were found in.
 - ``POST /api/calibration/pairs``: capture the next frame as a pair, only
   when the pattern is in both images (else 422) and the view differs from
   every stored pair (else 409). ``DELETE /api/calibration/pairs[/{id}]``.
@@ -47,17 +49,21 @@ from .calibration_pairs import (
     save_settings,
 )
 from .captures import CaptureError, CaptureStore
+from .encoders import encode_image
 from .errors import ApiError, parse_json
+from .pipeline import FrameSet
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
 from .state import CONFIG, EXECUTORS, FEED, METRICS, OVERLAY
 from .streams import error_response, json_error
+from .views import render
 
 log = logging.getLogger(__name__)
 
 __all__ = ["setup", "PANEL", "Panel", "LIVE_MIN_INTERVAL_S", "pairs_folder"]
 
 LIVE_MIN_INTERVAL_S = 0.2
+LIVE_FRAMES_KEPT = 3  # detection frames whose images GET /api/calibration/corners/{frame}/{side}.jpg serves
 
 
 @dataclass
@@ -92,6 +98,7 @@ class Panel:
     settings: PanelSettings
     live: Optional[Dict[str, Any]] = None
     live_at: float = 0.0
+    live_frames: List[FrameSet] = field(default_factory=list)  # the last detections' frames, newest last
     live_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     pairs_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     settings_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
@@ -185,8 +192,29 @@ async def get_corners(request: web.Request) -> web.Response:
                           "image_size": list(fs.size), "pattern": str(settings.pattern), **found,
                           "found": missing_in(found) is None}
             panel.live_at = time.monotonic()
+            panel.live_frames = [*panel.live_frames, fs][-LIVE_FRAMES_KEPT:]
         body = panel.live
     return web.json_response(body, headers={"Cache-Control": "no-store"})
+
+
+async def get_corners_frame(request: web.Request) -> web.Response:
+    """JPEG of one camera's raw image of a recent detection's frame (``?scale=0.5|0.25|1``)."""
+    app = request.app
+    side = request.match_info["side"]
+    try:
+        frame = int(request.match_info["frame"])
+        scale = float(request.query.get("scale", "1"))
+    except ValueError:
+        return json_error(400, "give the frame as a number and scale as 1, 0.5 or 0.25")
+    if side not in ("left", "right") or scale not in (1.0, 0.5, 0.25):
+        return json_error(400, "side is left or right, scale 1, 0.5 or 0.25")
+    fs = next((f for f in app[PANEL].live_frames if f.frame == frame), None)
+    if fs is None:
+        return json_error(404, f"frame {frame} is not one of the last corner detections: "
+                               "ask GET /api/calibration/corners again")
+    jpeg = await app[EXECUTORS].run(lambda: encode_image(render(fs, "raw_" + side, False, scale), ".jpg", 85))
+    return web.Response(body=jpeg, content_type="image/jpeg",
+                        headers={"X-Frame-Number": str(fs.frame), "Cache-Control": "private, max-age=60"})
 
 
 async def post_pair(request: web.Request) -> web.Response:
@@ -368,6 +396,7 @@ def setup(app: web.Application) -> None:
     r.add_get("/api/calibration/session", get_session)
     r.add_put("/api/calibration/session", put_session)
     r.add_get("/api/calibration/corners", get_corners)
+    r.add_get("/api/calibration/corners/{frame}/{side}.jpg", get_corners_frame)
     r.add_post("/api/calibration/pairs", post_pair)
     r.add_delete("/api/calibration/pairs", delete_pairs)
     r.add_delete(r"/api/calibration/pairs/{id:[^/]+}", delete_pair)

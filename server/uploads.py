@@ -22,6 +22,20 @@ while decoding: they never escape as Python warnings. Because Python's
 warning filters are process-global, decoding holds a module lock, so
 decodes run one at a time (a 752x480 pair decodes in milliseconds).
 
+Fit. ``exact`` (the default) refuses an image that is not the fabric's
+frame size. The other modes make any size fit, the same way for both
+images of a pair (which must then be the same size as each other):
+``crop`` and ``pad`` centre the image on the frame, cutting what sticks out
+and filling what is missing with black (they differ only in what they are
+for: ``crop`` for images larger than the frame, ``pad`` for smaller ones; an
+image larger in one dimension and smaller in the other is cut in one and
+padded in the other either way, and :class:`Fit` says so); ``scale``
+resizes to the largest size that fits inside the frame keeping the aspect
+ratio (``cv2.INTER_AREA`` when shrinking, ``INTER_LINEAR`` when enlarging)
+and pads the rest with black (letterbox). :func:`fit_pair` does it on
+decoded images (the daemon and ``stereocam rectify --fit``);
+:func:`decode_pair_fitted` on an upload's fields.
+
 Every refusal is an :class:`UploadError` with the HTTP ``status`` and a
 one-line ``message`` naming the field; ``to_json()`` is the response body.
 """
@@ -31,8 +45,9 @@ import io
 import threading
 import warnings
 from dataclasses import dataclass
-from typing import IO, Any, Callable, Dict, Mapping, Optional, Tuple
+from typing import IO, Any, Callable, Dict, List, Mapping, Optional, Tuple
 
+import cv2
 import numpy as np
 from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
@@ -45,6 +60,14 @@ __all__ = [
     "decode_image",
     "decode_pair",
     "parse_json_capture_request",
+    "parse_json_replay_request",
+    "Fit",
+    "FIT_MODES",
+    "parse_fit",
+    "plan_fit",
+    "apply_fit",
+    "fit_pair",
+    "decode_pair_fitted",
     "MAX_UPLOAD_BYTES",
     "MAX_IMAGE_PIXELS",
     "ACCEPTED_FORMATS",
@@ -297,20 +320,8 @@ def decode_pair(
     (named), and everything :func:`decode_image` raises, naming the field.
     The fields are checked in order (``left`` before ``right``).
     """
-    width, height = int(size[0]), int(size[1])
-    if width <= 0 or height <= 0:
-        raise ValueError(f"size must be a positive (width, height), got {size!r}")
-    names = list(fields)
-    unknown = [n for n in names if n not in PAIR_FIELDS and n != SBS_FIELD]
-    if unknown:
-        shown = ", ".join(repr(str(n)[:40]) for n in unknown)
-        raise UploadError(400, f"unknown field(s) {shown}: {_FIELDS_TEXT}")
-    if not names:
-        raise UploadError(400, f"no image was sent: {_FIELDS_TEXT}")
-    if SBS_FIELD in names:
-        if len(names) > 1:
-            others = " and ".join(n for n in PAIR_FIELDS if n in names)
-            raise UploadError(400, f"both {SBS_FIELD} and {others} were sent: {_FIELDS_TEXT}, not both")
+    width, height = _check_size(size)
+    if _check_fields(fields) == SBS_FIELD:
         def wrong_size(w: int, h: int) -> Optional[UploadError]:
             if (w, h) == (2 * width, height):
                 return None
@@ -324,16 +335,248 @@ def decode_pair(
         both = _decode(fields[SBS_FIELD], SBS_FIELD, max_pixels, max_bytes, wrong_size)
         left, right = both[:, :width], both[:, width:]
     else:
-        missing = [n for n in PAIR_FIELDS if n not in names]
-        if missing:
-            raise UploadError(400, f"field {missing[0]} is missing: {_FIELDS_TEXT}")
         left = decode_image(fields["left"], field="left", max_pixels=max_pixels, max_bytes=max_bytes,
                             size=(width, height))
         right = decode_image(fields["right"], field="right", max_pixels=max_pixels, max_bytes=max_bytes,
                              size=(width, height))
+    return _pack(left, right)
+
+
+def _pack(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     if left.ndim != right.ndim:  # one gray, one colour: both as RGB
         left, right = (np.repeat(x[..., None], 3, axis=2) if x.ndim == 2 else x for x in (left, right))
     return pixel.pack(pixel.rgby(np.ascontiguousarray(left)), pixel.rgby(np.ascontiguousarray(right)))
+
+
+def _check_size(size: Tuple[int, int]) -> Tuple[int, int]:
+    width, height = int(size[0]), int(size[1])
+    if width <= 0 or height <= 0:
+        raise ValueError(f"size must be a positive (width, height), got {size!r}")
+    return width, height
+
+
+def _check_fields(fields: Mapping[str, Any]) -> str:
+    """``"sbs"`` or ``"pair"``: which fields an upload sent (400 for a wrong set, named)."""
+    names = list(fields)
+    unknown = [n for n in names if n not in PAIR_FIELDS and n != SBS_FIELD]
+    if unknown:
+        shown = ", ".join(repr(str(n)[:40]) for n in unknown)
+        raise UploadError(400, f"unknown field(s) {shown}: {_FIELDS_TEXT}")
+    if not names:
+        raise UploadError(400, f"no image was sent: {_FIELDS_TEXT}")
+    if SBS_FIELD in names:
+        if len(names) > 1:
+            others = " and ".join(n for n in PAIR_FIELDS if n in names)
+            raise UploadError(400, f"both {SBS_FIELD} and {others} were sent: {_FIELDS_TEXT}, not both")
+        return SBS_FIELD
+    missing = [n for n in PAIR_FIELDS if n not in names]
+    if missing:
+        raise UploadError(400, f"field {missing[0]} is missing: {_FIELDS_TEXT}")
+    return "pair"
+
+
+# -- fit ------------------------------------------------------------------------------------------
+
+FIT_MODES = ("exact", "crop", "pad", "scale")
+FIT_HINT = "; or send fit=crop, pad or scale to make it fit"
+
+
+def parse_fit(value: Optional[str]) -> str:
+    """The fit mode named by ``value`` (None or empty: ``exact``); 400 for anything else."""
+    if value is None or value == "":
+        return "exact"
+    if value not in FIT_MODES:
+        shown = value if len(value) <= 20 else value[:20] + "..."
+        raise UploadError(400, f"unknown fit {shown!r}: use exact, crop, pad or scale")
+    return value
+
+
+@dataclass(frozen=True)
+class Fit:
+    """How an image of ``source`` size was made the fabric's ``size`` (both ``(width, height)``).
+
+    In order: resized to ``resized`` (by ``scale``; only ``scale`` mode resizes), then
+    ``cropped`` pixels cut from its (left, top, right, bottom) and ``padded`` black pixels
+    added on each side. The same for both images of a pair.
+    """
+
+    mode: str
+    source: Tuple[int, int]
+    size: Tuple[int, int]
+    scale: float = 1.0
+    resized: Tuple[int, int] = (0, 0)
+    cropped: Tuple[int, int, int, int] = (0, 0, 0, 0)
+    padded: Tuple[int, int, int, int] = (0, 0, 0, 0)
+
+    @property
+    def changed(self) -> bool:
+        return self.source != self.size
+
+    def text(self) -> str:
+        """What was done, in words (``"padded 45 columns (22 left, 23 right) with black; ..."``)."""
+        parts: List[str] = []
+        if self.resized != self.source:
+            how = "shrunk" if self.scale < 1 else "enlarged"
+            (sw, sh), (rw, rh) = self.source, self.resized
+            parts.append(f"{how} from {sw}x{sh} to {rw}x{rh} (x{self.scale:.4g}, aspect ratio kept)")
+        edges = (("cropped", self.cropped, ""), ("padded", self.padded, " with black"))
+        for verb, (lt, t, r, b), tail in edges:
+            if lt or r:
+                cols = "column" if lt + r == 1 else "columns"
+                parts.append(f"{verb} {lt + r} {cols} ({lt} left, {r} right){tail}")
+            if t or b:
+                rows = "row" if t + b == 1 else "rows"
+                parts.append(f"{verb} {t + b} {rows} ({t} top, {b} bottom){tail}")
+        if not parts:
+            return "already the fabric's size: unchanged"
+        return "; ".join(parts)
+
+    def to_json(self) -> Dict[str, Any]:
+        return {"mode": self.mode, "from": list(self.source), "to": list(self.size),
+                "scale": round(self.scale, 6), "resized": list(self.resized),
+                "cropped": list(self.cropped), "padded": list(self.padded), "text": self.text()}
+
+
+def _centre(have: int, want: int) -> Tuple[Tuple[int, int], Tuple[int, int]]:
+    """((cut before, cut after), (pad before, pad after)) putting ``have`` pixels centred in ``want``."""
+    if have > want:
+        before = (have - want) // 2
+        return (before, have - want - before), (0, 0)
+    before = (want - have) // 2
+    return (0, 0), (before, want - have - before)
+
+
+def plan_fit(mode: str, source: Tuple[int, int], size: Tuple[int, int]) -> Fit:
+    """The :class:`Fit` that makes an image of ``source`` size the ``size`` (both ``(width, height)``).
+
+    ``mode`` is one of :data:`FIT_MODES` (``exact`` is only valid when the sizes are
+    equal: ValueError otherwise; callers refuse the upload before planning).
+    """
+    sw, sh = int(source[0]), int(source[1])
+    w, h = _check_size(size)
+    if sw <= 0 or sh <= 0:
+        raise ValueError(f"source must be a positive (width, height), got {source!r}")
+    if mode not in FIT_MODES:
+        raise ValueError(f"mode must be one of {', '.join(FIT_MODES)}, got {mode!r}")
+    if mode == "exact":
+        if (sw, sh) != (w, h):
+            raise ValueError(f"exact fit of {sw}x{sh} to {w}x{h}")
+        return Fit("exact", (sw, sh), (w, h), 1.0, (sw, sh))
+    scale, rw, rh = 1.0, sw, sh
+    if mode == "scale" and (sw, sh) != (w, h):
+        scale = min(w / sw, h / sh)
+        rw = max(1, min(w, int(round(sw * scale))))
+        rh = max(1, min(h, int(round(sh * scale))))
+    (cl, cr), (pl, pr) = _centre(rw, w)
+    (ct, cb), (pt, pb) = _centre(rh, h)
+    return Fit(mode, (sw, sh), (w, h), scale, (rw, rh), (cl, ct, cr, cb), (pl, pt, pr, pb))
+
+
+def apply_fit(image: np.ndarray, fit: Fit) -> np.ndarray:
+    """``image`` (``(H, W)`` or ``(H, W, C)`` uint8 of ``fit.source`` size) made ``fit.size``: a new array."""
+    h0, w0 = image.shape[:2]
+    if (w0, h0) != fit.source:
+        raise ValueError(f"the image is {w0}x{h0}, the fit was planned for {fit.source[0]}x{fit.source[1]}")
+    if fit.resized != fit.source:
+        interpolation = cv2.INTER_AREA if fit.scale < 1 else cv2.INTER_LINEAR
+        image = cv2.resize(np.ascontiguousarray(image), fit.resized, interpolation=interpolation)
+    rh, rw = image.shape[:2]
+    cl, ct, cr, cb = fit.cropped
+    image = image[ct:rh - cb, cl:rw - cr]
+    w, h = fit.size
+    if image.shape[:2] == (h, w):
+        return np.array(image, dtype=np.uint8, copy=True)
+    pl, pt, _, _ = fit.padded
+    out = np.zeros((h, w) + image.shape[2:], dtype=np.uint8)
+    out[pt:pt + image.shape[0], pl:pl + image.shape[1]] = image
+    return out
+
+
+def fit_pair(left: np.ndarray, right: np.ndarray, size: Tuple[int, int], mode: str, *,
+             names: Tuple[str, str] = PAIR_FIELDS) -> Tuple[np.ndarray, np.ndarray, Fit]:
+    """Both images of a pair made ``size`` by ``mode``: ``(left, right, fit)`` (new arrays).
+
+    Raises :class:`UploadError` 400 when the two images differ in size, 422 for ``exact``
+    when they are not ``size`` (the message names the image, as :func:`decode_image` does).
+    """
+    w, h = _check_size(size)
+    (lh, lw), (rh, rw) = left.shape[:2], right.shape[:2]
+    if (lw, lh) != (rw, rh):
+        raise UploadError(400, f"{names[0]} is {lw}x{lh} but {names[1]} is {rw}x{rh}: the two images of a "
+                               f"pair must be the same size")
+    mode = parse_fit(mode)
+    if mode == "exact" and (lw, lh) != (w, h):
+        raise UploadError(422, f"{names[0]} is {lw}x{lh}, the fabric takes {w}x{h}{FIT_HINT}")
+    fit = plan_fit(mode, (lw, lh), (w, h))
+    return apply_fit(left, fit), apply_fit(right, fit), fit
+
+
+def decode_pair_fitted(
+    fields: Mapping[str, Any],
+    *,
+    size: Tuple[int, int],
+    fit: str = "exact",
+    max_pixels: int = MAX_IMAGE_PIXELS,
+    max_bytes: int = MAX_UPLOAD_BYTES,
+) -> Tuple[np.ndarray, Fit]:
+    """:func:`decode_pair` with a fit: ``(stream frame, Fit)``.
+
+    ``exact`` is :func:`decode_pair` (422 before decoding for a wrong size, its message
+    ending with how to fit instead). The other modes decode any size (the limits on
+    bytes and pixels still hold), then :func:`fit_pair` both images: a side-by-side
+    image is split into its halves first (an odd width is 422). 400 when ``left`` and
+    ``right`` differ in size; 400 for an unknown ``fit``.
+    """
+    width, height = _check_size(size)
+    mode = parse_fit(fit)
+    if mode == "exact":
+        try:
+            frame = decode_pair(fields, size=size, max_pixels=max_pixels, max_bytes=max_bytes)
+        except UploadError as exc:
+            if exc.status == 422:
+                raise UploadError(422, exc.message + FIT_HINT) from None
+            raise
+        return frame, plan_fit("exact", (width, height), (width, height))
+    kind = _check_fields(fields)
+
+    def any_size(w: int, h: int) -> Optional[UploadError]:
+        return None
+
+    if kind == SBS_FIELD:
+        both = _decode(fields[SBS_FIELD], SBS_FIELD, max_pixels, max_bytes, any_size)
+        bw = both.shape[1]
+        if bw % 2:
+            raise UploadError(422, f"{SBS_FIELD} is {bw}x{both.shape[0]}: an odd width cannot be split into "
+                                   f"two equal halves (left camera on the left)")
+        left, right = both[:, :bw // 2], both[:, bw // 2:]
+        names = ("the left half of sbs", "the right half")
+    else:
+        left = _decode(fields["left"], "left", max_pixels, max_bytes, any_size)
+        right = _decode(fields["right"], "right", max_pixels, max_bytes, any_size)
+        names = PAIR_FIELDS
+    left, right, done = fit_pair(left, right, (width, height), mode, names=names)
+    return _pack(left, right), done
+
+
+def parse_json_replay_request(obj: Any) -> Tuple[str, str]:
+    """``("capture", id)`` or ``("recording", id)`` from a JSON body naming one of them.
+
+    Checks the shape and the id's form only (recordings are named like captures);
+    400 otherwise.
+    """
+    if isinstance(obj, dict) and set(obj) == {"recording"}:
+        value = obj["recording"]
+        if not isinstance(value, str):
+            raise UploadError(400, f'"recording" must be a recording id string like {ID_EXAMPLE}, '
+                                   f'got {type(value).__name__}')
+        if not CaptureStore.valid_id(value):
+            shown = value if len(value) <= 40 else value[:40] + "..."
+            raise UploadError(400, f"invalid recording id {shown!r}: recording ids look like {ID_EXAMPLE}")
+        return "recording", value
+    if isinstance(obj, dict) and "recording" in obj:
+        extra = ", ".join(repr(str(k)[:40]) for k in obj if k != "recording")
+        raise UploadError(400, f'unknown key(s) {extra}: send only {{"recording": "<id>"}}')
+    return "capture", parse_json_capture_request(obj)
 
 
 def parse_json_capture_request(obj: Any) -> str:

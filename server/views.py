@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "VIEWS", "GRAY_VIEWS", "RAW_VIEWS", "ViewUnavailable", "render", "view_size", "disparity_map",
-    "no_signal_image", "DisparityWorker", "STEREO_BM",
+    "disparity_raw", "no_signal_image", "DisparityWorker", "STEREO_BM",
 ]
 
 VIEWS = ("raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity")
@@ -149,14 +149,25 @@ def disparity_view(fs: FrameSet, charge: Optional[Callable[[str, float], None]] 
     """
     def compute() -> np.ndarray:
         cpu = time.thread_time()
-        p = fs.processed
-        out = colour_disparity(disparity_map(p[..., _Y["left"]], p[..., _Y["right"]]))
+        out = colour_disparity(disparity_raw(fs))
         out.flags.writeable = False
         if charge is not None:
             charge("match", time.thread_time() - cpu)
         return out
 
     return fs.cache.get(("disparity",), compute)
+
+
+def disparity_raw(fs: FrameSet) -> np.ndarray:
+    """The StereoBM disparities of ``fs`` (int16, 1/16 px; read-only; cached in the set, so the
+    depth readout reads the very map the disparity view shows). Blocks for tens of milliseconds."""
+    def compute() -> np.ndarray:
+        p = fs.processed
+        out = disparity_map(p[..., _Y["left"]], p[..., _Y["right"]])
+        out.flags.writeable = False
+        return out
+
+    return fs.cache.get(("disparity16",), compute)
 
 
 # -- no signal --------------------------------------------------------------------------------

@@ -201,9 +201,17 @@ def cmd_rectify(args: argparse.Namespace) -> int:
             f"left is {left.shape[1]}x{left.shape[0]} but right is {right.shape[1]}x{right.shape[0]}: "
             "the pair must have the same size"
         )
+    fitted = ""
+    if args.fit == "exact" and args.size is None:
+        h, w = left.shape[:2]
+        cal = load_calibration(args.calibration, image_size=(w, h), lb_rows=args.lb_rows)
+    else:
+        # The frame size: --size, else the one the calibration records (checked against --size).
+        cal = load_calibration(args.calibration, image_size=args.size, lb_rows=args.lb_rows)
+        cw, ch = cal.image_size
+        left, right, fitted = _fit_pair(left, right, (int(cw), int(ch)), args.fit)
+        h, w = left.shape[:2]
     gray = left.ndim == 2 and right.ndim == 2
-    h, w = left.shape[:2]
-    cal = load_calibration(args.calibration, image_size=(w, h), lb_rows=args.lb_rows)
     fit = cal.fit
     options = CoreOptions(lb_rows=args.lb_rows, lb_delay=fit.delay, gray=gray)
     frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
@@ -223,7 +231,28 @@ def cmd_rectify(args: argparse.Namespace) -> int:
         f"{'the RTL under Verilator' if args.core == 'rtl' else 'the model'}); "
         f"line buffer: {fit.rows} of {args.lb_rows} rows needed (delay {fit.delay})"
     )
+    if fitted:
+        print(fitted)
     return 0
+
+
+def _fit_pair(left: np.ndarray, right: np.ndarray, size: "tuple[int, int]", mode: str
+              ) -> "tuple[np.ndarray, np.ndarray, str]":
+    """The pair made ``size`` by ``--fit`` (the daemon's upload fit) and a line saying what was done."""
+    from .server.uploads import UploadError, fit_pair
+
+    try:
+        left, right, done = fit_pair(left, right, size, mode)
+    except UploadError as exc:
+        if mode == "exact":
+            h, w = left.shape[:2]
+            raise UserError(f"the images are {w}x{h}, the calibration is for {size[0]}x{size[1]}: "
+                            f"give --fit crop, pad or scale to make them fit") from None
+        raise UserError(exc.message) from None
+    if not done.changed:
+        return left, right, ""
+    sw, sh = done.source
+    return left, right, f"fit {mode}: {sw}x{sh} -> {size[0]}x{size[1]}: {done.text()}"
 
 
 RTL_TIMEOUT_S = 60.0  # register waits against the simulated core (a frame takes a large part of a second)
@@ -512,6 +541,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--core", choices=("model", "rtl"), default="model",
                    help="model (default): the bit-exact numpy model; rtl: the core's Verilog under Verilator "
                         "(built once and cached; the output is the same byte for byte)")
+    p.add_argument("--fit", choices=("exact", "crop", "pad", "scale"), default="exact",
+                   help="a pair of another size than the calibration's: exact (default) refuses it; crop "
+                        "and pad centre it, cutting what sticks out and padding what is missing with black; "
+                        "scale resizes it keeping the aspect ratio (INTER_AREA when shrinking) and pads the "
+                        "rest (letterbox); the same fit the daemon's upload takes (fit=...)")
+    p.add_argument("--size", type=_parse_size, metavar="WxH",
+                   help="the image size the calibration is for, when its files do not record it "
+                        "(OpenCV stereo_calib's); with --fit the pair is made this size")
     p.add_argument("left")
     p.add_argument("right")
     p.set_defaults(func=cmd_rectify)

@@ -153,3 +153,85 @@ def test_bad_images_get_one_line_and_exit_2(tmp_path, calfiles, capsys) -> None:
         (tmp_path / "nope.png", right, "nope.png: no such file"),
     ):
         assert message in run_error(capsys, ["rectify", "--calibration", cal, "-o", str(tmp_path / "o"), str(l_img), str(r_img)])
+
+
+# -- --fit: a pair of another size than the calibration's (issue 13, item 2) -------------------------
+
+def gray(path: Path) -> np.ndarray:
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+
+
+def rectified(tmp_path: Path, name: str, cal: str, left: np.ndarray, right: np.ndarray,
+              *extra: str) -> np.ndarray:
+    """``stereocam rectify`` of the pair (written as PNGs), its left output."""
+    folder = tmp_path / name
+    folder.mkdir()
+    cv2.imwrite(str(folder / "l.png"), left)
+    cv2.imwrite(str(folder / "r.png"), right)
+    assert main(["rectify", "--calibration", cal, *extra, "-o", str(folder / "out"),
+                 str(folder / "l.png"), str(folder / "r.png")]) == 0
+    return cv2.imread(str(folder / "out" / "left.png"), cv2.IMREAD_UNCHANGED)
+
+
+def test_fit_pad_rectifies_a_smaller_pair_as_that_pair_padded_with_black(tmp_path, calfiles, capsys) -> None:
+    cal = cal_arg(calfiles)
+    left, right = (gray(p)[5:-4, 20:-13] for p in pair_paths(3))  # 607x471
+    got = rectified(tmp_path, "fit", cal, left, right, "--size", "640x480", "--fit", "pad")
+    out = capsys.readouterr().out
+    assert ("fit pad: 607x471 -> 640x480: padded 33 columns (16 left, 17 right) with black; "
+            "padded 9 rows (4 top, 5 bottom) with black") in out
+    pad = ((4, 5), (16, 17))
+    expected = rectified(tmp_path, "by-hand", cal, np.pad(left, pad), np.pad(right, pad))
+    assert got.shape == (480, 640)
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_fit_crop_takes_the_centre_of_a_larger_pair(tmp_path, calfiles) -> None:
+    cal = cal_arg(calfiles)
+    left, right = (cv2.copyMakeBorder(gray(p), 11, 11, 30, 31, cv2.BORDER_REFLECT) for p in pair_paths(4))
+    got = rectified(tmp_path, "fit", cal, left, right, "--size", "640x480", "--fit", "crop")
+    expected = rectified(tmp_path, "by-hand", cal, *(gray(p) for p in pair_paths(4)))  # what was added, cut
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_fit_scale_shrinks_with_inter_area_keeping_the_aspect_ratio(tmp_path, calfiles, capsys) -> None:
+    cal = cal_arg(calfiles)
+    big = [cv2.resize(gray(p), (1280, 960), interpolation=cv2.INTER_CUBIC) for p in pair_paths(5)]
+    got = rectified(tmp_path, "fit", cal, *big, "--size", "640x480", "--fit", "scale")
+    assert "shrunk from 1280x960 to 640x480 (x0.5, aspect ratio kept)" in capsys.readouterr().out
+    expected = rectified(tmp_path, "by-hand", cal,
+                         *(cv2.resize(b, (640, 480), interpolation=cv2.INTER_AREA) for b in big))
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_fit_uses_the_size_a_stereocam_calibration_records(tmp_path, calfiles, capsys) -> None:
+    yaml_path = tmp_path / "calibration.yaml"
+    assert main(["calibration", "import", "--size", "640x480", str(calfiles[0]), str(calfiles[1]),
+                 "-o", str(yaml_path)]) == 0
+    left, right = (gray(p)[:, :600] for p in pair_paths(3))
+    got = rectified(tmp_path, "fit", str(yaml_path), left, right, "--fit", "scale")
+    assert got.shape == (480, 640)
+    assert "padded 40 columns (20 left, 20 right) with black" in capsys.readouterr().out
+
+
+def test_fit_errors_get_one_line_and_exit_2(tmp_path, calfiles, capsys) -> None:
+    cal = cal_arg(calfiles)
+    small_l, small_r = tmp_path / "sl.png", tmp_path / "sr.png"
+    cv2.imwrite(str(small_l), gray(pair_paths(1)[0])[:400, :500])
+    cv2.imwrite(str(small_r), gray(pair_paths(1)[1])[:400, :500])
+    odd_r = tmp_path / "odd.png"
+    cv2.imwrite(str(odd_r), gray(pair_paths(1)[1])[:400, :501])
+    out = str(tmp_path / "o")
+    for argv, message in (
+        (["--fit", "pad", str(small_l), str(small_r)], "does not record the image size"),  # no --size
+        (["--size", "640x480", str(small_l), str(small_r)],
+         "the images are 500x400, the calibration is for 640x480: give --fit crop, pad or scale"),
+        (["--size", "640x480", "--fit", "pad", str(small_l), str(odd_r)],
+         "left is 500x400 but right is 501x400"),
+    ):
+        assert message in run_error(capsys, ["rectify", "--calibration", cal, "-o", out, *argv])
+    assert not (tmp_path / "o" / "left.png").exists()
+    with pytest.raises(SystemExit) as stop:  # argparse names the choices
+        main(["rectify", "--calibration", cal, "--fit", "stretch", "-o", out, str(small_l), str(small_r)])
+    assert stop.value.code == 2
+    assert "invalid choice: 'stretch'" in capsys.readouterr().err

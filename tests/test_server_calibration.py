@@ -64,7 +64,8 @@ async def test_get_shows_the_synthetic_rig_calibration(start_daemon) -> None:
     assert np.asarray(body["rectification"]["P2"]).shape == (3, 4)
     expected = rig_calibration(daemon)
     assert body["file_id"] == expected.id and body["source"].startswith("the synthetic rig")
-    assert body["yaml"] == dataclasses.replace(expected, source=body["source"]).to_yaml()
+    # The rig's T is in metres (its calibration says so: the depth readout needs the unit).
+    assert body["yaml"] == dataclasses.replace(expected, source=body["source"], units="m").to_yaml()
     cfg = registers(daemon)
     assert (cfg.left, cfg.right) == core_registers(expected)  # the yaml is what the core runs
 

@@ -1,10 +1,14 @@
 // The calibration panel.
-import { $, ApiError, api, action, bust, fmt, loadImage, showError, showMessage } from "./core.js";
+import { $, ApiError, api, action, bust, clearMessages, fmt, loadImage, showError, showSuccess } from "./core.js";
 
 // ---- calibration panel (issue 4) ---------------------------------------------------
 // While the panel is open and "show corners" is ticked, GET /api/calibration/corners is
-// polled (one request at a time) and the corners are drawn over the raw views. Pairs,
-// coverage, compute, figures and apply go through the /api/calibration/* endpoints.
+// polled (one request at a time) and the corners are drawn over the raw views, on the very
+// frame they were found in: the overlay holds that frame's image
+// (GET /api/calibration/corners/{frame}/{side}.jpg) under the corners, so the raw views show
+// the detection frames (a few a second) with their corners, never live frames with the corners
+// of an older pose. Each overlay's data-frame is the frame it shows. Pairs, coverage, compute,
+// figures and apply go through the /api/calibration/* endpoints.
 const SVG_NS = "http://www.w3.org/2000/svg";
 const CORNER_PAUSE_MS = 300;  // a detection costs tens of ms of the board's CPU
 let cornersRunning = false;
@@ -22,17 +26,38 @@ function setViewBox(svg, size) {
   if (Array.isArray(size) && size.length === 2) svg.setAttribute("viewBox", "0 0 " + size[0] + " " + size[1]);
 }
 
-function drawCorners(side, points, size) {
+// The frame's image, decoded before it replaces the overlay's (no flash of an empty overlay).
+async function frameImage(frame, side) {
+  const fig = $("corners-" + side).closest("figure");
+  const scale = fig && fig.classList.contains("view-enlarged") ? 1 : 0.5;
+  const url = "/api/calibration/corners/" + frame + "/" + side + ".jpg?scale=" + scale;
+  const img = new Image();
+  img.src = url;
+  await img.decode().catch(() => { throw new ApiError("the frame " + frame + " is no longer kept: trying the next one"); });
+  return url;
+}
+
+function drawCorners(side, points, size, frame, imageUrl) {
   const svg = $("corners-" + side);
   setViewBox(svg, size);
   const frag = document.createDocumentFragment();
-  if (Array.isArray(points) && points.length) {
+  const shown = Array.isArray(points) && points.length && imageUrl;
+  if (shown) {
+    frag.append(svgEl("image", { href: imageUrl, x: 0, y: 0, width: size[0], height: size[1],
+                                 preserveAspectRatio: "none", class: "corners-frame" }));
+    const label = svgEl("text", { x: 8, y: size[1] - 10, class: "corners-label" });
+    label.textContent = "frame #" + frame + " (corners found)";
+    frag.append(label);
+  }
+  if (shown) {
     frag.append(svgEl("polyline", { points: points.map((p) => p[0] + "," + p[1]).join(" "), class: "found" }));
     frag.append(svgEl("circle", { cx: points[0][0], cy: points[0][1], r: 6, class: "found" }));
     for (const p of points) frag.append(svgEl("circle", { cx: p[0], cy: p[1], r: 2.5, class: "found" }));
   }
   svg.replaceChildren(frag);
-  svg.dataset.corners = String(Array.isArray(points) ? points.length : 0);
+  svg.dataset.corners = String(shown ? points.length : 0);
+  svg.dataset.frame = shown ? String(frame) : "";
+  svg.classList.toggle("corners-on", !!shown);
 }
 
 function cornersWanted() { return $("calib").open && $("calib-live").checked; }
@@ -47,8 +72,11 @@ async function cornersLoop() {
         const res = await api("GET", "/api/calibration/corners");
         cornersFailing = false;
         if (!cornersWanted()) break;
-        drawCorners("left", res.left, res.image_size);
-        drawCorners("right", res.right, res.image_size);
+        const urls = await Promise.all(["left", "right"].map((side) =>
+          (res[side] ? frameImage(res.frame, side) : Promise.resolve(null))));
+        if (!cornersWanted()) break;
+        drawCorners("left", res.left, res.image_size, res.frame, urls[0]);
+        drawCorners("right", res.right, res.image_size, res.frame, urls[1]);
         const where = res.found ? "board " + res.pattern + " found in both views" :
           (res.left ? "found in the left view only" : res.right ? "found in the right view only" :
            "board " + res.pattern + " not found");
@@ -57,10 +85,15 @@ async function cornersLoop() {
         state.dataset.found = String(!!res.found);
         state.dataset.frame = String(res.frame);
       } catch (e) {
-        state.textContent = e.message;
+        state.textContent = e.status === 503 ? "no frame from the cameras: waiting for the signal" : e.message;
         state.className = "calib-live-state bad";
         state.dataset.found = "false";
-        if (!cornersFailing) showError(e.message);
+        for (const side of ["left", "right"]) drawCorners(side, null, null);
+        // A frame replaced before its image came is normal (the next poll shows a newer one).
+        if (!cornersFailing && e.status !== null) {
+          showError(e, { explain: { 503: "No frame from the cameras, so no corners: check the cameras " +
+                                          "(Status panel, signal), the corners come back by themselves." } });
+        }
         cornersFailing = true;
         await new Promise((r) => setTimeout(r, 1000));
       }
@@ -69,6 +102,7 @@ async function cornersLoop() {
   } finally {
     cornersRunning = false;
     for (const side of ["left", "right"]) drawCorners(side, null, null);
+    clearMessages("GET /api/calibration/corners", "error");
     if (!cornersWanted()) { state.textContent = "—"; state.className = "calib-live-state"; }
   }
 }
@@ -169,7 +203,7 @@ async function putCalibSettings(fields) {
   try {
     renderSession(await api("PUT", "/api/calibration/session", fields));
   } catch (e) {
-    showError(e.message);
+    showError(e, { explain: { 400: (x) => "That calibration setting was not taken: " + x.detail + "." } });
     if (calibSession) renderSession(calibSession);  // back to the settings in use
   }
 }
@@ -215,7 +249,8 @@ function renderCandidate(cand) {
 
 function renderPairTable(cand) {
   const r = cand.report;
-  const worstRms = Math.max(1e-9, ...r.pairs.filter((p) => p.used).map((p) => p.rms));
+  // Bars: each pair's row error, mean (solid) and max (light), on one scale: the worst max.
+  const scale = Math.max(1e-9, ...r.pairs.filter((p) => p.used).map((p) => p.row_error_max || 0));
   const tbody = $("calib-pair-table").tBodies[0];
   const tf = document.createDocumentFragment();
   const select = $("calib-preview-pair");
@@ -235,17 +270,26 @@ function renderPairTable(cand) {
       tr.append(td);
     }
     const barCell = document.createElement("td");
+    barCell.className = "bar-cell";
     if (p.used) {
       const track = document.createElement("div");
       track.className = "bar-track";
-      const bar = document.createElement("div");
-      bar.className = "bar";
-      bar.style.width = Math.round(100 * p.rms / worstRms) + "%";
-      track.append(bar);
+      track.setAttribute("data-testid", "calib-pair-bar");
+      track.title = "row error " + fixed(p.row_error_mean, 3) + " px mean, " + fixed(p.row_error_max, 3) + " px max";
+      const max = document.createElement("div");
+      max.className = "bar bar-max";
+      max.style.width = (100 * (p.row_error_max || 0) / scale).toFixed(1) + "%";
+      const mean = document.createElement("div");
+      mean.className = "bar bar-mean";
+      mean.style.width = (100 * (p.row_error_mean || 0) / scale).toFixed(1) + "%";
+      track.append(max, mean);
       barCell.append(track);
     } else {
       tr.className = "bad";
     }
+    tr.append(barCell);
+    const dropCell = document.createElement("td");
+    dropCell.className = "drop-cell";
     if (!gone) {
       const drop = document.createElement("button");
       drop.type = "button";
@@ -258,9 +302,9 @@ function renderPairTable(cand) {
         await api("DELETE", "/api/calibration/pairs/" + encodeURIComponent(p.id));
         await refreshSession();
       }));
-      barCell.append(drop);
+      dropCell.append(drop);
     }
-    tr.append(barCell);
+    tr.append(dropCell);
     if (p.id === cand.worst_pair) tr.classList.add("worst");
     tr.title = p.id || p.name;
     tf.append(tr);
@@ -323,7 +367,7 @@ async function loadCandidate() {
   try {
     cand = await api("GET", "/api/calibration/candidate");
   } catch (e) {
-    if (e instanceof ApiError && e.message.includes("→ 404")) return;  // none computed yet
+    if (e instanceof ApiError && e.status === 404) return;  // none computed yet
     throw e;
   }
   if (!calibCandidate || calibCandidate.id !== cand.id || calibCandidate.computed_at !== cand.computed_at) {
@@ -348,7 +392,10 @@ async function computeCalibration() {
     } finally {
       await watching;
     }
-  });
+  }, { explain: {
+    409: "A calibration is being computed already (perhaps from another tab): its result shows here when it is done.",
+    422: (e) => "Calibration not computed: " + e.detail + ".",
+  } });
 }
 
 function typing(target) {
@@ -379,7 +426,7 @@ export function initCalibration() {
   const numberSetting = (id, key, what) => $(id).addEventListener("change", (ev) => {
     const text = ev.target.value.trim();
     if (text === "" || !Number.isFinite(Number(text))) {
-      showError("give the " + what + " as a number");
+      showError("Give the " + what + " as a number; the previous value stays.");
       if (calibSession) renderSession(calibSession);
       return;
     }
@@ -390,19 +437,28 @@ export function initCalibration() {
   $("btn-calib-pair").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
     const res = await api("POST", "/api/calibration/pairs");
     renderSession(res);
-    showMessage("pair " + res.count + " stored", "info");
-  }));
+    showSuccess("Pair " + res.count + " stored." + (res.count < 5 ? " Move the board and store " + (5 - res.count) +
+                " more (at least 5 to compute)." : " Compute when the coverage looks even."), "POST /api/calibration/pairs");
+  }, { explain: {
+    409: (e) => "Pair not stored: " + e.detail + ".",
+    422: (e) => "Pair not stored: " + e.detail + ".",
+    503: "Pair not stored: no frame from the cameras. Check the signal (Status panel), then try again.",
+  } }));
   $("btn-calib-clear").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
     if (!window.confirm("Delete every stored calibration pair?")) return;
     await api("DELETE", "/api/calibration/pairs");
     await refreshSession();
-  }));
+  }, { explain: { 409: "The pairs are in use by a running compute: delete them when it has finished." } }));
   $("btn-calib-compute").addEventListener("click", computeCalibration);
   $("calib-preview-pair").addEventListener("change", () => action(null, showPreview));
   $("btn-calib-apply").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
-    if (!calibCandidate) throw new ApiError("compute a calibration first");
+    if (!calibCandidate) throw new ApiError("Compute a calibration first, then apply it.");
     const res = await api("POST", "/api/calibration/apply", { id: calibCandidate.id });
     $("calib-result").dataset.applied = res.id;
-    showMessage("calibration " + res.id + " is now programmed in the core and saved to " + res.file, "info");
-  }));
+    showSuccess("Calibration " + res.id + " is now programmed in the core and saved to " + res.file +
+                " (the next start uses it too).", "POST /api/calibration/apply");
+  }, { explain: {
+    409: "The calibration was computed again since this page showed it: review the new figures, then apply.",
+    422: (e) => "The core cannot run this calibration: " + e.detail + ". Nothing changed.",
+  } }));
 }

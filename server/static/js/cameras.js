@@ -67,7 +67,7 @@ async function loadCameras() {
   try {
     renderCameras(await api("GET", "/api/cameras"));
   } catch (e) {
-    showError(e.message);
+    showError(e, { explain: { 503: (x) => "The camera sensors did not answer: " + x.detail + "." } });
   }
 }
 
@@ -84,7 +84,10 @@ async function flushCameras() {
     renderCameras(await api("PUT", "/api/cameras", body));
     form.dataset.applied = JSON.stringify(fields);
   } catch (e) {
-    showError(e.message);
+    showError(e, { explain: {
+      400: (x) => "That camera setting was refused: " + x.detail + ". The controls show the values in use.",
+      503: (x) => "A camera is not answering, nothing was changed: " + x.detail + ".",
+    } });
     await loadCameras();  // show what is really in use
   } finally {
     cameraInFlight -= 1;

@@ -1,53 +1,153 @@
-// Captures: list, download, delete (GET/POST/DELETE /api/captures).
-import { $, api, action, showMessage, humanBytes } from "./core.js";
+// Captures: list with thumbnails, the viewer, replay, download, delete with undo
+// (GET/POST/DELETE /api/captures, GET /api/captures/{id}/thumb.jpg, POST /api/captures/{id}/restore).
+//
+// Delete with undo: the capture leaves the list at once and DELETE moves it into the daemon's trash
+// straight away; "Undo" in the message (UNDO_MS) asks the daemon to restore it. Deleting on the daemon
+// at once, not when the undo expires, is what loses nothing when the page is closed meanwhile: the
+// delete the user asked for stands (no request left pending in a closed tab), and the files stay in
+// the trash for ten minutes (a restore brings them back as they were).
+import { $, api, action, showMessage, showError, ApiError, humanBytes } from "./core.js";
+import { openViewer, replayCapture } from "./viewer.js";
 
-// ---- captures -------------------------------------------------------------------
+export const UNDO_MS = 8000;
+const hidden = new Set();  // deleted here, DELETE not answered yet: never shown again by a refresh
+
+function captureUrl(id) { return "/api/captures/" + encodeURIComponent(id); }
+
+function captureItem(c) {
+  const li = document.createElement("li");
+  li.setAttribute("data-testid", "capture");
+  li.dataset.id = c.id;
+  const thumb = document.createElement("button");
+  thumb.type = "button";
+  thumb.className = "cap-thumb";
+  thumb.title = "open in the viewer";
+  thumb.setAttribute("aria-label", "open capture " + c.id + " in the viewer");
+  thumb.setAttribute("data-testid", "capture-open");
+  const img = document.createElement("img");
+  img.alt = "";
+  img.loading = "lazy";
+  img.decoding = "async";
+  img.src = captureUrl(c.id) + "/thumb.jpg";
+  img.setAttribute("data-testid", "capture-thumb");
+  img.addEventListener("error", () => { img.hidden = true; });
+  thumb.append(img);
+  thumb.addEventListener("click", () => openViewer(c.id));
+  const info = document.createElement("div");
+  info.className = "cap-info";
+  const idEl = document.createElement("code");
+  idEl.textContent = c.id;
+  const meta = document.createElement("small");
+  meta.textContent = [c.created, c.source, c.frame !== undefined ? "frame " + c.frame : "",
+                      humanBytes(c.bytes), c.error ? "damaged: " + c.error : ""].filter(Boolean).join(" · ");
+  info.append(idEl, meta);
+  const actions = document.createElement("div");
+  actions.className = "cap-actions";
+  const view = document.createElement("button");
+  view.type = "button";
+  view.textContent = "view";
+  view.setAttribute("data-testid", "capture-view");
+  view.addEventListener("click", () => openViewer(c.id));
+  const replay = document.createElement("button");
+  replay.type = "button";
+  replay.textContent = "replay";
+  replay.title = "send its raw pair through the fabric (virtual camera)";
+  replay.setAttribute("data-testid", "capture-replay");
+  replay.addEventListener("click", () => replayCapture(c.id, replay));
+  const dl = document.createElement("a");
+  dl.href = captureUrl(c.id) + ".zip";
+  dl.textContent = "zip";
+  dl.className = "btn";
+  dl.setAttribute("download", c.id + ".zip");
+  dl.setAttribute("data-testid", "capture-download");
+  const del = document.createElement("button");
+  del.type = "button";
+  del.textContent = "delete";
+  del.className = "danger";
+  del.setAttribute("data-testid", "capture-delete");
+  del.addEventListener("click", () => deleteCapture(c.id, li));
+  actions.append(view, replay, dl, del);
+  li.append(thumb, info, actions);
+  return li;
+}
+
+function setCount() {
+  const list = $("captures-list");
+  const items = list.querySelectorAll("[data-testid=capture]");
+  list.dataset.count = String(items.length);
+  const empty = list.querySelector("li.empty");
+  if (!items.length && !empty) {
+    const li = document.createElement("li");
+    li.className = "empty";
+    li.textContent = "no captures yet";
+    list.append(li);
+  } else if (items.length && empty) {
+    empty.remove();
+  }
+}
 
 export async function refreshCaptures() {
   const data = await api("GET", "/api/captures");
   const list = $("captures-list");
   const frag = document.createDocumentFragment();
-  const caps = (data && data.captures) || [];
-  for (const c of caps) {
-    const li = document.createElement("li");
-    li.setAttribute("data-testid", "capture");
-    li.dataset.id = c.id;
-    const info = document.createElement("div");
-    info.className = "cap-info";
-    const idEl = document.createElement("code");
-    idEl.textContent = c.id;
-    const meta = document.createElement("small");
-    meta.textContent = [c.created, c.source, c.frame !== undefined ? "frame " + c.frame : "",
-                        humanBytes(c.bytes)].filter(Boolean).join(" · ");
-    info.append(idEl, meta);
-    const dl = document.createElement("a");
-    dl.href = "/api/captures/" + encodeURIComponent(c.id) + ".zip";
-    dl.textContent = "zip";
-    dl.className = "btn";
-    dl.setAttribute("download", c.id + ".zip");
-    dl.setAttribute("data-testid", "capture-download");
-    const del = document.createElement("button");
-    del.type = "button";
-    del.textContent = "delete";
-    del.className = "danger";
-    del.setAttribute("data-testid", "capture-delete");
-    del.addEventListener("click", () => action(del, async () => {
-      await api("DELETE", "/api/captures/" + encodeURIComponent(c.id));
-      await refreshCaptures();
-    }));
-    li.append(info, dl, del);
-    frag.append(li);
-  }
-  if (!caps.length) {
-    const li = document.createElement("li");
-    li.className = "empty";
-    li.textContent = "no captures yet";
-    frag.append(li);
-  }
+  const caps = ((data && data.captures) || []).filter((c) => !hidden.has(c.id));
+  for (const c of caps) frag.append(captureItem(c));
   list.replaceChildren(frag);
-  list.dataset.count = String(caps.length);
+  setCount();
 }
 
+// A message with an Undo button, in the page's message area, gone after UNDO_MS.
+function undoMessage(text, onUndo) {
+  const item = document.createElement("div");
+  item.className = "msg msg-info msg-undo";
+  item.setAttribute("data-testid", "message-undo");
+  item.setAttribute("role", "status");
+  const span = document.createElement("span");
+  span.textContent = text;
+  const undo = document.createElement("button");
+  undo.type = "button";
+  undo.className = "undo";
+  undo.textContent = "Undo";
+  undo.setAttribute("data-testid", "btn-undo");
+  const close = document.createElement("button");
+  close.type = "button";
+  close.className = "msg-close";
+  close.setAttribute("aria-label", "dismiss");
+  close.textContent = "×";
+  const timer = setTimeout(() => item.remove(), UNDO_MS);
+  undo.addEventListener("click", async () => {
+    clearTimeout(timer);
+    undo.disabled = true;
+    await onUndo();
+    item.remove();
+  });
+  close.addEventListener("click", () => { clearTimeout(timer); item.remove(); });
+  item.append(span, undo, close);
+  $("messages").append(item);
+  return item;
+}
+
+async function deleteCapture(id, li) {
+  // Gone from the list at once; the daemon moves it into its trash meanwhile.
+  hidden.add(id);
+  li.remove();
+  setCount();
+  try {
+    await api("DELETE", captureUrl(id));
+  } catch (e) {
+    hidden.delete(id);
+    showError(e instanceof ApiError ? e.message : "unexpected error: " + e);
+    await action(null, refreshCaptures);
+    return;
+  } finally {
+    hidden.delete(id);
+  }
+  undoMessage("Capture " + id + " deleted.", () => action(null, async () => {
+    await api("POST", captureUrl(id) + "/restore");
+    showMessage("Capture " + id + " restored.", "info");
+    await refreshCaptures();
+  }));
+}
 
 export function initCaptures() {
   $("btn-capture").addEventListener("click", (ev) => action(ev.currentTarget, async () => {

@@ -14,8 +14,8 @@
 // sent as "Authorization: Bearer SECRET" on POST/PUT/DELETE and as the stereocam_token
 // cookie on everything else; /?token= (empty) forgets it.
 //
-// Errors: every failed API call shows the daemon's {"error": ...} text in #messages;
-// nothing is swallowed.
+// Errors: every failed API call shows a message in plain words in #messages, with the
+// daemon's {"error": ...} text behind a disclosure; nothing is swallowed (see "messages").
 
 export const VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"];
 const TOKEN_KEY = "stereocam.token";
@@ -52,32 +52,171 @@ document.cookie = "stereocam_token=" + (TOKEN ? encodeURIComponent(TOKEN) + "; m
                                               : "; max-age=0") + "; path=/; SameSite=Strict";
 
 // ---- messages -------------------------------------------------------------------
+// Three kinds: "error" stays until dismissed; "success" and "info" fade by themselves after
+// MESSAGE_FADE_MS. Each says in plain words what happened and what to do; the HTTP detail
+// ("POST /api/verify → 409: ...") sits behind a disclosure (<details>). A message has a `key`,
+// the kind of action it is about ("POST /api/virtual-camera"): a new error of that key replaces
+// the old one, and any later success of that key (every api() call that succeeds, or
+// clearMessages(key)) removes it, so a stale error never stays on top of a success.
+// data-testid: "message-error" for errors, "message-info" for the others.
+export const MESSAGE_FADE_MS = 5000;
+const MESSAGE_MAX = 6;
 let messageSeq = 0;
-export function showMessage(text, kind) {
+
+export function showMessage(text, kind, opts) {
+  kind = kind || "error";
+  opts = opts || {};
   const box = $("messages");
+  const key = opts.key || "";
+  if (key) clearMessages(key, kind === "error" ? null : "error");
   const item = document.createElement("div");
-  item.className = "msg msg-" + (kind || "error");
-  item.setAttribute("data-testid", kind === "info" ? "message-info" : "message-error");
+  item.className = "msg msg-" + kind;
+  item.setAttribute("data-testid", kind === "error" ? "message-error" : "message-info");
+  item.setAttribute("role", kind === "error" ? "alert" : "status");
   item.id = "message-" + (++messageSeq);
-  const span = document.createElement("span");
-  span.textContent = text;
+  if (key) item.dataset.key = key;
+  const body = document.createElement("div");
+  body.className = "msg-body";
+  const p = document.createElement("p");
+  p.className = "msg-text";
+  p.textContent = text;
+  body.append(p);
+  if (opts.detail) {
+    const details = document.createElement("details");
+    details.className = "msg-detail";
+    const summary = document.createElement("summary");
+    summary.textContent = opts.status ? "HTTP " + opts.status : "details";
+    const code = document.createElement("code");
+    code.textContent = opts.detail;
+    details.append(summary, code);
+    body.append(details);
+  }
   const close = document.createElement("button");
   close.type = "button";
   close.className = "msg-close";
   close.setAttribute("aria-label", "dismiss");
+  close.title = "dismiss";
   close.textContent = "×";
   close.addEventListener("click", () => item.remove());
-  item.append(span, close);
+  item.append(body, close);
   box.append(item);
-  while (box.children.length > 5) box.firstElementChild.remove();
-  if (kind === "info") setTimeout(() => item.remove(), 4000);
+  while (box.children.length > MESSAGE_MAX) box.firstElementChild.remove();
+  if (kind !== "error") {
+    // Fade, then go; while it has the keyboard focus (its disclosure or close button) it stays.
+    let timer = null;
+    const arm = () => {
+      clearTimeout(timer);
+      timer = setTimeout(() => {
+        item.classList.add("msg-fading");
+        timer = setTimeout(() => item.remove(), 600);
+      }, opts.fadeMs || MESSAGE_FADE_MS);
+    };
+    item.addEventListener("focusin", () => { clearTimeout(timer); item.classList.remove("msg-fading"); });
+    item.addEventListener("focusout", arm);
+    arm();
+  }
+  return item;
 }
-export function showError(text) { showMessage(text, "error"); }
+
+// Remove the messages of `key` (only those of `kind` when given).
+export function clearMessages(key, kind) {
+  for (const el of [...$("messages").children]) {
+    if (el.dataset.key === key && (!kind || el.classList.contains("msg-" + kind))) el.remove();
+  }
+}
+
+export function showSuccess(text, key) { return showMessage(text, "success", { key: key }); }
+export function showInfo(text, key) { return showMessage(text, "info", { key: key }); }
+
+// An error as a message: `e` an ApiError (worded by `explain` and the generic rules below) or
+// any other error; `text` a plain string.
+export function showError(e, opts) {
+  opts = opts || {};
+  if (typeof e === "string") return showMessage(e, "error", { key: opts.key });
+  if (e instanceof ApiError) {
+    return showMessage(explainError(e, opts), "error",
+                       { key: opts.key || e.key, detail: e.http, status: e.status });
+  }
+  return showMessage("Something went wrong in the page: " + e + ". Reload it; if it happens again, " +
+                     "report it with the browser console's output.", "error", { key: opts.key });
+}
 
 // ---- HTTP API -------------------------------------------------------------------
-export class ApiError extends Error {}
+// An API failure: `method`, `path`, `status` (0: no answer) and `detail` (the daemon's
+// {"error": ...} text, which says what to do). `message` keeps the one-line form
+// "POST /api/verify → 409: ..." (`http`); an ApiError the page raises itself has no status.
+export class ApiError extends Error {
+  constructor(message, fields) {
+    super(message);
+    Object.assign(this, { method: null, path: null, status: null, detail: message, key: null }, fields || {});
+    this.http = this.method ? message : null;
+  }
+}
 
-// fetch + JSON; any non-2xx becomes ApiError with the daemon's "error" text.
+// The kind of action a request is: the method and path without query or ids.
+export function actionKey(method, path) {
+  const clean = path.split("?")[0].split("/").map((seg) => (/\d/.test(seg) ? "*" : seg)).join("/");
+  return method + " " + clean;
+}
+
+const sentence = (t) => { t = String(t || "").trim(); return t ? t[0].toUpperCase() + t.slice(1) : t; };
+const stop = (t) => (/[.!?]$/.test(t) ? t : t + ".");
+
+// Plain words for an ApiError. `opts.explain`: {status: text | (e) => text} or (e) => text|null,
+// the panel's own wording; `opts.what`: what was tried ("Capture"), for the generic rules.
+export function explainError(e, opts) {
+  opts = opts || {};
+  const ex = opts.explain;
+  let own = null;
+  if (typeof ex === "function") own = ex(e);
+  else if (ex && e.status !== null && ex[e.status] !== undefined) {
+    own = typeof ex[e.status] === "function" ? ex[e.status](e) : ex[e.status];
+  }
+  if (own) return own;
+  const what = opts.what || (e.method ? describeRequest(e.method, e.path) : "");
+  const failed = what ? what + " failed: " : "";
+  const detail = stop(sentence(e.detail || ""));
+  if (e.status === null) return sentence(failed + e.detail);
+  if (e.status === 0) {
+    return failed + "the daemon did not answer. Check that stereocam is running and that this computer " +
+           "can reach the board, then try again.";
+  }
+  if (e.status === 401) {
+    return (what || "This change") + " needs the daemon's access token: open the page once as " +
+           "/?token=YOUR_TOKEN (it is remembered).";
+  }
+  if (e.status === 403) return failed + "the daemon takes changes only from its own page. " + detail;
+  if (e.status === 413) return failed + "that is more than the daemon accepts. " + detail;
+  if (e.status === 507) return failed + "the board's disk is full. Delete captures or calibration pairs, then try again.";
+  if (e.status >= 500) return failed + detail + " If it persists, see the daemon's log.";
+  return failed + detail;
+}
+
+const REQUESTS = [
+  ["POST /api/captures", "Capture"],
+  ["DELETE /api/captures/*", "Deleting the capture"],
+  ["POST /api/virtual-camera", "Sending the images through the fabric"],
+  ["POST /api/verify", "Verify"],
+  ["PUT /api/source", "Switching the source"],
+  ["GET /api/cameras", "Reading the camera settings"],
+  ["PUT /api/cameras", "Changing the camera setting"],
+  ["GET /api/status", "Reading the daemon's status"],
+  ["POST /api/calibration/pairs", "Capturing a calibration pair"],
+  ["DELETE /api/calibration/pairs", "Deleting the calibration pairs"],
+  ["DELETE /api/calibration/pairs/*", "Deleting the calibration pair"],
+  ["POST /api/calibration/compute", "Computing the calibration"],
+  ["POST /api/calibration/apply", "Applying the calibration"],
+  ["GET /api/calibration/corners", "Finding the board's corners"],
+  ["PUT /api/calibration/session", "Changing the calibration settings"],
+];
+export function describeRequest(method, path) {
+  const key = actionKey(method, path);
+  const hit = REQUESTS.find(([k]) => k === key);
+  return hit ? hit[1] : method + " " + path.split("?")[0];
+}
+
+// fetch + JSON; any non-2xx becomes ApiError with the daemon's "error" text. A success clears the
+// error messages of the same kind of action (actionKey).
 export async function api(method, path, body) {
   const init = { method: method, headers: {} };
   if (method !== "GET" && TOKEN) init.headers["Authorization"] = "Bearer " + TOKEN;
@@ -87,11 +226,14 @@ export async function api(method, path, body) {
     init.headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
+  const key = actionKey(method, path);
   let resp;
   try {
     resp = await fetch(path, init);
   } catch (e) {
-    throw new ApiError(method + " " + path + ": the daemon is unreachable (" + e.message + ")");
+    throw new ApiError(method + " " + path + ": the daemon is unreachable (" + e.message + ")",
+                       { method: method, path: path, status: 0, detail: "the daemon is unreachable (" + e.message + ")",
+                         key: key });
   }
   const text = await resp.text();
   let data = null;
@@ -100,18 +242,23 @@ export async function api(method, path, body) {
   }
   if (!resp.ok) {
     const why = data && typeof data.error === "string" ? data.error : (text.trim().slice(0, 200) || resp.statusText);
-    throw new ApiError(method + " " + path + " → " + resp.status + ": " + why);
+    throw new ApiError(method + " " + path + " → " + resp.status + ": " + why,
+                       { method: method, path: path, status: resp.status, detail: why, key: key });
   }
+  clearMessages(key, "error");
   return data;
 }
 
-// Run an async UI action with its button disabled; errors go to #messages.
-export async function action(button, fn) {
+// Run an async UI action with its button disabled; errors go to #messages, worded with
+// `opts` (see explainError; `opts.key` names the action when it is not one request).
+export async function action(button, fn, opts) {
   if (button) button.disabled = true;
   try {
-    return await fn();
+    const result = await fn();
+    if (opts && opts.key) clearMessages(opts.key, "error");
+    return result;
   } catch (e) {
-    showError(e instanceof ApiError ? e.message : "unexpected error: " + e);
+    showError(e, opts);
     return undefined;
   } finally {
     if (button) button.disabled = false;
@@ -158,7 +305,7 @@ export function loadImage(img, url) {
     img.onload = () => { img.onload = img.onerror = null; img.dataset.loaded = url; resolve(); };
     img.onerror = () => {
       img.onload = img.onerror = null;
-      reject(new ApiError("GET " + url.split("?")[0] + " failed to load"));
+      reject(new ApiError("the image " + url.split("?")[0] + " did not load: try again, or reload the page"));
     };
     img.src = url;
   });

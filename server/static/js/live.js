@@ -1,5 +1,6 @@
 // The live views, over one WebSocket (see core.js).
 import { $, VIEWS, WS_FPS, THUMB_SCALE, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt } from "./core.js";
+import { initDepth } from "./depth.js";
 
 // ---- live views over one WebSocket ----------------------------------------------
 const decoder = new TextDecoder("utf-8");
@@ -46,6 +47,7 @@ function onFrame(buf) {
     img.dataset.timestamp = String(header.timestamp);
     img.dataset.received = String(received);
     if (slot.caption) slot.caption.textContent = "#" + header.frame;
+    if (slot.caption) slot.caption.dataset.frame = String(header.frame);
   };
   img.onerror = () => {
     if (previous) URL.revokeObjectURL(previous);
@@ -75,19 +77,68 @@ function enlarge(view) {
   subscribe();
 }
 
+// Fullscreen (the Fullscreen API) on the enlarged view: its button, or F while a view has the focus.
+// The view stays enlarged (full size from the daemon) while it fills the screen.
+let fullscreenLeftAt = 0;
+async function toggleFullscreen(fig) {
+  if (document.fullscreenElement) { await document.exitFullscreen(); return; }
+  if (enlarged !== fig.dataset.view) enlarge(fig.dataset.view);
+  try {
+    await fig.requestFullscreen({ navigationUI: "hide" });
+  } catch (e) {
+    showError("fullscreen: the browser refused it (" + e.message + ")");
+  }
+}
+document.addEventListener("fullscreenchange", () => {
+  const el = document.fullscreenElement;
+  for (const fig of document.querySelectorAll("#views figure.view")) {
+    const on = fig === el;
+    fig.classList.toggle("view-fullscreen", on);
+    const btn = fig.querySelector(".view-fs");
+    if (btn) {
+      btn.textContent = on ? "exit fullscreen" : "fullscreen";
+      btn.setAttribute("aria-pressed", on ? "true" : "false");
+    }
+  }
+  if (!el) fullscreenLeftAt = performance.now();
+});
+
 for (const fig of document.querySelectorAll("#views figure.view")) {
   fig.tabIndex = 0;
   fig.setAttribute("role", "button");
   fig.setAttribute("aria-expanded", "false");
   fig.title = "click: full size; click again: back to the thumbnail";
-  fig.addEventListener("click", () => enlarge(fig.dataset.view));
+  const fs = document.createElement("button");
+  fs.type = "button";
+  fs.className = "view-fs";
+  fs.textContent = "fullscreen";
+  fs.title = "fill the screen with this view (Esc leaves)";
+  fs.setAttribute("aria-pressed", "false");
+  fs.setAttribute("data-testid", "fullscreen-" + fig.dataset.view);
+  fs.addEventListener("click", (ev) => { ev.stopPropagation(); toggleFullscreen(fig); });
+  fs.addEventListener("keydown", (ev) => ev.stopPropagation());
+  fig.append(fs);
+  fig.addEventListener("click", (ev) => {
+    if (document.fullscreenElement === fig) return;  // a click in fullscreen does not shrink the view
+    if (ev.target.closest && ev.target.closest(".disparity-legend")) return;
+    enlarge(fig.dataset.view);
+  });
   fig.addEventListener("keydown", (ev) => {
     if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); enlarge(fig.dataset.view); }
+    if ((ev.key === "f" || ev.key === "F") && !ev.ctrlKey && !ev.metaKey && !ev.altKey) {
+      ev.preventDefault();
+      toggleFullscreen(fig);
+    }
   });
 }
 document.addEventListener("keydown", (ev) => {
-  if (ev.key === "Escape" && enlarged) enlarge(enlarged);
+  // Esc in fullscreen leaves fullscreen only (the browser's doing); the next Esc shrinks the view.
+  if (ev.key !== "Escape" || !enlarged || document.fullscreenElement) return;
+  if (performance.now() - fullscreenLeftAt < 300) return;
+  if (document.querySelector("dialog[open]")) return;  // the capture viewer handles its own Esc
+  enlarge(enlarged);
 });
+initDepth();
 document.addEventListener("visibilitychange", subscribe);
 
 // Each view's delivered and planned rate, and why it is below what the page asked (/api/status).

@@ -5,8 +5,13 @@ import { initCalibration } from "./calibration.js";
 import { initCaptures } from "./captures.js";
 import { closeLive, connect } from "./live.js";
 import { initSource } from "./source.js";
+import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
+import { $, TOKEN, api, showError, showInfo } from "./core.js";
+import { init as initFit } from "./fit.js";
+import { init as initRecordings } from "./recordings.js";
+import { setSourceRadios } from "./source.js";
 
 function init() {
   initSource();
@@ -17,6 +22,10 @@ function init() {
   initCaptures();
   initCameras();
   initCalibration();
+  initShortcuts();
+  const ctx = { api, showError, showInfo, $, token: TOKEN };
+  initFit(ctx);
+  initRecordings({ ...ctx, onReplay: (res) => setSourceRadios(res && res.source ? res.source : "virtual") });
   document.body.dataset.ready = "1";
 }
 

@@ -1,8 +1,10 @@
 // The virtual camera's upload and Verify (POST /api/virtual-camera, POST /api/verify).
-import { $, ApiError, api, action, bust, fmt, loadImage } from "./core.js";
+import { $, ApiError, api, action, bust, fmt, loadImage, showInfo, showSuccess } from "./core.js";
+import { fitQuery } from "./fit.js";
 import { setSourceRadios } from "./source.js";
 
 // ---- virtual camera and verify --------------------------------------------------
+const UPLOAD = "POST /api/virtual-camera";  // the message key of an upload (see core.js, messages)
 async function upload(ev) {
   ev.preventDefault();
   const btn = $("btn-upload");
@@ -15,18 +17,28 @@ async function upload(ev) {
     } else if (s && !l && !r) {
       form.append("sbs", s, s.name);
     } else {
-      throw new ApiError("choose a left and a right image, or one side-by-side image");
+      throw new ApiError("Choose a left and a right image, or one side-by-side image, then press Send.");
     }
-    const res = await api("POST", "/api/virtual-camera", form);
+    const res = await api("POST", "/api/virtual-camera" + fitQuery(), form);
     setSourceRadios(res && res.source ? res.source : "virtual");
     $("upload-info").textContent = "frame " + fmt(res.frame) + ", " + fmt(res.width) + "×" + fmt(res.height) +
-                                   ", source " + fmt(res.source);
+                                   ", source " + fmt(res.source) +
+                                   (res.fit && res.fit.mode !== "exact" ? "; " + res.fit.text : "");
     const box = $("upload-result");
     box.dataset.frame = String(res.frame);
     await Promise.all(["left", "right"].map((side) => loadImage($("vc-result-" + side),
       bust("/api/virtual-camera/result/" + side + ".png"))));
     box.hidden = false;
-  });
+    showSuccess("Sent through the fabric (frame " + fmt(res.frame) + "): the views now show the virtual camera. " +
+                "Press Verify to compare the fabric with the model.", UPLOAD);
+  }, { key: UPLOAD, explain: {
+    400: (e) => "The images could not be read: " + e.detail + ". Choose other files and send again.",
+    413: (e) => "The images are too large for the daemon: " + e.detail + ".",
+    415: (e) => "That image format is not taken: " + e.detail + ". Use 8-bit PNG, BMP, JPEG or TIFF.",
+    422: (e) => "The images do not fit the fabric: " + e.detail + ". Resize them and send again.",
+    504: "The fabric returned nothing within 2 s, so the source is back to live. Try again; " +
+         "if it keeps happening, see the daemon's log.",
+  } });
 }
 
 
@@ -73,7 +85,11 @@ async function verify() {
   await action(btn, async () => {
     const res = await api("POST", "/api/verify");
     await renderVerify(res);
-  });
+    if (res.identical) showSuccess("Verify: the fabric's output is identical to the model's.", "POST /api/verify");
+    else showInfo("Verify: the fabric's output differs from the model's: see the table and the difference image.", "POST /api/verify");
+  }, { explain: {
+    409: "Verify needs a virtual-camera input first: upload a pair (Virtual camera panel), then press Verify.",
+  } });
 }
 
 

@@ -1,0 +1,881 @@
+"""Recordings: every raw stereo pair of N seconds (or until stopped), lossless, one folder each.
+
+A recording is a folder ``<root>/<id>/`` holding
+
+    left_000000.png  right_000000.png   the raw pair of each frame, as the demosaic delivered it
+    left_000001.png  right_000001.png   (numbered from 0 in recorded order; 6 digits, more past 999999)
+    ...
+    frames.jsonl                        one JSON object per frame, in order (below)
+    recording.json                      what was recorded (below); written last
+
+Pixels are stored as captures store them (:mod:`.captures`): an 8-bit gray PNG
+for a gray camera, RGB otherwise; Y goes to ``y_left_000000.png`` only where it
+is not :func:`..overlays.spec.pixel.gray_of` of RGB (never for live raw frames),
+so every frame comes back bit for bit. The pairs are named so any tool that
+pairs ``left*``/``right*`` files reads them; :class:`..overlays.emulated.cameras.ReplaySource`
+(``stereocam serve --source FOLDER``) recognises ``recording.json`` and replays
+the frames in order at the recording's rate, and the virtual camera plays them
+through the core (``POST /api/virtual-camera {"recording": id}``).
+
+``frames.jsonl``: ``index`` (0, 1, ...), ``frame`` (the daemon's frame number),
+``fabric_count`` (the core's FRAME_COUNT of that frame: consecutive unless the
+pipeline missed frames), ``time`` (capture time, seconds since the epoch),
+``t`` (seconds since the first frame), ``source`` (``live``|``virtual``),
+``calibration_id`` (the calibration the frame ran with, None when a change was
+being programmed), ``left``, ``right`` (file names), ``left_y``, ``right_y``
+(None or the Y file), ``color`` (``gray``|``rgb``), ``bytes``.
+
+A raw pair that comes twice (the raw channel can complete the next frame before
+the core finishes this one, so two frame sets in a row may carry the same raw
+store) is recorded once and counted in ``duplicates``.
+
+``recording.json``: ``format`` (``stereocam-recording/1``), ``id``, ``created``,
+``time_utc`` (of the first frame), ``seconds`` (asked; None: until stopped),
+``duration_s``, ``frames``, ``fps`` (the cameras' rate while recording, from
+FRAME_COUNT over time), ``frame_size``, ``source`` and ``calibration_id`` (of the
+first frame; ``sources``/``calibration_ids`` every one seen), ``calibration``,
+``backend``, ``end`` (``duration``, ``stopped``, ``disk_full``, ``shutdown``,
+``error``), ``complete`` (false when it ended before the seconds asked: the disk
+filled, the daemon stopped or failed), ``end_text``, ``missed`` (FRAME_COUNT values
+between the first and the last frame with no frame recorded: frames the pipeline did
+not copy, or whose raw pair came with the next), ``duplicates``, ``skipped`` (frames
+copied that the writer could not keep up with), ``bytes``, ``frames_file``.
+
+Atomicity: a recording is written into ``.incoming-<id>/`` and renamed to
+``<id>`` once every file is synced and ``recording.json`` written: listed
+complete or not at all. Frames are checked against the free space before each
+is written (``min_free_bytes`` kept free, as :class:`.captures.CaptureStore`
+does); the disk filling ends the recording, and a frame being written then is
+removed whole. A recording with no frame is removed. A new store clears the
+hidden folders a crash left.
+
+Threads: :class:`Recorder` is driven from the event loop (``start``, ``stop``)
+and fed on the pipeline thread (``offer``, which never blocks); each recording
+has a writer thread of its own that encodes and writes (blocking disk I/O).
+:class:`RecordingStore` methods block and are thread-safe.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import os
+import queue
+import secrets
+import shutil
+import stat
+import threading
+import time
+import weakref
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import (
+    IO,
+    Any,
+    Awaitable,
+    Callable,
+    ContextManager,
+    Dict,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Protocol,
+    Tuple,
+)
+
+import numpy as np
+
+from .captures import (
+    _FULL_ERRNOS,
+    DELETING_PREFIX,
+    ID_EXAMPLE,
+    INCOMING_PREFIX,
+    CaptureStore,
+    _close_all,
+    _dumps,
+    _encode_frame,
+    _fsync_dir,
+    _iso,
+    _mb,
+    _open_member,
+    _remove_tree,
+    _utcnow,
+    _write_new_file,
+    _zip_chunks,
+)
+from .errors import ApiError
+from .pipeline import COUNT_MOD, FrameSet
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "RecordingStore", "Recorder", "Recording", "RecordingInfo", "RecordingError", "RecordingNotFound",
+    "InvalidRecordingId", "RecordingDiskFull", "RecordingBusy", "FORMAT", "META_FILE", "FRAMES_FILE",
+    "frame_names", "ENDS",
+]
+
+FORMAT = "stereocam-recording/1"
+META_FILE = "recording.json"
+FRAMES_FILE = "frames.jsonl"
+ENDS = ("duration", "stopped", "disk_full", "shutdown", "error")
+MAX_SECONDS = 24 * 3600.0
+SLACK_BYTES = 64 * 1024  # per frame: folder entries, inodes, its line of frames.jsonl
+META_RESERVE = 256 * 1024  # recording.json and the last lines, kept free until the end
+PNG_SHARE = 0.75  # a PNG of camera frames, of the uncompressed RGB: what a start reckons with
+QUEUE_BYTES = 64 << 20  # frames waiting for the writer, at most (then they are skipped, counted)
+_MAX_META_BYTES = 4 << 20
+
+
+def frame_names(index: int) -> Tuple[str, str]:
+    """The file names of frame ``index``'s left and right images."""
+    return f"left_{index:06d}.png", f"right_{index:06d}.png"
+
+
+# -- errors -------------------------------------------------------------------------------------------
+
+class RecordingError(ApiError):
+    """Base of what the recorder and the store raise on purpose (``status``: the HTTP status)."""
+
+
+class InvalidRecordingId(RecordingError):
+    status = 400
+
+
+class RecordingNotFound(RecordingError):
+    status = 404
+
+
+class RecordingBusy(RecordingError):
+    """Another recording runs, or the recording is in use (409)."""
+
+    status = 409
+
+
+class RecordingDiskFull(RecordingError):
+    """Not enough free space to start; nothing was created (507)."""
+
+    status = 507
+
+
+class NoSignal(RecordingError):
+    status = 503
+
+
+def _not_found(rid: str) -> RecordingNotFound:
+    return RecordingNotFound(f"no recording {rid}: it was deleted or never existed; list the recordings")
+
+
+# -- what the store reports ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """One recording as listed: finished (``state`` ``done``) or being recorded (``recording``).
+
+    ``error`` is None unless a finished recording's folder is damaged (recording.json
+    unreadable, a frame file missing).
+    """
+
+    id: str
+    created: str
+    state: str
+    frames: int
+    seconds: Optional[float]
+    duration_s: float
+    fps: Optional[float]
+    frame_size: Optional[List[int]]
+    source: Optional[str]
+    calibration_id: Optional[str]
+    bytes: int
+    end: Optional[str]
+    complete: Optional[bool]
+    end_text: Optional[str]
+    error: Optional[str] = None
+    meta: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def to_json(self, *, meta: bool = False) -> Dict[str, Any]:
+        out: Dict[str, Any] = {
+            "id": self.id, "created": self.created, "state": self.state, "frames": self.frames,
+            "seconds": self.seconds, "duration_s": self.duration_s, "fps": self.fps,
+            "frame_size": self.frame_size, "source": self.source, "calibration_id": self.calibration_id,
+            "bytes": self.bytes, "end": self.end, "complete": self.complete, "end_text": self.end_text,
+            "error": self.error,
+        }
+        if meta:
+            out["meta"] = dict(self.meta)
+        return out
+
+
+# -- the store ------------------------------------------------------------------------------------------
+
+class RecordingStore:
+    """The recordings folder ``root``: reserve, publish, list, zip, delete.
+
+    ``min_free_bytes`` is kept free on its filesystem (a recording stops before it
+    would take it). Ids are capture-style (``20261122T040512Z-000123-ab12``: UTC
+    second, first frame number, 4 random hex digits) and checked before any path is
+    built from them; symbolic links are never followed.
+    """
+
+    def __init__(self, root: "str | Path", *, min_free_bytes: int = 0,
+                 clock: Optional[Callable[[], datetime]] = None) -> None:
+        if min_free_bytes < 0:
+            raise ValueError(f"min_free_bytes must be >= 0, got {min_free_bytes}")
+        self.min_free_bytes = int(min_free_bytes)
+        self._clock = clock or _utcnow
+        try:
+            Path(root).mkdir(parents=True, exist_ok=True)
+            self.root = Path(root).resolve(strict=True)
+        except OSError as exc:
+            raise RecordingError(f"cannot use {root} as the recordings folder: {exc.strerror or exc}; "
+                                 f"give a writable folder") from exc
+        with os.scandir(self.root) as entries:
+            stale = [Path(e.path) for e in entries if e.name.startswith((INCOMING_PREFIX, DELETING_PREFIX))]
+        for path in stale:
+            _remove_tree(path)
+
+    # -- ids and space ---------------------------------------------------------------------------------
+    @staticmethod
+    def check_id(rid: object) -> str:
+        if not CaptureStore.valid_id(rid):
+            text = rid if isinstance(rid, str) else repr(rid)
+            shown = text if len(text) <= 40 else text[:40] + "..."
+            raise InvalidRecordingId(f"invalid recording id {shown!r}: recording ids look like {ID_EXAMPLE}")
+        assert isinstance(rid, str)
+        return rid
+
+    def path(self, rid: object) -> Path:
+        """The folder of a finished recording: 400 malformed id, 404 absent (or a symbolic link)."""
+        rid = self.check_id(rid)
+        folder = self.root / rid
+        try:
+            st = os.lstat(folder)
+        except FileNotFoundError:
+            raise _not_found(rid) from None
+        if not stat.S_ISDIR(st.st_mode):
+            raise _not_found(rid)
+        return folder
+
+    def free_bytes(self) -> int:
+        """Free bytes on the recordings' filesystem (a test makes the disk fill here)."""
+        return shutil.disk_usage(self.root).free
+
+    def room(self) -> int:
+        """Bytes a recording may still write: free space less ``min_free_bytes``."""
+        return self.free_bytes() - self.min_free_bytes
+
+    def reserve(self, frame_no: int) -> Tuple[str, Path]:
+        """A fresh id and its empty hidden ``.incoming-<id>`` folder (see CaptureStore._reserve)."""
+        stamp = self._clock().astimezone(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        for _ in range(64):
+            rid = f"{stamp}-{int(frame_no) % 10**10:06d}-{secrets.token_hex(2)}"
+            tmp = self.root / f"{INCOMING_PREFIX}{rid}"
+            if os.path.lexists(self.root / rid):
+                continue
+            try:
+                os.mkdir(tmp, 0o755)
+            except FileExistsError:
+                continue
+            return rid, tmp
+        raise RecordingError(f"cannot find a free recording id in {self.root}: try again")
+
+    def publish(self, tmp: Path, rid: str) -> None:
+        os.rename(tmp, self.root / rid)
+        with contextlib.suppress(OSError):
+            _fsync_dir(self.root)
+
+    # -- read ------------------------------------------------------------------------------------------
+    def list(self) -> List[RecordingInfo]:
+        """Every finished recording, newest first (damaged ones too, with ``error``)."""
+        with os.scandir(self.root) as entries:
+            found = [e.name for e in entries
+                     if CaptureStore.valid_id(e.name) and e.is_dir(follow_symlinks=False)]
+        infos = []
+        for rid in found:
+            try:
+                infos.append(self._info(rid, self.root / rid))
+            except RecordingNotFound:
+                continue
+        infos.sort(key=lambda i: (i.created, i.id), reverse=True)
+        return infos
+
+    def get(self, rid: object) -> RecordingInfo:
+        folder = self.path(rid)
+        return self._info(folder.name, folder)
+
+    def _info(self, rid: str, folder: Path) -> RecordingInfo:
+        sizes: Dict[str, int] = {}
+        try:
+            with os.scandir(folder) as entries:
+                for entry in entries:
+                    if entry.is_file(follow_symlinks=False):
+                        sizes[entry.name] = entry.stat(follow_symlinks=False).st_size
+        except (FileNotFoundError, NotADirectoryError):
+            raise _not_found(rid) from None
+        doc: Dict[str, Any] = {}
+        problems: List[str] = []
+        try:
+            fd = _open_member(folder, META_FILE)
+            with os.fdopen(fd, "rb") as fh:
+                loaded = json.loads(fh.read(_MAX_META_BYTES + 1).decode("utf-8"))
+            if not isinstance(loaded, dict):
+                raise ValueError("not a JSON object")
+            doc = loaded
+        except FileNotFoundError:
+            problems.append(f"{META_FILE} is missing")
+        except (OSError, ValueError) as exc:
+            problems.append(f"{META_FILE} is damaged ({' '.join(str(exc).split())[:80]})")
+        count = doc.get("frames")
+        frames = count if isinstance(count, int) and not isinstance(count, bool) else 0
+        for i in range(frames):
+            missing = [n for n in frame_names(i) if n not in sizes]
+            if missing:
+                problems.append(f"{missing[0]} is missing")
+                break
+        stamp = doc.get("created")
+        created = stamp if isinstance(stamp, str) else _iso(
+            datetime.strptime(rid[:16], "%Y%m%dT%H%M%SZ").replace(tzinfo=timezone.utc))
+
+        def num(key: str) -> Optional[float]:
+            v = doc.get(key)
+            return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+        def text(key: str) -> Optional[str]:
+            v = doc.get(key)
+            return v if isinstance(v, str) else None
+
+        size = doc.get("frame_size")
+        complete = doc.get("complete")
+        return RecordingInfo(
+            id=rid, created=created, state="done", frames=frames, seconds=num("seconds"),
+            duration_s=num("duration_s") or 0.0, fps=num("fps"),
+            frame_size=list(size) if isinstance(size, list) else None, source=text("source"),
+            calibration_id=text("calibration_id"), bytes=sum(sizes.values()), end=text("end"),
+            complete=complete if isinstance(complete, bool) else None, end_text=text("end_text"),
+            error="; ".join(problems) or None, meta=doc,
+        )
+
+    def zip_stream(self, rid: object, *, chunk_size: int = 1 << 20) -> Iterator[bytes]:
+        """The recording as a zip (folder ``<id>/``; PNGs stored, the JSON deflated), in chunks.
+
+        400/404 are raised at the call, and every file is opened then, so a delete while
+        the archive streams does not cut it short. Iterate to the end or ``close()`` it.
+        """
+        folder = self.path(rid)
+        rid = folder.name
+        info = self._info(rid, folder)
+        with os.scandir(folder) as entries:
+            names = sorted(e.name for e in entries if e.is_file(follow_symlinks=False))
+        first = {META_FILE: 0, FRAMES_FILE: 1}
+        names.sort(key=lambda n: (first.get(n, 2), n))
+        handles: List[Tuple[str, IO[bytes], int]] = []
+        try:
+            for name in names:
+                member: IO[bytes] = os.fdopen(_open_member(folder, name), "rb")
+                handles.append((name, member, os.fstat(member.fileno()).st_size))
+        except OSError as exc:
+            _close_all([fh for _, fh, _ in handles])
+            if isinstance(exc, FileNotFoundError):
+                raise RecordingNotFound(f"recording {rid} was deleted while it was being read") from None
+            raise RecordingError(f"cannot read recording {rid}: {exc.strerror or exc}") from exc
+        stamp = datetime.strptime(info.created[:19], "%Y-%m-%dT%H:%M:%S")
+        date_time = (max(stamp.year, 1980), stamp.month, stamp.day, stamp.hour, stamp.minute, stamp.second)
+        gen = _zip_chunks(rid, date_time, handles, max(1, int(chunk_size)))
+        weakref.finalize(gen, _close_all, [fh for _, fh, _ in handles])
+        return gen
+
+    def delete(self, rid: object) -> None:
+        """Remove a finished recording (renamed to a hidden folder first, then removed)."""
+        folder = self.path(rid)
+        trash = self.root / f"{DELETING_PREFIX}{folder.name}-{secrets.token_hex(4)}"
+        try:
+            os.rename(folder, trash)
+        except FileNotFoundError:
+            raise _not_found(folder.name) from None
+        except OSError as exc:
+            raise RecordingError(f"cannot delete recording {folder.name}: {exc.strerror or exc}") from exc
+        _remove_tree(trash)
+
+
+# -- recording ------------------------------------------------------------------------------------------
+
+class FrameSource(Protocol):
+    """What a recording needs from the pipeline (:class:`.pipeline.Pipeline` is one)."""
+
+    def raw_wanted(self) -> ContextManager[None]: ...
+
+    def every_frame(self, sink: Callable[[FrameSet], None]) -> ContextManager[None]: ...
+
+
+class Recording:
+    """One recording in progress: fed by :meth:`offer` (pipeline thread), written by its own thread.
+
+    Made by :meth:`Recorder.start`. ``seconds`` None records until :meth:`stop`.
+    Frames grabbed before ``started`` (monotonic) are not taken; with ``seconds``,
+    neither are frames grabbed ``seconds`` or more after it (the recording then ends
+    by itself, with or without frames coming). :meth:`join` waits for the end and
+    returns the :class:`RecordingInfo` (None when nothing was kept: ``error`` says why).
+    """
+
+    def __init__(self, store: RecordingStore, rid: str, folder: Path, *, seconds: Optional[float],
+                 frame_size: Tuple[int, int], meta: Mapping[str, Any],
+                 calibration_for: Callable[[int], Optional[Dict[str, Any]]],
+                 on_end: Callable[["Recording"], None], started: float, fps_hint: Optional[float],
+                 raw_stores: int = 3) -> None:
+        self.store = store
+        self.id = rid
+        self.folder = folder
+        self.seconds = seconds
+        self.frame_size = frame_size
+        self.meta = dict(meta)
+        self.started = started
+        self.deadline = None if seconds is None else started + seconds
+        self.fps_hint = fps_hint
+        self.raw_stores = raw_stores
+        self._calibration_for = calibration_for
+        self._on_end = on_end
+        w, h = frame_size
+        self._queue: "queue.Queue[Tuple[FrameSet, Optional[Dict[str, Any]]]]" = queue.Queue(
+            max(2, QUEUE_BYTES // max(1, w * h * 8)))
+        self._stop = threading.Event()
+        self._accepting = True
+        self._done = threading.Event()
+        self.created = _iso(_utcnow())
+        self.end: Optional[str] = None
+        self.end_text: Optional[str] = None
+        self.error: Optional[str] = None  # why nothing was kept
+        self.info: Optional[RecordingInfo] = None
+        # Counters (written by the writer thread, read anywhere).
+        self.frames = 0
+        self.bytes = 0
+        self.skipped = 0
+        self.duplicates = 0
+        self._first: Optional[FrameSet] = None
+        self._last: Optional[FrameSet] = None
+        self._sources: List[str] = []
+        self._calibrations: List[Optional[str]] = []
+        self._first_calibration: Optional[Dict[str, Any]] = None
+        self._color: Optional[str] = None
+        self._lines: Optional[IO[bytes]] = None
+        self._thread = threading.Thread(target=self._run, name=f"stereocam-recording-{rid}", daemon=True)
+
+    # -- any thread --------------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return not self._done.is_set()
+
+    def stop(self, reason: str = "stopped") -> None:
+        """Ask the recording to end (idempotent); frames already queued are still written."""
+        if reason not in ENDS:
+            raise ValueError(f"reason must be one of {', '.join(ENDS)}, got {reason!r}")
+        self._end(reason, None)
+
+    def join(self, timeout: Optional[float] = None) -> Optional[RecordingInfo]:
+        """Wait (at most ``timeout`` s) until the recording is published or removed; its info (blocks)."""
+        self._done.wait(timeout)
+        return self.info
+
+    def to_json(self) -> Dict[str, Any]:
+        """The listing entry of the recording while it runs (``state`` ``recording``)."""
+        first = self._first
+        fps = self._fps()
+        duration = self._duration(fps)
+        return RecordingInfo(
+            id=self.id, created=self.created, state="recording" if self.running else "finishing",
+            frames=self.frames, seconds=self.seconds, duration_s=round(duration, 3),
+            fps=None if fps is None else round(fps, 3), frame_size=list(self.frame_size),
+            source=first.source if first is not None else None,
+            calibration_id=self._calibrations[0] if self._calibrations else None, bytes=self.bytes,
+            end=self.end, complete=None, end_text=self.end_text,
+        ).to_json()
+
+    # -- pipeline thread -------------------------------------------------------------------------------
+    def offer(self, fs: FrameSet) -> None:
+        """Queue ``fs`` for writing if it belongs to the recording (never blocks; pipeline thread)."""
+        if not self._accepting or fs.monotonic < self.started:
+            return
+        if self.deadline is not None and fs.monotonic >= self.deadline:
+            self._end("duration", None)
+            return
+        if fs.raw is None:
+            return  # the raw channel had no frame (a fault): nothing to record for this one
+        try:
+            self._queue.put_nowait((fs, self._calibration_for(fs.fabric_count)))
+        except queue.Full:
+            self.skipped += 1
+
+    # -- the writer thread -----------------------------------------------------------------------------
+    def _end(self, reason: str, text: Optional[str]) -> None:
+        if self.end is None:
+            self.end, self.end_text = reason, text
+        self._accepting = False
+        self._stop.set()
+
+    def _run(self) -> None:
+        try:
+            self._lines = open(self.folder / FRAMES_FILE, "xb")  # noqa: SIM115 (closed in _finish)
+            while True:
+                try:
+                    fs, calibration = self._queue.get(timeout=0.05)
+                except queue.Empty:
+                    if self._stop.is_set():
+                        break
+                    if self.deadline is not None and time.monotonic() >= self.deadline + 1.0:
+                        self._end("duration", None)  # no frame came after the end: end anyway
+                    continue
+                if not self._write(fs, calibration):
+                    break
+        except Exception as exc:
+            log.exception("recording %s failed", self.id)
+            self._end("error", f"the recording failed: {exc}")
+        finally:
+            self._accepting = False
+            self._finish()
+
+    def _write(self, fs: FrameSet, calibration: Optional[Dict[str, Any]]) -> bool:
+        """Encode and write one frame; False when the recording must end (disk full)."""
+        assert fs.raw is not None
+        last = self._last
+        if (last is not None and fs.raw_store is not None and fs.raw_store == last.raw_store
+                and (fs.fabric_count - last.fabric_count) % COUNT_MOD < self.raw_stores):
+            self.duplicates += 1  # the raw frame recorded with the frame before
+            return True
+        index = self.frames
+        names = frame_names(index)
+        files: List[Tuple[str, bytes]] = []
+        entry: Dict[str, Any] = {}
+        for side, name, rgby in (("left", names[0], fs.raw[..., 0:4]), ("right", names[1], fs.raw[..., 4:8])):
+            image, pngs = _encode_frame(name[:-4], rgby)
+            y_name = None
+            for file_name, data in pngs:
+                if file_name == name:
+                    files.append((name, data))
+                else:
+                    y_name = f"y_{name}"
+                    files.append((y_name, data))
+            entry[side], entry[f"{side}_y"] = name, y_name
+            self._color = image["color"]
+        need = sum(len(d) for _, d in files) + SLACK_BYTES + META_RESERVE
+        room = self.store.room()
+        if room < need:
+            self._end("disk_full", f"the disk filled after {self.frames} frames: they were kept, and "
+                                   f"{_mb(self.store.min_free_bytes)} kept free; delete old recordings or "
+                                   f"captures to make room")
+            return False
+        first = self._first or fs
+        t = fs.monotonic - first.monotonic
+        line = {"index": index, "frame": fs.frame, "fabric_count": fs.fabric_count, "time": fs.timestamp,
+                "t": round(t, 6), "source": fs.source,
+                "calibration_id": calibration.get("id") if calibration else None,
+                **entry, "color": self._color, "bytes": sum(len(d) for _, d in files)}
+        written: List[Path] = []
+        try:
+            for name, data in files:
+                written.append(self.folder / name)
+                _write_new_file_nosync(self.folder / name, data)
+            assert self._lines is not None
+            self._lines.write((json.dumps(line) + "\n").encode("utf-8"))
+            self._lines.flush()
+        except OSError as exc:
+            for path in written:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            if exc.errno in _FULL_ERRNOS:
+                self._end("disk_full", f"the disk filled after {self.frames} frames "
+                                       f"({exc.strerror or 'no space left'}): they were kept; delete old "
+                                       f"recordings or captures to make room")
+                return False
+            raise
+        if self._first is None:
+            self._first, self._first_calibration = fs, calibration
+        self._last = fs
+        if fs.source not in self._sources:
+            self._sources.append(fs.source)
+        cal_id = line["calibration_id"]
+        if cal_id not in self._calibrations:
+            self._calibrations.append(cal_id)
+        self.frames += 1
+        self.bytes += line["bytes"]
+        return True
+
+    @property
+    def missed(self) -> int:
+        """FRAME_COUNT values from the first frame to the last with no frame recorded."""
+        first, last = self._first, self._last
+        if first is None or last is None:
+            return 0
+        return (last.fabric_count - first.fabric_count) % COUNT_MOD + 1 - self.frames
+
+    def _fps(self) -> Optional[float]:
+        first, last = self._first, self._last
+        if first is not None and last is not None and last.monotonic > first.monotonic:
+            counts = (last.fabric_count - first.fabric_count) % COUNT_MOD
+            if counts > 0:
+                return counts / (last.monotonic - first.monotonic)
+        return self.fps_hint
+
+    def _duration(self, fps: Optional[float]) -> float:
+        first, last = self._first, self._last
+        if first is None or last is None or not fps:
+            return 0.0
+        return ((last.fabric_count - first.fabric_count) % COUNT_MOD + 1) / fps
+
+    def _finish(self) -> None:
+        """Sync and publish the folder, or remove it when nothing (or nothing sound) was recorded."""
+        try:
+            if self._lines is not None:
+                self._lines.close()
+            if self.frames == 0:
+                why = {"disk_full": "the disk is full", "error": self.end_text or "it failed"}.get(
+                    self.end or "", "no frame came")
+                self.error = f"nothing was recorded: {why}"
+                _remove_tree(self.folder)
+                return
+            for name in sorted(os.listdir(self.folder)):
+                _fsync_file(self.folder / name)
+            fps = self._fps()
+            first = self._first
+            assert first is not None
+            duration = self._duration(fps)
+            end = self.end or "stopped"
+            complete = end in ("duration", "stopped")
+            doc: Dict[str, Any] = {
+                "format": FORMAT, "id": self.id, "created": self.created,
+                "time_utc": datetime.fromtimestamp(first.timestamp, timezone.utc).isoformat(
+                    timespec="milliseconds"),
+                "seconds": self.seconds, "duration_s": round(duration, 3), "frames": self.frames,
+                "fps": None if fps is None else round(fps, 3), "frame_size": list(self.frame_size),
+                "color": self._color, "source": first.source, "sources": self._sources,
+                "calibration_id": self._calibrations[0] if self._calibrations else None,
+                "calibration_ids": self._calibrations, "calibration": self._first_calibration,
+                "end": end, "complete": complete, "end_text": self.end_text, "missed": self.missed,
+                "duplicates": self.duplicates, "skipped": self.skipped, "bytes": self.bytes,
+                "frames_file": FRAMES_FILE,
+                "first": {"frame": first.frame, "fabric_count": first.fabric_count, "time": first.timestamp},
+            }
+            for key, value in self.meta.items():
+                doc.setdefault(key, value)
+            _write_new_file(self.folder / META_FILE, _dumps(doc))
+            _fsync_dir(self.folder)
+            self.store.publish(self.folder, self.id)
+            self.info = self.store.get(self.id)
+            log.info("recording %s: %d frames, %.1f s (%s)", self.id, self.frames, duration, end)
+        except Exception as exc:
+            _remove_tree(self.folder)
+            full = isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS
+            self.error = ("nothing was kept: the disk filled while the recording was being finished; "
+                          "delete old recordings or captures to make room") if full else (
+                f"nothing was kept: the recording could not be finished ({exc})")
+            log.error("recording %s: %s", self.id, self.error)
+        finally:
+            self._on_end(self)
+            self._done.set()
+
+
+_os_write = os.write  # module-level, so a test can make the disk fill exactly here
+
+
+def _write_new_file_nosync(path: Path, data: bytes) -> None:
+    """Create ``path`` (must not exist) and write ``data``; synced at the end of the recording."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[_os_write(fd, view):]
+    finally:
+        os.close(fd)
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+class Recorder:
+    """At most one :class:`Recording` at a time, fed by ``pipeline`` (loop thread for start/stop).
+
+    While a recording runs it holds ``pipeline.raw_wanted()`` and
+    ``pipeline.every_frame(recording.offer)``: every frame is copied with its raw pair
+    and handed to it; both are released when it ends.
+    """
+
+    def __init__(self, store: RecordingStore, pipeline: FrameSource, *,
+                 calibration_for: Callable[[int], Optional[Dict[str, Any]]] = lambda count: None,
+                 raw_stores: int = 3) -> None:
+        self.store = store
+        self.raw_stores = raw_stores  # frame stores of the raw channel (duplicates: see Recording)
+        self.pipeline = pipeline
+        self.calibration_for = calibration_for
+        self._lock = threading.Lock()
+        self.current: Optional[Recording] = None
+        self._holds: Optional[contextlib.ExitStack] = None
+        self.last: Optional[Recording] = None
+
+    def start(self, *, seconds: Optional[float], frame_size: Tuple[int, int], fps: Optional[float],
+              frame_no: int, meta: Optional[Mapping[str, Any]] = None) -> Recording:
+        """Begin recording from now (blocks briefly: a folder is made).
+
+        ``seconds`` None records until :meth:`stop`. ``fps`` (the cameras' rate now) and
+        ``frame_size`` size the disk check: :class:`RecordingDiskFull` (507) when the
+        recording asked for (or, without ``seconds``, one second of it) would not leave
+        ``min_free_bytes``; :class:`RecordingBusy` (409) while another runs. Nothing is
+        created when it is refused.
+        """
+        if seconds is not None and not (0 < seconds <= MAX_SECONDS and math.isfinite(seconds)):
+            raise ValueError(f"seconds must be in (0, {MAX_SECONDS:g}], got {seconds!r}")
+        w, h = frame_size
+        rate = fps if fps and fps > 0 else 60.0
+        per_frame = int(w * h * 6 * PNG_SHARE) + SLACK_BYTES
+        need = int(math.ceil((seconds if seconds is not None else 1.0) * rate)) * per_frame + META_RESERVE
+        with self._lock:
+            running = self.current
+            if running is not None and running.running:
+                raise RecordingBusy(f"recording {running.id} is running: stop it first "
+                                    f"(POST /api/recordings/{running.id}/stop) or wait for it to end")
+            try:
+                room = self.store.room()
+            except OSError as exc:
+                raise RecordingError(f"cannot check the free space in {self.store.root} "
+                                     f"({exc.strerror or exc}); nothing was recorded") from exc
+            if room < need:
+                what = f"{seconds:g} s" if seconds is not None else "a recording (1 s at least)"
+                raise RecordingDiskFull(
+                    f"not enough free space for {what} at {rate:.0f} fps in {self.store.root}: it needs "
+                    f"about {_mb(need)}, {_mb(max(0, room + self.store.min_free_bytes))} are free and "
+                    f"{_mb(self.store.min_free_bytes)} are kept free; record fewer seconds or delete old "
+                    f"recordings or captures")
+            rid, folder = self.store.reserve(frame_no)
+            rec = Recording(self.store, rid, folder, seconds=seconds, frame_size=(int(w), int(h)),
+                            meta=meta or {}, calibration_for=self.calibration_for, on_end=self._ended,
+                            started=time.monotonic(), fps_hint=fps, raw_stores=self.raw_stores)
+            holds = contextlib.ExitStack()
+            try:
+                holds.enter_context(self.pipeline.raw_wanted())
+                holds.enter_context(self.pipeline.every_frame(rec.offer))
+                rec._thread.start()
+            except BaseException:
+                holds.close()
+                _remove_tree(folder)
+                raise
+            self.current, self._holds = rec, holds
+        log.info("recording %s started (%s)", rid,
+                 f"{seconds:g} s" if seconds is not None else "until stopped")
+        return rec
+
+    def _ended(self, rec: Recording) -> None:
+        """The writer thread finished ``rec``: let the pipeline copy only what others need again."""
+        with self._lock:
+            holds = self._holds if self.current is rec else None
+            if self.current is rec:
+                self._holds = None
+                self.current, self.last = None, rec
+        if holds is not None:
+            holds.close()
+
+    def get(self, rid: str) -> Optional[Recording]:
+        """The recording ``rid`` if it is the one running (or finishing)."""
+        rec = self.current
+        return rec if rec is not None and rec.id == rid else None
+
+    def stop_all(self, reason: str = "shutdown", timeout: float = 30.0) -> None:
+        """End the running recording, if any, and wait for it to be written (blocks)."""
+        rec = self.current
+        if rec is not None:
+            rec.stop(reason)
+            rec.join(timeout)
+
+
+# -- playing a recording through the virtual camera ---------------------------------------------------
+
+class RecordingPlayer:
+    """Plays a recording's frames one after the other at its rate, looping, until :meth:`stop` (loop thread).
+
+    ``source`` is the recording's :class:`..overlays.emulated.cameras.ReplaySource` (its
+    ``frame(k)``, ``slots``, ``fps``, ``duration_s``); ``read(k)`` decodes frame ``k`` off the
+    loop; ``show(frame)`` puts one frame on the virtual camera and returns once the fabric
+    took it. Frame 0 is already shown when :meth:`start` is called. Frame ``k`` is due
+    ``slots[k] / fps`` s after frame 0 (so missed frames keep their gap), each loop
+    ``duration_s`` after the one before; the next frame is decoded while one is shown.
+    Late by more than a frame period (a slow fabric or decoder), the schedule moves on
+    from now: every frame is shown once per loop, none is skipped. An error reading or
+    showing a frame ends the playing (``error`` says why); the last frame stays on.
+    """
+
+    def __init__(self, rid: str, source: Any, *, read: Callable[[int], Awaitable[np.ndarray]],
+                 show: Callable[[np.ndarray], Awaitable[None]]) -> None:
+        self.id = rid
+        self.source = source
+        self._read = read
+        self._show = show
+        self.frames = len(source)
+        self.fps = float(source.fps)
+        self.position = 0  # the frame shown now
+        self.loops = 0
+        self.shown = 1
+        self.error: Optional[str] = None
+        self._stop: Optional[asyncio.Event] = None
+        self._task: "Optional[asyncio.Task[None]]" = None
+
+    def to_json(self) -> Dict[str, Any]:
+        return {"recording": self.id, "frame": self.position, "frames": self.frames,
+                "fps": round(self.fps, 3), "loops": self.loops, "shown": self.shown, "error": self.error}
+
+    @property
+    def running(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    def start(self) -> None:
+        if self._task is None and self.frames > 1:
+            self._stop = asyncio.Event()
+            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"stereocam-play-{self.id}")
+
+    async def stop(self) -> None:
+        """End the playing and wait for the frame being shown (idempotent)."""
+        if self._stop is not None:
+            self._stop.set()
+        task = self._task
+        if task is not None and task is not asyncio.current_task():
+            await asyncio.gather(task, return_exceptions=True)
+        self.source.close()
+
+    async def _run(self) -> None:
+        assert self._stop is not None
+        loop = asyncio.get_running_loop()
+        slots, period_s = self.source.slots, 1.0 / self.fps
+        length = (slots[-1] + 1) * period_s
+        start = loop.time()
+        k = 1
+        pending: "asyncio.Future[np.ndarray]" = asyncio.ensure_future(self._read(k))
+        try:
+            while not self._stop.is_set():
+                due = start + self.loops * length + slots[k] * period_s
+                delay = due - loop.time()
+                if delay > 0:
+                    with contextlib.suppress(asyncio.TimeoutError):
+                        await asyncio.wait_for(self._stop.wait(), delay)
+                    if self._stop.is_set():
+                        break
+                elif delay < -period_s:
+                    start -= delay  # late: go on from now rather than rush through frames
+                frame = await pending
+                await self._show(frame)
+                self.position, self.shown = k, self.shown + 1
+                k += 1
+                if k == self.frames:
+                    k, self.loops = 0, self.loops + 1
+                pending = asyncio.ensure_future(self._read(k))
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            self.error = f"playing recording {self.id} stopped at frame {k}: {exc}"
+            log.warning("%s", self.error)
+        finally:
+            if not pending.done():
+                pending.cancel()
+            await asyncio.gather(pending, return_exceptions=True)
