@@ -6,8 +6,9 @@
 #
 #   setup_env current   -> .venv        default python3, requirements/current.txt
 #   setup_env board     -> .venv-board  Python 3.10,     requirements/board.txt
+#   setup_env armhf     -> a Debian armhf rootfs run under qemu-user (scripts/_armhf.sh)
 #
-# Each sets VENV (absolute path) for the caller. An env is (re)installed when
+# current and board set VENV (absolute path) for the caller; armhf sets ARMHF_ROOTFS. An env is (re)installed when
 # the hash of setup.py + pyproject.toml + its requirements file + this file differs from the
 # stamp written by the last successful install, or when its interpreter or the
 # checkout's location changed; it is then recreated from scratch, so that it
@@ -213,6 +214,11 @@ env with STEREOCAM_ENVS=current"
             fi
             _ensure_venv .venv-board "$py" requirements/board.txt
             ;;
-        *) die "unknown environment '$1' (known: current, board)" ;;
+        armhf) setup_armhf ;;
+        *) die "unknown environment '$1' (known: current, board, armhf)" ;;
     esac
 }
+
+# The armhf env: setup_armhf, armhf_exec.
+# shellcheck source=scripts/_armhf.sh
+source "$ROOT/scripts/_armhf.sh"

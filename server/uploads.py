@@ -217,10 +217,10 @@ def _open(data: bytes, field: str, max_pixels: int, max_bytes: int) -> _Opened:
 def _bit_depth(opened: _Opened, data: bytes) -> int:
     """Bits per sample as stored (Pillow silently reduces 16-bit colour PNG and TIFF to 8 bits)."""
     image = opened.image
+    if opened.fmt == "PNG" and data[12:16] == b"IHDR":
+        return data[24]  # the header's own depth: older Pillows open 16-bit gray as mode "I" (32-bit)
     if image.mode in _HIGH_DEPTH_MODES:
         return _HIGH_DEPTH_MODES[image.mode]
-    if opened.fmt == "PNG" and data[12:16] == b"IHDR":
-        return data[24]
     if opened.fmt == "TIFF":
         bits = getattr(image, "tag_v2", {}).get(TiffImagePlugin.BITSPERSAMPLE, 8)
         values = bits if isinstance(bits, tuple) else (bits,)

@@ -21,6 +21,16 @@ Rules, as on the board:
 * Memory is coherent: ``flush``/``invalidate`` only count calls, so tests
   can check that a driver makes them.
 
+Only what is allocated takes memory: the window is address space, and each
+allocation has a zeroed array of its own (page rounded), which lives as long
+as an array refers to it. So an overlay costs its frame buffers, not the
+window (a 32-bit process, the armhf test env and the board's, holds few
+256 MiB windows), and when an overlay closes and its drivers free their
+buffers, the memory goes back. A range freed and allocated again gets fresh,
+zeroed memory; arrays still holding the old allocation keep the old bytes
+(no longer reachable by DMA). :attr:`EmulatedDDR.held_bytes` says how much
+memory this DDR's allocations hold, freed ones still referenced included.
+
 Thread-safe: the frame clock thread and driver threads may allocate, free
 and access at once.
 """
@@ -64,17 +74,27 @@ class NotInDDR(DDRError, ValueError):
 
 
 class _Allocation:
-    """One allocated range; the ``pointer`` pynq's frame caches pass back to ``allocate``."""
+    """One allocated range; the ``pointer`` pynq's frame caches pass back to ``allocate``.
 
-    __slots__ = ("start", "nbytes", "size", "serial", "freed", "_finalizer", "__weakref__")
+    ``mem`` is its memory (``size`` bytes, zeroed), ``origin`` that memory's virtual address.
+    """
 
-    def __init__(self, start: int, nbytes: int, size: int, serial: int) -> None:
+    __slots__ = ("start", "nbytes", "size", "serial", "freed", "mem", "origin", "_finalizer", "__weakref__")
+
+    def __init__(self, start: int, nbytes: int, size: int, serial: int, mem: np.ndarray) -> None:
         self.start = start
         self.nbytes = nbytes
         self.size = size
         self.serial = serial
         self.freed = False
+        self.mem = mem
+        self.origin = int(mem.__array_interface__["data"][0])
         self._finalizer: Optional[weakref.finalize] = None
+
+    def offset_of(self, array: np.ndarray) -> Optional[int]:
+        """Byte offset of ``array``'s first element in this allocation's memory, None if outside."""
+        offset = int(array.__array_interface__["data"][0]) - self.origin
+        return offset if 0 <= offset < self.size else None
 
     def __repr__(self) -> str:
         return f"<DDR allocation {self.start:#010x}+{self.nbytes}{' freed' if self.freed else ''}>"
@@ -94,10 +114,11 @@ class EmulatedBuffer(np.ndarray):
 
     def __array_finalize__(self, obj: Any) -> None:
         ddr = getattr(obj, "_ddr", None)
-        if ddr is not None and not ddr._holds(self):
-            ddr = None  # a computed result (buf + 1) has memory of its own
+        alloc: Optional[_Allocation] = getattr(obj, "_allocation", None)
+        if ddr is None or alloc is None or alloc.offset_of(self) is None:
+            ddr, alloc = None, None  # a computed result (buf + 1) has memory of its own
         self._ddr = ddr
-        self._allocation = getattr(obj, "_allocation", None) if ddr is not None else None
+        self._allocation = alloc
         self._root = False
         self.pointer: Optional[_Allocation] = None
         self.return_to: Any = None
@@ -111,7 +132,7 @@ class EmulatedBuffer(np.ndarray):
                 "this array does not live in an EmulatedDDR (allocate it there; "
                 "results computed from a buffer are ordinary memory)"
             )
-        return self._ddr.address_of(self)
+        return self._ddr.address_of(self, self._allocation)
 
     @property
     def device_address(self) -> int:
@@ -191,14 +212,14 @@ class EmulatedDDR:
             )
         self.base = base
         self.size = size
-        self._mem = np.zeros(size, np.uint8)  # calloc: pages are committed when touched
-        self._origin = int(self._mem.__array_interface__["data"][0])
         self._lock = threading.RLock()
         self._free: List[Tuple[int, int]] = [(base, size)]  # sorted (start, size)
         self._starts: List[int] = []  # sorted starts of live allocations
         # start -> (serial, nbytes, size, weak reference): an allocation lives while arrays refer to it
         self._live: Dict[int, Tuple[int, int, int, "weakref.ref[_Allocation]"]] = {}
         self._dead: List[Tuple[int, int]] = []  # (start, serial) of collected allocations, see _reap
+        self._held: Dict[int, int] = {}  # serial -> bytes of allocation memory still alive
+        self._gone: List[int] = []  # serials whose memory was collected, see _reap
         self._serial = 0
         self.flushes = 0
         self.invalidates = 0
@@ -234,9 +255,7 @@ class EmulatedDDR:
             alloc = pointer
         else:
             alloc = self._take(nbytes)
-        buf = np.ndarray.__new__(
-            EmulatedBuffer, shape, dtype=dt, buffer=self._mem, offset=alloc.start - self.base
-        )
+        buf = np.ndarray.__new__(EmulatedBuffer, shape, dtype=dt, buffer=alloc.mem, offset=0)
         buf._ddr = self
         buf._allocation = alloc
         buf._root = True
@@ -258,8 +277,15 @@ class EmulatedDDR:
                     else:
                         self._free[i] = (start + size, free - size)
                     self._serial += 1
-                    alloc = _Allocation(start, nbytes, size, self._serial)
+                    try:
+                        mem = np.zeros(size, np.uint8)  # calloc: pages are committed when touched
+                    except MemoryError:
+                        self._give_back_range(start, size)
+                        raise
+                    alloc = _Allocation(start, nbytes, size, self._serial, mem)
                     alloc._finalizer = weakref.finalize(alloc, self._dead.append, (start, self._serial))
+                    self._held[self._serial] = size
+                    weakref.finalize(mem, self._gone.append, self._serial)
                     self._live[start] = (self._serial, nbytes, size, weakref.ref(alloc))
                     bisect.insort(self._starts, start)
                     return alloc
@@ -280,6 +306,9 @@ class EmulatedDDR:
     def _give_back(self, start: int) -> None:
         size = self._live.pop(start)[2]
         self._starts.pop(bisect.bisect_left(self._starts, start))
+        self._give_back_range(start, size)
+
+    def _give_back_range(self, start: int, size: int) -> None:
         i = bisect.bisect_left(self._free, (start, 0))
         self._free.insert(i, (start, size))
         # merge with the next and the previous free range
@@ -302,6 +331,8 @@ class EmulatedDDR:
             entry = self._live.get(start)
             if entry is not None and entry[0] == serial:
                 self._give_back(start)
+        while self._gone:
+            self._held.pop(self._gone.pop(), None)
 
     # -- statistics (pynq memory names) -------------------------------------------------
     @property
@@ -316,22 +347,37 @@ class EmulatedDDR:
             self._reap()
             return len(self._starts)
 
+    @property
+    def held_bytes(self) -> int:
+        """Bytes of memory this DDR's allocations hold now: live ones, and freed ones an array still uses."""
+        with self._lock:
+            self._reap()
+            return sum(self._held.values())
+
     def _count(self, what: str) -> None:
         with self._lock:
             setattr(self, what, getattr(self, what) + 1)
 
     # -- access by physical address (the DMA side) --------------------------------------
-    def _holds(self, array: np.ndarray) -> bool:
-        return 0 <= int(array.__array_interface__["data"][0]) - self._origin < self.size
+    def address_of(self, array: np.ndarray, allocation: Optional[_Allocation] = None) -> int:
+        """Physical address of the first element of an array that lives in this DDR.
 
-    def address_of(self, array: np.ndarray) -> int:
-        """Physical address of the first element of an array that lives in this DDR."""
-        offset = int(array.__array_interface__["data"][0]) - self._origin
-        if not 0 <= offset < self.size:
-            raise NotInDDR("this array does not live in the emulated DDR (a computed result, not a buffer)")
-        return self.base + offset
+        ``allocation``, when known (a buffer knows its own), saves the search among
+        the live allocations.
+        """
+        if allocation is not None:
+            offset = allocation.offset_of(array)
+            if offset is not None:
+                return allocation.start + offset
+        with self._lock:
+            for _, _, _, ref in self._live.values():
+                alloc = ref()
+                offset = alloc.offset_of(array) if alloc is not None else None
+                if alloc is not None and offset is not None:
+                    return alloc.start + offset
+        raise NotInDDR("this array does not live in the emulated DDR (a computed result, not a buffer)")
 
-    def _lookup(self, address: int, nbytes: int) -> None:
+    def _lookup(self, address: int, nbytes: int) -> _Allocation:
         with self._lock:
             self._reap()
             i = bisect.bisect_right(self._starts, address) - 1
@@ -340,7 +386,7 @@ class EmulatedDDR:
                 _, live_bytes, _, ref = self._live[start]
                 alloc = ref()
                 if alloc is not None and not alloc.freed and address + nbytes <= start + live_bytes:
-                    return
+                    return alloc
         raise DecodeError(address, nbytes)
 
     def contains(self, address: int, nbytes: int) -> bool:
@@ -353,9 +399,9 @@ class EmulatedDDR:
 
     def view(self, address: int, nbytes: int) -> np.ndarray:
         """Writable ``uint8`` view of ``nbytes`` at ``address``; :class:`DecodeError` outside allocations."""
-        self._lookup(address, nbytes)
-        off = address - self.base
-        return self._mem[off : off + nbytes]
+        alloc = self._lookup(address, nbytes)
+        off = address - alloc.start
+        return alloc.mem[off : off + nbytes]
 
     def view2d(self, address: int, lines: int, line_bytes: int, stride: int) -> np.ndarray:
         """Writable ``(lines, line_bytes)`` uint8 view of a 2-D transfer, as a VDMA addresses it.
