@@ -634,8 +634,7 @@ class Recording:
                 self.error = f"nothing was recorded: {why}"
                 _remove_tree(self.folder)
                 return
-            for name in sorted(os.listdir(self.folder)):
-                _fsync_file(self.folder / name)
+            _sync_files(self.folder)
             fps = self._fps()
             first = self._first
             assert first is not None
@@ -687,6 +686,29 @@ def _write_new_file_nosync(path: Path, data: bytes) -> None:
             view = view[_os_write(fd, view):]
     finally:
         os.close(fd)
+
+
+def _sync_files(folder: Path) -> None:
+    """Every file of ``folder`` on disk: one ``syncfs`` of its file system where there is one (Linux).
+
+    A recording holds thousands of files; an fsync each takes seconds on an SD card, which
+    would hold up a stop or SIGTERM. One syncfs writes them in one sweep.
+    """
+    try:
+        import ctypes
+
+        syncfs = ctypes.CDLL(None, use_errno=True).syncfs
+    except (OSError, AttributeError):
+        syncfs = None
+    if syncfs is not None:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        try:
+            if syncfs(fd) == 0:
+                return
+        finally:
+            os.close(fd)
+    for name in sorted(os.listdir(folder)):
+        _fsync_file(folder / name)
 
 
 def _fsync_file(path: Path) -> None:

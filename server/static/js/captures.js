@@ -6,7 +6,7 @@
 // at once, not when the undo expires, is what loses nothing when the page is closed meanwhile: the
 // delete the user asked for stands (no request left pending in a closed tab), and the files stay in
 // the trash for ten minutes (a restore brings them back as they were).
-import { $, api, action, showMessage, showError, ApiError, humanBytes } from "./core.js";
+import { $, api, action, showMessage, showError, humanBytes } from "./core.js";
 import { openViewer, replayCapture } from "./viewer.js";
 
 export const UNDO_MS = 8000;
@@ -136,7 +136,7 @@ async function deleteCapture(id, li) {
     await api("DELETE", captureUrl(id));
   } catch (e) {
     hidden.delete(id);
-    showError(e instanceof ApiError ? e.message : "unexpected error: " + e);
+    showError(e);  // plain words, the HTTP line folded away (core.js)
     await action(null, refreshCaptures);
     return;
   } finally {

@@ -42,6 +42,7 @@ function onFrame(buf) {
     if (previous) URL.revokeObjectURL(previous);
     img.onload = img.onerror = null;
     img.dataset.frame = String(header.frame);
+    img.dataset.signal = String(header.signal !== false);  // false while it shows NO SIGNAL
     // The decoded size, read here because naturalWidth is 0 again while the next src loads.
     img.dataset.size = img.naturalWidth + "x" + img.naturalHeight;
     img.dataset.timestamp = String(header.timestamp);
