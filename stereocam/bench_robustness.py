@@ -695,7 +695,9 @@ def _line_cases(b: _Builder, rng: random.Random) -> None:
     # Cut short and closed: nothing to answer, nothing to log but one line.
     for data in (b"GET / HT", b"POST /api/captures HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Len",
                  b"PUT /api/source HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 100\r\n\r\n{\"sou"):
-        b.add("line", f"cut short {data[:30]!r}", data, [400], answered=False)
+        # the last one's headers are whole: the token check may answer 401 before the body is missed
+        b.add("line", f"cut short {data[:30]!r}", data, [400, 401] if b"\r\n\r\n" in data else [400],
+              answered=False)
     # Well-formed lines asking for what is not there, or with bad parameters: 4xx.
     paths = [b"/stream/unknown", b"/stream/%ff%fe", b"/stream/rect_left/extra", b"/snapshot/raw_left.gif",
              b"/snapshot/nothing.jpg", b"/snapshot/rect_left.jpg?fps=abc", b"/snapshot/rect_left.jpg?fps=0",
