@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
+from ..calibration.safe_yaml import YamlRefused, load
 from ..drivers.mt9v034 import SETTINGS_FIELDS, SYNC_MODES, SensorSettings
 from ..overlays.spec import mt9v034 as spec
-from ..safe_yaml import YamlRefused, load
 
 __all__ = ["BoardProfile", "ProfileError", "DEFAULT_PROFILE", "ETC_ENV", "DEFAULT_ETC", "BOARD_FILE",
            "etc_dir", "find_profile", "load_board_profile", "load_profile", "profile_from_dict"]

@@ -72,7 +72,7 @@ def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, **e
     log.info("fabric backend: %s (%s)", choice.backend, choice.reason)
     overlay: Any
     if choice.backend == "pynq":
-        from .pynq_overlay import StereocamOverlay
+        from .pynq.overlay import StereocamOverlay
 
         assert choice.bitstream is not None
         overlay = StereocamOverlay(choice.bitstream)

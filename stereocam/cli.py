@@ -190,7 +190,7 @@ def _output_file(path: str) -> Path:
 
 
 def cmd_rectify(args: argparse.Namespace) -> int:
-    from .calibration_file import load_calibration
+    from .calibration.file import load_calibration
     from .overlays.model.fast import RectifyModel
     from .overlays.model.result import CoreOptions
     from .overlays.spec import pixel
@@ -239,7 +239,7 @@ def cmd_rectify(args: argparse.Namespace) -> int:
 def _fit_pair(left: np.ndarray, right: np.ndarray, size: "tuple[int, int]", mode: str
               ) -> "tuple[np.ndarray, np.ndarray, str]":
     """The pair made ``size`` by ``--fit`` (the daemon's upload fit) and a line saying what was done."""
-    from .server.uploads import UploadError, fit_pair
+    from .server.http.uploads import UploadError, fit_pair
 
     try:
         left, right, done = fit_pair(left, right, size, mode)
@@ -268,10 +268,10 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
 
     from .drivers.mmio import DriverError
     from .drivers.rectify import RectifyCore
-    from .hdl import ToolMissing
     from .overlays.model.config import ConfigError
+    from .overlays.rtl.core import RtlCore, RtlError
+    from .overlays.rtl.toolchain import ToolMissing
     from .overlays.spec.rectify import DEFAULT_BUILD, SIZE_BITS
-    from .rtl_core import RtlCore, RtlError
 
     h, w = frame.shape[:2]
     if max(w, h) >= 1 << SIZE_BITS:
@@ -327,7 +327,7 @@ class _ProgressDisplay:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     import json
 
-    from .calibrate import Pattern, calibrate_pairs, find_pairs, pairs_from_files
+    from .calibration.calibrate import Pattern, calibrate_pairs, find_pairs, pairs_from_files
 
     pattern = Pattern.parse(args.pattern, args.square)
     if args.left is not None or args.right is not None:
@@ -360,7 +360,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_calibration_import(args: argparse.Namespace) -> int:
-    from .calibration_file import load_calibration
+    from .calibration.file import load_calibration
 
     out = _output_file(args.output)
     sources = [p for src in args.sources for p in src.split(",") if p]
@@ -372,7 +372,7 @@ def cmd_calibration_import(args: argparse.Namespace) -> int:
 
 
 def cmd_calibration_export(args: argparse.Namespace) -> int:
-    from .calibration_file import load_calibration
+    from .calibration.file import load_calibration
 
     if args.opencv is None and args.ros is None:
         raise UserError("say what to write: --opencv OUTDIR, --ros OUTDIR or both")
@@ -390,17 +390,17 @@ def cmd_calibration_export(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import run_bench
+    from .bench.rectify import run_bench
 
     return run_bench(args)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from .overlays.backend import BackendError
-    from .server.app import ServeError, run
-    from .server.captures import CaptureError
-    from .server.config import Config
-    from .server.config import ConfigError as SettingsError
+    from .server.frames.captures import CaptureError
+    from .server.http.app import ServeError, run
+    from .server.http.config import Config
+    from .server.http.config import ConfigError as SettingsError
 
     try:
         config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
@@ -436,7 +436,7 @@ def _check_board(board: Optional[str]) -> str:
 
 
 def cmd_install_service(args: argparse.Namespace) -> int:
-    from .server.systemd import ServiceError, install_service, unit_text
+    from .server.http.systemd import ServiceError, install_service, unit_text
 
     if args.print:
         print(unit_text(venv=args.venv, config=Path(args.config)), end="")
@@ -452,8 +452,8 @@ def cmd_install_service(args: argparse.Namespace) -> int:
 
 
 def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
-    from .server import systemd
-    from .server.config import BACKENDS, DEFAULT_CAPTURES
+    from .server.http import systemd
+    from .server.http.config import BACKENDS, DEFAULT_CAPTURES
 
     s = sub.add_parser(
         "serve", help="run the daemon (web page, streams, API)",
@@ -462,7 +462,7 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--host", help="address to listen on (default 127.0.0.1; the board's service uses 0.0.0.0)")
     s.add_argument("--port", type=int, help="port (default 8080)")
     s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
-    s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/config.py)")
+    s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/http/config.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
     s.add_argument("--state-dir", metavar="DIR",
                    help="where the page's calibration.yaml and calibration-pairs/ live "
@@ -618,15 +618,15 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
-    from .bench_budget import add_budget_parser  # stereocam bench budget
-    from .bench_robustness import add_robustness_parser  # stereocam bench robustness
+    from .bench.budget import add_budget_parser  # stereocam bench budget
+    from .bench.robustness import add_robustness_parser  # stereocam bench robustness
 
     suites = b.add_subparsers(dest="suite", metavar="SUITE")
     add_robustness_parser(suites)
     add_budget_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (overlays/rtl/); each action adds itself to hsub.
-    from .hw_synth import add_synth_parser
+    from .overlays.rtl.synth import add_synth_parser
 
     h = sub.add_parser("hw", help="the rectify core's HDL: synthesis with yosys",
                        description="Tools for the rectify core's Verilog in overlays/rtl/.")
@@ -639,8 +639,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    from .calibrate import CalibrationError
-    from .calibration_io import CalibrationFileError
+    from .calibration.calibrate import CalibrationError
+    from .calibration.formats import CalibrationFileError
     from .overlays.model.config import ConfigError
 
     parser = build_parser()

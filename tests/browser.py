@@ -20,7 +20,7 @@ from typing import Any, Dict, Iterator, List, Sequence
 import pytest
 from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
 
-from stereocam.bench_serve import running_daemon
+from stereocam.bench.serve import running_daemon
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -36,7 +36,7 @@ BROWSER_TEST_TIMEOUT = pytest.mark.timeout(900)
 # frame and answers 503 "no signal: no frame came within 1 s" (the daemon waits max(1 s,
 # 2 * no_signal_s)), and the streams show the no-signal frame between frames. 15 s: they wait up
 # to 30 s, a last resort that only a stopped fabric reaches (what the daemon itself does for its
-# slow simulated core: server/app.py, RTL_NO_SIGNAL_S). No browser test is about no-signal timing.
+# slow simulated core: server/http/app.py, RTL_NO_SIGNAL_S). No browser test is about no-signal timing.
 DAEMON_SETTINGS: Dict[str, Any] = {"no_signal_s": 15.0}
 
 

@@ -13,9 +13,9 @@ from typing import List, Tuple
 import cv2
 import numpy as np
 
+from stereocam.calibration.stereo import Rectification, StereoModel, core_cameras, rectify
 from stereocam.overlays.emulated.targets import board_image, board_size_m, random_board_poses
 from stereocam.overlays.spec.rectify import CameraParams
-from stereocam.stereo import Rectification, StereoModel, core_cameras, rectify
 
 DATA = Path(__file__).parent / "data" / "opencv-stereo-calib"
 PAIRS = [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14]

@@ -8,7 +8,7 @@ Import what a module needs; the fixture is ``start_daemon``, imported as
   process), at a low frame rate, so a running daemon costs little CPU.
   ``clock="stepped"`` gives a fabric that moves only on ``overlay.step()``.
 - ``start_daemon(**settings)`` (fixture) starts the real server
-  (:func:`stereocam.server.app.serve`, the production runner) on
+  (:func:`stereocam.server.http.app.serve`, the production runner) on
   127.0.0.1 with a free port and returns a :class:`Daemon`: ``.http`` is an
   ``aiohttp.ClientSession`` on its base URL, ``.app`` the application,
   ``.overlay`` the overlay. Every daemon is stopped (and its overlay closed)
@@ -35,8 +35,8 @@ from aiohttp import web
 
 from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
-from stereocam.server.app import create_app, program_default_calibration, serve
-from stereocam.server.config import Config
+from stereocam.server.http.app import create_app, program_default_calibration, serve
+from stereocam.server.http.config import Config
 
 SMALL = (376, 240)
 FULL = (752, 480)
@@ -178,7 +178,7 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
 
 async def wait_for_frames(daemon: Daemon, n: int = 2, timeout: float = WAIT_S) -> None:
     """Wait until the pipeline has seen ``n`` frames complete (copied or not: nobody may be watching)."""
-    from stereocam.server.state import PIPELINE
+    from stereocam.server.http.state import PIPELINE
 
     pipeline = daemon.app[PIPELINE]
     deadline = time.monotonic() + timeout

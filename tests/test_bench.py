@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam import bench, hdl
+from stereocam.bench import rectify as bench
 from stereocam.cli import main
 from stereocam.overlays.model.fast import RectifyModel
+from stereocam.overlays.rtl import toolchain as hdl
 
 
 @pytest.fixture(scope="module")

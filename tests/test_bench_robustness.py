@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from stereocam import bench_robustness as br
+from stereocam.bench import robustness as br
 from stereocam.cli import main
 
 SHORT = ["--requests", "150", "--fps", "15", "--rounds", "1", "--reads", "3", "--settle", "5"]

@@ -5,7 +5,7 @@ import json
 import os
 import time
 
-from stereocam.bench_serve import measure_serve, tree_cpu_seconds
+from stereocam.bench.serve import measure_serve, tree_cpu_seconds
 
 
 def test_serve_bench_short_run() -> None:

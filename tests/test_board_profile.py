@@ -23,8 +23,8 @@ from stereocam.board.profile import (
 )
 from stereocam.drivers.i2c import LinuxI2CBus
 from stereocam.drivers.mt9v034 import StereoSensors
-from stereocam.server import app as app_module
-from stereocam.server import routes_cameras
+from stereocam.server.http import app as app_module
+from stereocam.server.http import routes_cameras
 
 from .server_fixtures import start_daemon_fixture  # noqa: F401
 

@@ -26,10 +26,10 @@ from typing import Dict, List, Optional, Sequence
 import pytest
 
 from stereocam import cli
-from stereocam.bench_serve import free_port, wait_healthy
-from stereocam.overlays.fabric_lock import DEFAULT_LOCK
-from stereocam.server import config as config_module
-from stereocam.server import systemd
+from stereocam.bench.serve import free_port, wait_healthy
+from stereocam.overlays.pynq.lock import DEFAULT_LOCK
+from stereocam.server.http import config as config_module
+from stereocam.server.http import systemd
 
 REPO = Path(__file__).resolve().parent.parent
 MAX_EXPOSURE = 5.0  # issue 12: `systemd-analyze security` at most 5.0
@@ -290,7 +290,7 @@ def test_serve_logs_for_journald_with_priorities_and_no_timestamps(tmp_path: Pat
     assert d.proc.returncode == 0, lines
     assert all(p is not None for p in priorities(lines)), [ln for ln in lines if not ln.startswith("<")]
     assert not any(TIMESTAMP.search(line) for line in lines), "journald adds the time itself"
-    assert any(line.startswith("<6>stereocam.server.app: serving on http://127.0.0.1:") for line in lines)
+    assert any(line.startswith("<6>stereocam.server.http.app: serving on http://127.0.0.1:") for line in lines)
     assert any(line.startswith("<4>") and "refused a malformed request" in line for line in lines)
     # The board profile the daemon uses: the machine's (STEREOCAM_ETC), logged where it is loaded.
     used = f"board profile etc-board: {tmp_path / 'etc' / 'board.yaml'}"

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, WebSocket, expect
 
-from stereocam.bench_serve import running_daemon
+from stereocam.bench.serve import running_daemon
 
 from .browser import (
     BROWSER_TEST_TIMEOUT,

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.calibrate import (
+from stereocam.calibration.calibrate import (
     CalibrationError,
     CalibrationInputError,
     ImagePair,
@@ -24,7 +24,7 @@ from stereocam.calibrate import (
     parse_length,
     parse_pattern,
 )
-from stereocam.calibration_file import load_calibration
+from stereocam.calibration.file import load_calibration
 from stereocam.cli import main
 from stereocam.overlays.model.reference import source_position
 
@@ -105,7 +105,7 @@ def test_row_error_is_measured_through_the_core(tmp_path) -> None:
     cal = report.calibration
     m, r = cal.model, cal.rect
     left, right = pairs[0].load()
-    from stereocam.calibrate import _same_order, detect_corners
+    from stereocam.calibration.calibrate import _same_order, detect_corners
 
     cl = detect_corners(left, report.pattern)
     cr = _same_order(cl, detect_corners(right, report.pattern))

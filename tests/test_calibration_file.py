@@ -15,7 +15,7 @@ import pytest
 import scipy.io
 import yaml
 
-from stereocam.calibration_file import (
+from stereocam.calibration.file import (
     PARAM_NAMES,
     Calibration,
     calibration_id,
@@ -23,7 +23,8 @@ from stereocam.calibration_file import (
     load_calibration,
     parse_yaml,
 )
-from stereocam.calibration_io import CalibrationFileError
+from stereocam.calibration.formats import CalibrationFileError
+from stereocam.calibration.stereo import rectify
 from stereocam.cli import main
 from stereocam.overlays.model.config import (
     ConfigError,
@@ -32,7 +33,6 @@ from stereocam.overlays.model.config import (
     ParameterOutOfRange,
 )
 from stereocam.overlays.spec.rectify import camera_registers
-from stereocam.stereo import rectify
 
 from .sample import PAIRS, calibrate_sample, pair_paths, write_opencv_files
 

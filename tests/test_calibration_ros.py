@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from stereocam.calibration_file import Calibration, load_calibration
-from stereocam.calibration_io import CalibrationFileError
+from stereocam.calibration.file import Calibration, load_calibration
+from stereocam.calibration.formats import CalibrationFileError
 from stereocam.cli import main
 
 from .sample import PAIRS, PATTERN, calibrate_sample, pair_paths, write_opencv_files

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from stereocam.calibration.stereo import StereoModel
 from stereocam.overlays.emulated import cameras
 from stereocam.overlays.emulated.cameras import (
     CameraSource,
@@ -23,7 +24,6 @@ from stereocam.overlays.emulated.targets import board_corners, board_image, boar
 from stereocam.overlays.model import camera_in as camera_model
 from stereocam.overlays.spec import camera_in as camera_spec
 from stereocam.overlays.spec.pixel import gray_of, pack, rgby
-from stereocam.stereo import StereoModel
 
 DATA = Path(__file__).parent / "data" / "opencv-stereo-calib"
 

@@ -20,7 +20,7 @@ import pytest
 
 from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
-from stereocam.server.state import CAPTURES
+from stereocam.server.http.state import CAPTURES
 
 from .server_fixtures import SMALL, start_daemon_fixture, wait_for_frames  # noqa: F401
 

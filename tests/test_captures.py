@@ -20,8 +20,8 @@ import pytest
 
 from stereocam.overlays.emulated.cameras import ReplaySource
 from stereocam.overlays.spec import pixel
-from stereocam.server import captures
-from stereocam.server.captures import (
+from stereocam.server.frames import captures
+from stereocam.server.frames.captures import (
     CaptureDamaged,
     CaptureDiskFull,
     CaptureError,

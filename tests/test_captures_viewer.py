@@ -21,10 +21,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.server import captures as captures_module
-from stereocam.server.captures import TRASH_DIR, TRASH_KEEP_S, CaptureNotFound, CaptureStore
-from stereocam.server.state import CALIBRATION, CAPTURES, FEED
-from stereocam.server.views import disparity_map
+from stereocam.server.frames import captures as captures_module
+from stereocam.server.frames.captures import TRASH_DIR, TRASH_KEEP_S, CaptureNotFound, CaptureStore
+from stereocam.server.frames.views import disparity_map
+from stereocam.server.http.state import CALIBRATION, CAPTURES, FEED
 
 from .rig_truth import static_depth
 from .server_fixtures import FULL, make_overlay, start_daemon_fixture, wait_for_frames  # noqa: F401

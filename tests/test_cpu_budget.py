@@ -2,7 +2,7 @@
 
 The floor check runs ``stereocam serve --cpu-budget 0.3`` as a subprocess, reads its CPU from
 ``/proc`` without the emulated fabric's thread, and watches all seven views, then one
-(:func:`stereocam.bench_budget.measure_budget`, also ``stereocam bench budget``). The rest
+(:func:`stereocam.bench.budget.measure_budget`, also ``stereocam bench budget``). The rest
 checks the parts: the plan, the pipeline copying only what is wanted, thumbnails, and what
 status and ``/metrics`` say.
 """
@@ -21,10 +21,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.bench_budget import FLOOR_VIEW_FPS, daemon_cpu_seconds, measure_budget
-from stereocam.server.cpu_budget import MIN_FPS, CpuBudget, Demand, plan_cost, plan_rates
-from stereocam.server.pipeline import Pipeline
-from stereocam.server.state import BUDGET, PIPELINE
+from stereocam.bench.budget import FLOOR_VIEW_FPS, daemon_cpu_seconds, measure_budget
+from stereocam.server.frames.cpu_budget import MIN_FPS, CpuBudget, Demand, plan_cost, plan_rates
+from stereocam.server.frames.pipeline import Pipeline
+from stereocam.server.http.state import BUDGET, PIPELINE
 
 from .server_fixtures import SMALL, WAIT_S, make_overlay, start_daemon_fixture  # noqa: F401
 from .test_metrics import _promtool

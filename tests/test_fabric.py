@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from stereocam.bench import bench_calibration
+from stereocam.bench.rectify import bench_calibration
 from stereocam.drivers.vdma import FrameShapeError
 from stereocam.overlays.backend import BackendError, choose, open_overlay
 from stereocam.overlays.emulated.cameras import SyntheticRig
@@ -126,9 +126,9 @@ if os.environ.get("STEREOCAM_TEST_ENV") == "board":
     # over a pynq.Device whose registers and memory are the emulated fabric's.
 
     def test_pynq_bound_fabric_is_bit_exact(calibration) -> None:
-        from stereocam.overlays.spec.overlay import ADDRESS_MAP
         from stereocam.overlays.emulated.pynq_device import EmulatedPynqDevice
-        from stereocam.overlays.pynq_overlay import bind_pynq
+        from stereocam.overlays.pynq.overlay import bind_pynq
+        from stereocam.overlays.spec.overlay import ADDRESS_MAP
 
         ov = EmulatedOverlay(clock="stepped")
         try:

@@ -17,13 +17,13 @@ from typing import Any, Dict, List, Tuple
 import numpy as np
 import pytest
 
-from stereocam.bench_faults import KINDS, ON_THE_PROCESSED_PATH
+from stereocam.bench.faults import KINDS, ON_THE_PROCESSED_PATH
 from stereocam.overlays.emulated.faults import FaultError, FaultInjector
 from stereocam.overlays.fabric import SOURCES
-from stereocam.server import routes_cameras
-from stereocam.server.app import ServeError, create_app
-from stereocam.server.config import Config, ConfigError
-from stereocam.server.state import FABRIC_HEALTH, PIPELINE
+from stereocam.server.http import routes_cameras
+from stereocam.server.http.app import ServeError, create_app
+from stereocam.server.http.config import Config, ConfigError
+from stereocam.server.http.state import FABRIC_HEALTH, PIPELINE
 
 from .server_fixtures import make_overlay, start_daemon_fixture, wait_for_frames  # noqa: F401
 
@@ -291,7 +291,7 @@ async def test_rectified_frames_go_on_through_a_hung_raw_reset(start_daemon) -> 
 
 
 def test_the_faults_benchmark_measures_every_kind_against_the_floor() -> None:
-    from stereocam.bench_faults import FLOORS, measure_faults, text_lines
+    from stereocam.bench.faults import FLOORS, measure_faults, text_lines
 
     result = measure_faults(rounds=1)
     parts = result["parts"]
@@ -308,7 +308,7 @@ def test_the_faults_benchmark_measures_every_kind_against_the_floor() -> None:
 async def test_the_virtual_camera_shows_its_input_again_after_an_mm2s_fault(start_daemon) -> None:
     """The restart parks the channel on the store it showed, not store 0 (an older upload)."""
     from stereocam.overlays.spec import pixel
-    from stereocam.server.state import VIRTUAL
+    from stereocam.server.http.state import VIRTUAL
 
     from .test_server_api import encode, model_output, pair_form, pattern_pair
 

@@ -11,8 +11,8 @@ from aiohttp import FormData
 from PIL import Image
 
 from stereocam.overlays.spec import pixel
-from stereocam.server.state import METRICS, VIRTUAL
-from stereocam.server.uploads import (
+from stereocam.server.http.state import METRICS, VIRTUAL
+from stereocam.server.http.uploads import (
     FIT_MODES,
     UploadError,
     apply_fit,

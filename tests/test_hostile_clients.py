@@ -1,6 +1,6 @@
 """Hostile and slow clients (issue 10): what the daemon does; how fast is ``stereocam bench robustness``'s.
 
-- 2,000 malformed requests (:func:`stereocam.bench_robustness.malformed_requests`: uploads, JSON,
+- 2,000 malformed requests (:func:`stereocam.bench.robustness.malformed_requests`: uploads, JSON,
   YAML calibrations, headers, request lines, on every endpoint) and malformed WebSocket messages
   against ``stereocam serve`` run as a subprocess, as on the board: every one gets the 4xx it
   should, none a 5xx; the daemon's log holds no traceback; an MJPEG client watching all along
@@ -22,12 +22,12 @@ from typing import Any, Callable, Dict, List, Optional
 
 import pytest
 
-from stereocam import bench_robustness as br
-from stereocam.bench import bench_calibration
-from stereocam.calibration_file import Calibration
-from stereocam.server import routes_calibration
-from stereocam.server.encoders import EncoderKey
-from stereocam.server.state import ENCODERS, FEED, STREAMS
+from stereocam.bench import robustness as br
+from stereocam.bench.rectify import bench_calibration
+from stereocam.calibration.file import Calibration
+from stereocam.server.frames.encoders import EncoderKey
+from stereocam.server.http import routes_calibration
+from stereocam.server.http.state import ENCODERS, FEED, STREAMS
 
 from .server_fixtures import make_overlay, start_daemon_fixture  # noqa: F401
 
@@ -264,7 +264,7 @@ def test_yaml_values_the_safe_constructor_cannot_read_are_refused(monkeypatch, f
     expect: a 500 with a traceback. Now every one is a YamlRefused (a 400 naming the problem)."""
     import yaml
 
-    from stereocam.safe_yaml import YamlRefused, load
+    from stereocam.calibration.safe_yaml import YamlRefused, load
 
     if not fast:
         monkeypatch.delattr(yaml, "CSafeLoader", raising=False)

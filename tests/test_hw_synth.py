@@ -13,9 +13,9 @@ from typing import Callable, List, Tuple
 
 import pytest
 
-from stereocam import hw_synth
 from stereocam.cli import build_parser
-from stereocam.hw_synth import BuildParams, Counts, count_resources, over_floor, synthesize
+from stereocam.overlays.rtl import synth as hw_synth
+from stereocam.overlays.rtl.synth import BuildParams, Counts, count_resources, over_floor, synthesize
 
 # One module with a known amount of each resource. MUL_W and ADDR_W default small and are
 # raised by chparam, and the FDPE block needs a define, so the counts also prove that the
@@ -207,7 +207,7 @@ def test_builds_come_from_the_spec_when_it_has_them() -> None:
     assert table["gray"].parameters() == {"MAX_WIDTH": table["gray"].max_width,
                                           "MAX_HEIGHT": table["gray"].max_height,
                                           "LB_ROWS": table["gray"].lb_rows, "COLOUR": 0}
-    assert source in ("overlays/spec/rectify.py BUILDS", "stereocam/hw_synth.py FALLBACK_BUILDS")
+    assert source in ("overlays/spec/rectify.py BUILDS", "overlays/rtl/synth.py FALLBACK_BUILDS")
     assert hw_synth.FALLBACK_BUILDS["gray"] == BuildParams("gray", 752, 1024, 80, False)
     assert hw_synth.FALLBACK_BUILDS["colour"] == BuildParams("colour", 752, 1024, 80, True)
 

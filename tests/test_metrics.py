@@ -18,8 +18,8 @@ from typing import Any, AsyncIterator, Dict, FrozenSet, List, Set
 from prometheus_client.parser import text_string_to_metric_families
 from prometheus_client.samples import Sample
 
-from stereocam.server import routes_cameras
-from stereocam.server.state import EXTENSIONS, METRICS, PIPELINE
+from stereocam.server.http import routes_cameras
+from stereocam.server.http.state import EXTENSIONS, METRICS, PIPELINE
 
 from .server_fixtures import WAIT_S, read_parts, start_daemon_fixture  # noqa: F401
 
@@ -168,7 +168,7 @@ async def test_every_family_has_one_label_set(start_daemon) -> None:
 
 
 async def test_each_app_has_its_own_registry(start_daemon) -> None:
-    from stereocam.server.metrics import REGISTRY
+    from stereocam.server.http.metrics import REGISTRY
 
     one = await start_daemon()
     two = await start_daemon()

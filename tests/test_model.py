@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from stereocam.calibration.stereo import camera_params
 from stereocam.overlays.model import fixed
 from stereocam.overlays.model.fast import RectifyModel, SourceMap
 from stereocam.overlays.model.linebuffer import rows_needed
@@ -14,7 +15,6 @@ from stereocam.overlays.model.reference import rectify_reference, source_positio
 from stereocam.overlays.model.result import CoreOptions
 from stereocam.overlays.spec import rectify as spec
 from stereocam.overlays.spec.rectify import CameraParams, CameraRegs, camera_registers
-from stereocam.stereo import camera_params
 
 
 def random_params(rng: np.random.Generator, w: int, h: int, *, strength: float = 1.0) -> CameraParams:

@@ -27,7 +27,7 @@ from typing import Dict, List, Set
 import pytest
 
 import stereocam
-from stereocam.server import systemd
+from stereocam.server.http import systemd
 
 REPO = Path(__file__).resolve().parent.parent
 VERSION = stereocam.__version__
@@ -97,7 +97,7 @@ def test_sdist_ships_the_package_and_no_tests(dists: Dists) -> None:
         pkg_info = tar.extractfile(f"stereocam-{VERSION}/PKG-INFO").read().decode()  # type: ignore[union-attr]
     assert not any(n == "tests" or n.startswith("tests/") for n in names), "its tests need the repository"
     assert {"LICENSE", "README.md", "pyproject.toml", "setup.py", "board/stereocam.service",
-            "board/zynq-stereo.yaml", "server/static/index.html", "overlays/rtl/rectify_core.v",
+            "board/zynq-stereo.yaml", "server/http/static/index.html", "overlays/rtl/rectify_core.v",
             "stereocam/cli.py"} <= names
     assert not any(n.endswith((".pyc", ".egg-info/")) or "__pycache__" in n for n in names)
     meta = email.message_from_string(pkg_info)
@@ -133,7 +133,7 @@ def test_the_wheel_built_offline_from_the_sdist_is_complete_and_described(dists:
     assert not missing, sorted(missing)
     assert not any(n.startswith("tests/") for n in names)
     assert "[console_scripts]\nstereocam = stereocam.cli:main\n" in entry_points
-    assert "[pynq.lib]\nstereocam-guard = stereocam.overlays.pynq_guard\n" in entry_points
+    assert "[pynq.lib]\nstereocam-guard = stereocam.overlays.pynq.guard\n" in entry_points
     meta = wheel_metadata(dists.wheel)
     assert meta.get_payload().strip() == README.strip(), "the README is the description"
     requires = meta.get_all("Requires-Dist")
@@ -196,12 +196,12 @@ def test_offline_install_on_the_image_just_works(dists: Dists, tmp_path: Path) -
     # Run from elsewhere than the repository: what runs is what was installed.
     version = run([str(venv / "bin" / "stereocam"), "--version"], cwd=tmp_path).stdout
     assert version == f"stereocam {VERSION}\n"
-    probe = ("import stereocam.server.app as a, stereocam.board.profile as p, importlib.metadata as m; "
+    probe = ("import stereocam.server.http.app as a, stereocam.board.profile as p, importlib.metadata as m; "
              "print(a.__file__); print(p.DEFAULT_PROFILE.is_file()); "
              "print([e.value for e in m.entry_points(group='pynq.lib')])")
     where, profile, guards = run([python, "-c", probe], cwd=tmp_path).stdout.splitlines()
     assert Path(where).is_relative_to(venv) and profile == "True"
-    assert guards == "['stereocam.overlays.pynq_guard']", "pynq imports the fabric guard"
+    assert guards == "['stereocam.overlays.pynq.guard']", "pynq imports the fabric guard"
     unit = run([str(venv / "bin" / "stereocam"), "install-service", "--print"], cwd=tmp_path).stdout
     assert unit == systemd.unit_text()
 

@@ -49,7 +49,7 @@ OWNER = textwrap.dedent("""
     from stereocam.overlays.emulated import pynq_device as pd
     from stereocam.overlays.emulated.fabric import EmulatedFabric
     from stereocam.overlays.spec.overlay import ADDRESS_MAP
-    from stereocam.overlays.pynq_overlay import PynqPLState, StereocamOverlay
+    from stereocam.overlays.pynq.overlay import PynqPLState, StereocamOverlay
     hw = EmulatedFabric(clock="stepped")
     dev = pd.EmulatedPynqDevice(hw.ddr, {{n: (ADDRESS_MAP[n], b) for n, b in hw.blocks.items()}}, tick=hw.step,
                                 programmed=False, state_dir=Path({state!r}))
@@ -63,19 +63,14 @@ OWNER = textwrap.dedent("""
 
 if pynq is not None:
     from stereocam.overlays.backend import BackendError
-    from stereocam.overlays.pynq_drivers import (
+    from stereocam.overlays.pynq.drivers import (
         FabricLost,
         GuardedWindow,
         PynqAxisSwitch,
         PynqRectifyCore,
         PynqVDMA,
     )
-    from stereocam.overlays.pynq_overlay import (
-        FabricBusy,
-        FabricLock,
-        PynqPLState,
-        StereocamOverlay,
-    )
+    from stereocam.overlays.pynq.overlay import FabricBusy, FabricLock, PynqPLState, StereocamOverlay
 
     class Board:
         """An emulated board: the fabric, the pynq device over it (PL cold unless ``programmed``), files."""
@@ -253,7 +248,7 @@ if pynq is not None:
         notebook = pynq.Overlay(str(board.foreign()), device=board.dev)  # pynq has no lock: this downloads
         assert notebook.is_loaded() and not board.dev.mapped
         accesses = board.dev.bus_accesses
-        caplog.set_level(logging.ERROR, logger="stereocam.overlays.pynq_overlay")
+        caplog.set_level(logging.ERROR, logger="stereocam.overlays.pynq.overlay")
         lost = (r"^the fabric was re-programmed underneath stereocam: "
                 r"pynq records .*/base\.bit since .*, not .*/stereocam\.bit")
         with pytest.raises(FabricLost, match=lost):

@@ -14,7 +14,7 @@ from typing import Any, List, Optional
 
 import pytest
 
-from stereocam.overlays.fabric_lock import LOCK_ENV, FabricBusy, FabricLock
+from stereocam.overlays.pynq.lock import LOCK_ENV, FabricBusy, FabricLock
 
 from .pynq_hwh import pynq_for_tests
 
@@ -22,7 +22,7 @@ pynq: Optional[Any] = pynq_for_tests()
 
 HOLDER = textwrap.dedent("""
     import sys
-    from stereocam.overlays.fabric_lock import FabricLock
+    from stereocam.overlays.pynq.lock import FabricLock
     lock = FabricLock()
     lock.acquire("stereocam.bit")
     print("held", flush=True)
@@ -30,7 +30,7 @@ HOLDER = textwrap.dedent("""
 """)
 
 if pynq is not None:
-    from stereocam.overlays import pynq_guard
+    from stereocam.overlays.pynq import guard as pynq_guard
 
     @pytest.fixture
     def lock_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
@@ -43,7 +43,7 @@ if pynq is not None:
         import pynqutils
 
         modules = [ext.module_name for ext in pynqutils.setup_utils.ExtensionsManager("pynq.lib").list]
-        assert "stereocam.overlays.pynq_guard" in modules
+        assert "stereocam.overlays.pynq.guard" in modules
         from pynq.pl_server.embedded_device import EmbeddedDevice
 
         assert getattr(EmbeddedDevice.download, "_stereocam_guarded", False)

@@ -12,7 +12,7 @@ import time
 import urllib.request
 from pathlib import Path
 
-from stereocam.bench_serve import free_port, wait_healthy
+from stereocam.bench.serve import free_port, wait_healthy
 
 from .browser import get_json
 

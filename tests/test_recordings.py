@@ -17,12 +17,12 @@ import pytest
 from stereocam.overlays.emulated.cameras import ReplayError, ReplaySource
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.spec.pixel import pack, rgby
-from stereocam.server import recordings as recordings_module
-from stereocam.server.app import _camera_source, program_default_calibration
-from stereocam.server.config import Config
-from stereocam.server.pipeline import Pipeline
-from stereocam.server.routes_recordings import RECORDER, RECORDINGS
-from stereocam.server.state import CALIBRATION, PIPELINE, VIRTUAL
+from stereocam.server.frames import recordings as recordings_module
+from stereocam.server.frames.pipeline import Pipeline
+from stereocam.server.http.app import _camera_source, program_default_calibration
+from stereocam.server.http.config import Config
+from stereocam.server.http.routes_recordings import RECORDER, RECORDINGS
+from stereocam.server.http.state import CALIBRATION, PIPELINE, VIRTUAL
 
 from .server_fixtures import SMALL, WAIT_S, rig_frame, start_daemon_fixture, wait_for_frames  # noqa: F401
 
@@ -293,7 +293,7 @@ def test_a_raw_pair_that_comes_twice_is_recorded_once(tmp_path) -> None:
     processed = np.zeros((SMALL[1], SMALL[0], 8), np.uint8)
 
     def frame_set(count: int, raw_frame: int) -> Any:
-        from stereocam.server.pipeline import FrameSet
+        from stereocam.server.frames.pipeline import FrameSet
 
         return FrameSet(seq=count, frame=count, fabric_count=count, timestamp=time.time(),
                         monotonic=time.monotonic(), source="live", processed=processed,

@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from stereocam.board.profile import ProfileError, load_profile
-from stereocam.calibration_file import CalibrationFileError, load_calibration, parse_yaml
-from stereocam.safe_yaml import MAX_DEPTH, YamlRefused, load
-from stereocam.server.config import Config, ConfigError
+from stereocam.calibration.file import CalibrationFileError, load_calibration, parse_yaml
+from stereocam.calibration.safe_yaml import MAX_DEPTH, YamlRefused, load
+from stereocam.server.http.config import Config, ConfigError
 
 
 @pytest.fixture(params=["libyaml", "python"], autouse=True)

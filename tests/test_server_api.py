@@ -15,13 +15,12 @@ import numpy as np
 import pytest
 from aiohttp import FormData
 
+from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.spec import pixel
-from stereocam.server import captures as captures_module
-from stereocam.server.routes_api import core_model_setup
-from stereocam.server.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
-
-from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.server.frames import captures as captures_module
+from stereocam.server.http.routes_api import core_model_setup
+from stereocam.server.http.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
 
 from .server_fixtures import (
     FULL,
@@ -104,7 +103,7 @@ async def test_status_reports_the_daemon(start_daemon) -> None:
 async def test_status_has_extension_sections(start_daemon) -> None:
     from prometheus_client.core import GaugeMetricFamily
 
-    from stereocam.server.state import EXTENSIONS
+    from stereocam.server.http.state import EXTENSIONS
 
     def setup(app) -> None:
         app[EXTENSIONS].status["sensors"] = lambda: {"exposure_us": 1000}
@@ -191,7 +190,7 @@ async def test_unknown_paths_are_json_404(start_daemon) -> None:
 
 
 async def test_the_page_is_served_at_root(start_daemon) -> None:
-    from stereocam.server.app import STATIC_DIR
+    from stereocam.server.http.app import STATIC_DIR
 
     d = await start_daemon()
     async with d.http.get("/") as resp:

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
-from stereocam.bench import bench_calibration
-from stereocam.calibration_file import Calibration, load_calibration
-from stereocam.server import routes_calibration
-from stereocam.server.app import default_extensions, program_default_calibration
-from stereocam.server.config import Config
-from stereocam.stereo import rectify
+from stereocam.bench.rectify import bench_calibration
+from stereocam.calibration.file import Calibration, load_calibration
+from stereocam.calibration.stereo import rectify
+from stereocam.server.http import routes_calibration
+from stereocam.server.http.app import default_extensions, program_default_calibration
+from stereocam.server.http.config import Config
 
 from .server_fixtures import SMALL, make_overlay, start_daemon_fixture  # noqa: F401
 
@@ -249,7 +249,7 @@ async def test_put_keeps_the_file_it_replaces(start_daemon, tmp_path) -> None:
 
 
 def test_frames_are_labelled_with_the_calibration_they_ran_with() -> None:
-    from stereocam.server.state import CalibrationState
+    from stereocam.server.http.state import CalibrationState
 
     state = CalibrationState(id="A")
     assert state.for_frame(5)["id"] == "A"  # type: ignore[index]
@@ -276,8 +276,8 @@ async def test_a_capture_during_a_calibration_change_names_the_calibration_its_f
     import asyncio
 
     from stereocam.overlays.model.fast import RectifyModel
-    from stereocam.server.routes_api import core_model_setup
-    from stereocam.server.state import CALIBRATION, CAPTURES
+    from stereocam.server.http.routes_api import core_model_setup
+    from stereocam.server.http.state import CALIBRATION, CAPTURES
 
     daemon = await start_daemon(extensions=EXT)
     cals = [rig_calibration(daemon, alpha=0.0), rig_calibration(daemon, alpha=0.6)]

@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 from aiohttp import FormData
 
-from stereocam.calibrate import CalibrationReport, Pattern, detect_corners
-from stereocam.calibration_file import Calibration, load_calibration
+from stereocam.calibration.calibrate import CalibrationReport, Pattern, detect_corners
+from stereocam.calibration.file import Calibration, load_calibration
+from stereocam.calibration.stereo import rectify
 from stereocam.cli import main as cli_main
-from stereocam.server import routes_calibration, routes_calibration_panel
-from stereocam.server.app import default_extensions, program_default_calibration
-from stereocam.server.calibration_pairs import SETTINGS_FILE
-from stereocam.server.config import Config
-from stereocam.server.routes_calibration_panel import PANEL, Candidate
-from stereocam.stereo import rectify
+from stereocam.server.frames.calibration_pairs import SETTINGS_FILE
+from stereocam.server.http import routes_calibration, routes_calibration_panel
+from stereocam.server.http.app import default_extensions, program_default_calibration
+from stereocam.server.http.config import Config
+from stereocam.server.http.routes_calibration_panel import PANEL, Candidate
 
 from .sample import SYNTH_SQUARE, synthetic_views
 from .server_fixtures import FULL, WAIT_S, make_overlay, start_daemon_fixture  # noqa: F401

@@ -12,10 +12,10 @@ import pytest
 
 from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
-from stereocam.server import routes_cameras
-from stereocam.server.app import default_extensions
-from stereocam.server.routes_cameras import CAMERA_SERVICE
-from stereocam.server.state import EXTENSIONS, PIPELINE
+from stereocam.server.http import routes_cameras
+from stereocam.server.http.app import default_extensions
+from stereocam.server.http.routes_cameras import CAMERA_SERVICE
+from stereocam.server.http.state import EXTENSIONS, PIPELINE
 
 from .server_fixtures import (
     SMALL,
@@ -115,7 +115,7 @@ def _mean(png: bytes) -> float:
 
 
 async def _snapshot_mean_later(d) -> float:
-    from stereocam.server.state import PIPELINE
+    from stereocam.server.http.state import PIPELINE
 
     start = d.app[PIPELINE].frames_seen
     deadline = time.monotonic() + 10

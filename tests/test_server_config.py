@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from stereocam.server.config import Config, ConfigError
+from stereocam.server.http.config import Config, ConfigError
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:

@@ -8,7 +8,7 @@ from typing import Tuple
 import aiohttp
 import pytest
 
-from stereocam.server import routes_calibration, routes_calibration_panel, routes_cameras
+from stereocam.server.http import routes_calibration, routes_calibration_panel, routes_cameras
 
 from .server_fixtures import start_daemon_fixture, wait_for_frames  # noqa: F401
 

@@ -12,7 +12,7 @@ import pytest
 
 from stereocam.drivers.vdma import ChannelFault
 from stereocam.overlays.model.fast import RectifyModel
-from stereocam.server.encoders import (
+from stereocam.server.frames.encoders import (
     BroadcastClosed,
     EncoderKey,
     Encoders,
@@ -20,9 +20,9 @@ from stereocam.server.encoders import (
     Latest,
     encoded_for,
 )
-from stereocam.server.pipeline import FrameSet, NoSignal, OnceCache, Pipeline, SourceState
-from stereocam.server.routes_api import core_model_setup
-from stereocam.server.views import VIEWS, ViewUnavailable, render, view_size
+from stereocam.server.frames.pipeline import FrameSet, NoSignal, OnceCache, Pipeline, SourceState
+from stereocam.server.frames.views import VIEWS, ViewUnavailable, render, view_size
+from stereocam.server.http.routes_api import core_model_setup
 
 from .server_fixtures import SMALL, make_overlay
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from stereocam.server.state import CAPTURES
+from stereocam.server.http.state import CAPTURES
 
 from .server_fixtures import start_daemon_fixture  # noqa: F401
 
@@ -131,7 +131,7 @@ async def test_our_names_and_ip_literals_are_accepted(start_daemon) -> None:
 def test_listening_everywhere_adds_the_machines_own_names() -> None:
     import socket
 
-    from stereocam.server.security import allowed_host_names
+    from stereocam.server.http.security import allowed_host_names
 
     names = allowed_host_names("0.0.0.0", ["Board.Example"])
     hostname = socket.gethostname().lower()

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 from stereocam import cli
-from stereocam.server import app as app_module
-from stereocam.server import systemd
-from stereocam.server.pipeline import Pipeline
+from stereocam.server.frames.pipeline import Pipeline
+from stereocam.server.http import app as app_module
+from stereocam.server.http import systemd
 
 REPO = Path(__file__).resolve().parent.parent
 WAIT_S = 120.0  # last-resort bound of a wait for something that does happen (a busy machine is slow)
@@ -302,13 +302,13 @@ def test_serve_refuses_a_port_in_use(tmp_path) -> None:
 # -- the calibration the daemon starts with --------------------------------------------------------
 
 def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> None:
-    from stereocam.bench import bench_calibration
-    from stereocam.calibration_io import write_opencv_pair
+    from stereocam.bench.rectify import bench_calibration
+    from stereocam.calibration.formats import write_opencv_pair
+    from stereocam.calibration.stereo import rectify
     from stereocam.overlays.emulated.cameras import SyntheticRig
     from stereocam.overlays.emulated.overlay import EmulatedOverlay
     from stereocam.overlays.spec.rectify import camera_registers
-    from stereocam.server.config import Config
-    from stereocam.stereo import rectify
+    from stereocam.server.http.config import Config
 
     from .server_fixtures import StillSource
 

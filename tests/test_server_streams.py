@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from aiohttp import WSMsgType
 
-from stereocam.server.encoders import EncoderKey
-from stereocam.server.state import ENCODERS, FEED, METRICS, PIPELINE, STREAMS
+from stereocam.server.frames.encoders import EncoderKey
+from stereocam.server.http.state import ENCODERS, FEED, METRICS, PIPELINE, STREAMS
 
 from .server_fixtures import (
     SMALL,

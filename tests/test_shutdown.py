@@ -1,6 +1,6 @@
 """SIGTERM while a ``PUT /api/calibration`` is being worked on (issue 10, item 8).
 
-``server/API.md``, ``server/app.py`` and ``board/stereocam.service`` promise: SIGTERM stops the
+``server/API.md``, ``server/http/app.py`` and ``board/stereocam.service`` promise: SIGTERM stops the
 streams and the VDMA channels and returns the mux to live within 2 s. A valid calibration file
 with a large ``quality`` section (figures for people: parsed, not checked) takes the daemon
 seconds to check; SIGTERM during that check took up to 8.8 s, because the exit waited for the
@@ -20,13 +20,13 @@ from typing import Any, Callable, Tuple
 
 import pytest
 
-from stereocam.bench_serve import wait_healthy
-from stereocam.calibration_file import MAX_FILE_CHARS, Calibration, load_calibration
+from stereocam.bench.serve import wait_healthy
+from stereocam.calibration.file import MAX_FILE_CHARS, Calibration, load_calibration
+from stereocam.calibration.stereo import rectify
 from stereocam.overlays.emulated.cameras import SyntheticRig
-from stereocam.server import routes_calibration
-from stereocam.server.routes_calibration import ACTIVE, previous_path
-from stereocam.server.state import Executors
-from stereocam.stereo import rectify
+from stereocam.server.http import routes_calibration
+from stereocam.server.http.routes_calibration import ACTIVE, previous_path
+from stereocam.server.http.state import Executors
 
 from .server_fixtures import start_daemon_fixture  # noqa: F401
 from .test_server_service import free_port, stereocam

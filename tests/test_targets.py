@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from stereocam.board.profile import load_profile
-from stereocam.calibrate import ImagePair, Pattern, calibrate_pairs, detect_corners
+from stereocam.calibration.calibrate import ImagePair, Pattern, calibrate_pairs, detect_corners
+from stereocam.calibration.stereo import StereoModel
 from stereocam.drivers.mt9v034 import StereoSensors
 from stereocam.overlays.emulated.cameras import CameraSource, SourceClosedError, SyntheticRig, rig_model
 from stereocam.overlays.emulated.fabric import EmulatedFabric
@@ -23,7 +24,6 @@ from stereocam.overlays.emulated.targets import (
     random_board_poses,
 )
 from stereocam.overlays.spec import pixel
-from stereocam.stereo import StereoModel
 
 PATTERN = Pattern.parse("9x6", "25mm")
 

@@ -14,8 +14,8 @@ import pytest
 from PIL import Image
 
 from stereocam.overlays.spec import pixel
-from stereocam.server import uploads
-from stereocam.server.uploads import (
+from stereocam.server.http import uploads
+from stereocam.server.http.uploads import (
     MAX_UPLOAD_BYTES,
     UploadError,
     decode_image,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereocam.overlays.spec import pixel
-from stereocam.server.verify import EXAMPLES, ChannelStats, VerifyError, compare, difference_image
+from stereocam.server.frames.verify import EXAMPLES, ChannelStats, VerifyError, compare, difference_image
 
 W, H = 40, 30
 

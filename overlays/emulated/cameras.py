@@ -39,7 +39,7 @@ from typing import Dict, List, Optional, Protocol, Sequence, Tuple, Union, runti
 import cv2
 import numpy as np
 
-from ...stereo import StereoModel
+from ...calibration.stereo import StereoModel
 from ..model import camera_in as camera_model
 from ..spec import camera_in as camera_spec
 from ..spec.pixel import gray_of, pack, rgby
@@ -914,7 +914,7 @@ class ReplayEnded(IndexError):
 
 _IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 _CAPTURE_FILES = ("raw_left.png", "raw_right.png")
-# A stereocam recording (server/recordings.py writes it; named here so the emulator needs no server code).
+# A stereocam recording (server/frames/recordings.py writes it; named here so the emulator needs no server code).
 _RECORDING_FILE = "recording.json"
 _RECORDING_FORMAT = "stereocam-recording/"
 _COUNT_MOD = 1 << 32

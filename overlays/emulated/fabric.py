@@ -56,7 +56,7 @@ class StreamCore(Protocol):
     """What stands in the rectify core's place: a register window plus whole frames in and out.
 
     :class:`.rectify.EmulatedRectifyCore` (the model) is the default;
-    ``stereocam.rtl_core.RtlCore`` (the RTL under Verilator) is the other, so
+    ``stereocam.overlays.rtl.core.RtlCore`` (the RTL under Verilator) is the other, so
     the same drivers and stream paths run in front of the core's HDL.
     ``process`` returns the output frame, or None when the core emits none.
     """
@@ -90,7 +90,7 @@ class EmulatedFabric:
     benchmarks); ``"realtime"`` runs a thread at ``fps`` once :meth:`start`
     is called. ``source`` defaults to a :class:`SyntheticRig`; the fabric
     closes it on :meth:`close`. ``core`` replaces the model of the rectify
-    core (e.g. with the RTL, ``stereocam.rtl_core.RtlCore``, built for ``build``);
+    core (e.g. with the RTL, ``stereocam.overlays.rtl.core.RtlCore``, built for ``build``);
     the fabric closes it too. ``sensors`` (optional, settable later) are
     ticked around every camera frame (:class:`FrameSensors`).
     """

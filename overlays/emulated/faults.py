@@ -17,7 +17,7 @@ it would on the board (nothing here tells the daemon about a fault):
 
 A fault lasts from :meth:`FaultInjector.inject` until :meth:`FaultInjector.end`.
 Thread-safe. The daemon reaches it over HTTP only when started with
-``--allow-fault-injection`` on the emulated backend (``server/routes_faults.py``).
+``--allow-fault-injection`` on the emulated backend (``server/http/routes_faults.py``).
 """
 from __future__ import annotations
 

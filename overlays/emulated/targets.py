@@ -27,7 +27,7 @@ from typing import List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from ...stereo import StereoModel
+from ...calibration.stereo import StereoModel
 from ..spec.pixel import pack
 from .cameras import SourceClosedError, SyntheticRig
 
@@ -87,7 +87,7 @@ def board_size_m(pattern: Sequence[int] = (9, 6), square: float = 0.03) -> Tuple
 def board_corners(pattern: Sequence[int] = (9, 6), square: float = 0.03) -> np.ndarray:
     """The inner corners in board coordinates, ``(cols * rows, 3)`` float64, row by row.
 
-    The order of ``stereocam.calibrate.Pattern.object_points``, shifted by
+    The order of ``stereocam.calibration.calibrate.Pattern.object_points``, shifted by
     the margin and the first square (``(2, 2)`` squares).
     """
     cols, rows = _check_pattern(pattern)

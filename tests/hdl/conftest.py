@@ -10,7 +10,7 @@ from typing import List
 
 import pytest
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 
 HDL_TIMEOUT_S = 1800.0
 """The least per-test timeout of a simulator test (pyproject's 120 s is for quick tests).

@@ -21,7 +21,7 @@ import logging
 import os
 import random
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from typing import Any, Callable, Deque, Iterable, List, Optional, Sequence, Tuple
 
 import cocotb

@@ -40,7 +40,7 @@ from stereocam.overlays.spec.rectify import (
     i64_to_words,
     param_offset,
 )
-from stereocam.overlays.spec.regs import Access, Register
+from stereocam.overlays.spec.regs import Access
 
 CLOCK_NS = 10
 TIMEOUT_US = 500  # bound on any wait: a design that stops answering fails instead of hanging

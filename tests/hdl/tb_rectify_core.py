@@ -32,7 +32,7 @@ import os
 import random
 import time
 from collections import deque
-from typing import Any, Deque, Dict, List, Optional, Tuple
+from typing import Any, Deque, Dict, List, Tuple
 
 import cocotb
 import numpy as np

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec import camera_in as spec
 
 from .cocotb_run import run_cocotb

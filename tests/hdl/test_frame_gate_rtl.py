@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from stereocam import hdl, hw_synth
+from stereocam.overlays.rtl import synth as hw_synth
+from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec import frame_gate as spec
 
 from .cocotb_run import run_cocotb
@@ -93,7 +94,7 @@ def test_frame_gate_rtl_default_depth(sim: str, cocotb_dir: Path) -> None:
 
 @pytest.mark.timeout(600)
 def test_frame_gate_resources() -> None:
-    """yosys synth_xilinx (stereocam.hw_synth) of the default build: the FIFO in block RAM, the output
+    """yosys synth_xilinx (stereocam.overlays.rtl.synth) of the default build: the FIFO in block RAM, the output
     FIFO in distributed RAM, no DSP, little logic."""
     result = hw_synth.synthesize(camera_dir(), top=spec.TOP, parameters=spec.PARAMETERS)
     counts = result.counts

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 
 from .cocotb_run import BUILT_MARKER, REPO_ROOT, CocotbRun, run_cocotb
 

@@ -20,8 +20,9 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam import hdl
+from stereocam.calibration.stereo import StereoModel, camera_params, rectify
 from stereocam.overlays.model import fixed
+from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec.rectify import (
     COORD_LIMIT,
     K_FMT,
@@ -38,7 +39,6 @@ from stereocam.overlays.spec.rectify import (
     F,
     camera_registers,
 )
-from stereocam.stereo import StereoModel, camera_params, rectify
 
 from .cocotb_run import run_cocotb
 
@@ -421,7 +421,7 @@ def yosys_cells() -> Dict[str, int]:
         out = subprocess.run([str(yosys), "-q", "-l", str(folder / "yosys.log"), "-p", script],
                              capture_output=True, text=True, timeout=1500, check=False)
         assert out.returncode == 0, out.stdout + out.stderr
-        from stereocam.hw_synth import parse_stat_json
+        from stereocam.overlays.rtl.synth import parse_stat_json
 
         result.write_text(json.dumps(parse_stat_json((folder / "stat.json").read_text())))
     return json.loads(result.read_text())
@@ -429,7 +429,7 @@ def yosys_cells() -> Dict[str, int]:
 
 def test_resources_within_budget() -> None:
     """yosys synth_xilinx: at most 56 DSP48E1, 7,000 LUT (logic, INV and LUTRAM) and 8,000 FF."""
-    from stereocam.hw_synth import count_resources
+    from stereocam.overlays.rtl.synth import count_resources
 
     cells = yosys_cells()
     counts = count_resources(cells)

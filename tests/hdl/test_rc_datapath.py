@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 
 from .cocotb_run import run_cocotb
 

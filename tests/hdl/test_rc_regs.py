@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from stereocam import hdl
+from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec.rectify import BUILDS, DEFAULT_BUILD, PARAM_FORMAT, PARAM_NAMES, Build
 
 from .cocotb_run import run_cocotb

@@ -21,8 +21,9 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam import hdl
+from stereocam.calibration.stereo import StereoModel, camera_params, rectify
 from stereocam.overlays.model.linebuffer import rows_needed
+from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec import pixel
 from stereocam.overlays.spec.rectify import (
     BUILDS,
@@ -34,7 +35,6 @@ from stereocam.overlays.spec.rectify import (
     i64_to_words,
     param_offset,
 )
-from stereocam.stereo import StereoModel, camera_params, rectify
 
 from .cocotb_run import run_cocotb
 

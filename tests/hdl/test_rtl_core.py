@@ -1,4 +1,4 @@
-"""``stereocam.rtl_core.RtlCore``: the core's RTL compiled by Verilator, against the emulated core.
+"""``stereocam.overlays.rtl.core.RtlCore``: the core's RTL compiled by Verilator, against the emulated core.
 
 The driver (``drivers/rectify.py: RectifyCore``) programs both the RTL (``RtlCore``) and
 the emulated core (``EmulatedRectifyCore``, the oracle) with the same calibration; the
@@ -19,10 +19,13 @@ from typing import Iterator, List, Optional, Sequence, Tuple
 import numpy as np
 import pytest
 
-from stereocam import bench, hdl
+from stereocam.bench import rectify as bench
+from stereocam.calibration.stereo import StereoModel, camera_params, rectify
 from stereocam.drivers.rectify import ConfigRefused, RectifyCore
 from stereocam.overlays.emulated.rectify import EmulatedRectifyCore
 from stereocam.overlays.model.linebuffer import rows_needed
+from stereocam.overlays.rtl import toolchain as hdl
+from stereocam.overlays.rtl.core import RtlBuildError, RtlCore, RtlError, build_harness, rtl_sources
 from stereocam.overlays.spec.rectify import (
     BUILDS,
     CORE_ID,
@@ -34,8 +37,6 @@ from stereocam.overlays.spec.rectify import (
     camera_registers,
     param_offset,
 )
-from stereocam.rtl_core import RtlBuildError, RtlCore, RtlError, build_harness, rtl_sources
-from stereocam.stereo import StereoModel, camera_params, rectify
 
 from ..test_model import camera_frame, random_frame, random_params
 

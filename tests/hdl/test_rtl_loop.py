@@ -1,6 +1,6 @@
 """The closed loop on the core's RTL: ``stereocam rectify --core rtl`` and ``serve --core rtl``.
 
-The RTL runs compiled by Verilator (``stereocam.rtl_core.RtlCore``) behind the same drivers,
+The RTL runs compiled by Verilator (``stereocam.overlays.rtl.core.RtlCore``) behind the same drivers,
 emulated VDMAs and mux as the model. Its output must equal the model's byte for byte, and
 Verify must see a fault planted in a copy of the RTL.
 """
@@ -14,15 +14,15 @@ import cv2
 import numpy as np
 import pytest
 
+from stereocam.calibration.stereo import StereoModel, core_cameras, rectify
 from stereocam.cli import main
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.rtl.core import RtlCore, rtl_sources
 from stereocam.overlays.spec import pixel
 from stereocam.overlays.spec.rectify import DEFAULT_BUILD
-from stereocam.rtl_core import RtlCore, rtl_sources
-from stereocam.server.app import RTL_TIMEOUT_S, ServeError, open_configured_overlay
-from stereocam.server.config import Config
-from stereocam.server.views import VIEWS
-from stereocam.stereo import StereoModel, core_cameras, rectify
+from stereocam.server.frames.views import VIEWS
+from stereocam.server.http.app import RTL_TIMEOUT_S, ServeError, open_configured_overlay
+from stereocam.server.http.config import Config
 
 from ..sample import SampleCalibration, calibrate_sample, pair_paths, write_opencv_files
 from ..server_fixtures import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture, wait_for_frames  # noqa: F401

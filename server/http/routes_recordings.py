@@ -1,0 +1,219 @@
+"""Recordings over HTTP: start, stop, list, download, delete; and opening one for the virtual camera.
+
+The recording itself (what is stored, how, and when it ends) is :mod:`.recordings`;
+these handlers check requests, answer, and run the blocking parts on the daemon's
+``work`` threads. Recordings live in ``<state_dir>/recordings/`` and keep
+``min_free_mb`` free on that disk, as captures do. See server/API.md, "Recordings".
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+from pathlib import Path
+from typing import Any, AsyncIterator, Dict, Optional
+
+from aiohttp import web
+
+from ..frames.errors import ApiError, parse_json
+from ..frames.recordings import MAX_SECONDS, Recorder, RecordingError, RecordingStore
+from .state import CALIBRATION, CONFIG, EXECUTORS, FEED, OVERLAY, PIPELINE, VIRTUAL
+from .streams import error_response, json_error
+
+__all__ = ["RECORDINGS", "RECORDER", "setup", "open_replay"]
+
+RECORDINGS = web.AppKey("recordings", RecordingStore)
+RECORDER = web.AppKey("recorder", Recorder)
+STOP_WAIT_S = 120.0  # a stop waits for the queued frames to be written and the folder synced
+
+
+def setup(app: web.Application) -> None:
+    """The recordings store, the recorder and their routes (``create_app`` calls it via routes_api)."""
+    config = app[CONFIG]
+    store = RecordingStore(Path(config.state_path) / "recordings",
+                           min_free_bytes=int(config.min_free_mb * 1e6))
+    app[RECORDINGS] = store
+    app[RECORDER] = Recorder(store, app[PIPELINE],
+                             calibration_for=lambda count: app[CALIBRATION].for_frame(count),
+                             raw_stores=int(app[OVERLAY].fabric.raw_vdma.s2mm.num_fstores))
+    r = app.router
+    r.add_get("/api/recordings", list_recordings)
+    r.add_post("/api/recordings", start_recording)
+    r.add_get(r"/api/recordings/{id:[^/]+}.zip", recording_zip)
+    r.add_post(r"/api/recordings/{id:[^/]+}/stop", stop_recording)
+    r.add_get(r"/api/recordings/{id:[^/]+}", get_recording)
+    r.add_delete(r"/api/recordings/{id:[^/]+}", delete_recording)
+    app.on_shutdown.append(_end_recording)
+    app.cleanup_ctx.append(_recorder_ctx)
+
+
+async def _end_recording(app: web.Application) -> None:
+    """Shutdown, while frames still flow: stop a playing recording; end and keep a running one."""
+    await app[VIRTUAL].stop_player()
+    await asyncio.get_running_loop().run_in_executor(None, app[RECORDER].stop_all, "shutdown", STOP_WAIT_S)
+
+
+async def _recorder_ctx(app: web.Application) -> AsyncIterator[None]:
+    yield
+    await _end_recording(app)  # an app that never served (tests) has no on_shutdown run
+
+
+# -- handlers ------------------------------------------------------------------------------------------
+
+def _seconds(doc: Any) -> Optional[float]:
+    if doc is None:
+        return None
+    if not isinstance(doc, dict) or set(doc) - {"seconds"}:
+        raise ApiError('send no body (record until stopped) or {"seconds": N}', status=400)
+    value = doc.get("seconds")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not 0 < value <= MAX_SECONDS:
+        raise ApiError(f"seconds must be a number above 0 and at most {MAX_SECONDS:g} (or null: until "
+                       f"stopped); got {str(value)[:40]}", status=400)
+    return float(value)
+
+
+async def start_recording(request: web.Request) -> web.Response:
+    app = request.app
+    try:
+        doc: Any = None
+        data = await request.read()
+        if data.strip():
+            if request.content_type != "application/json":
+                raise ApiError(f"send JSON (Content-Type: application/json), not {request.content_type}",
+                               status=415)
+            try:
+                doc = parse_json(data)
+            except ValueError:
+                raise ApiError("the body is not valid JSON", status=400) from None
+        seconds = _seconds(doc)
+        if not app[FEED].signal:
+            raise ApiError("no signal: no frame is coming from the fabric, so there is nothing to record; "
+                           "check the cameras (GET /api/status)", status=503)
+        pipeline, overlay = app[PIPELINE], app[OVERLAY]
+        fps = pipeline.fabric_fps() or (1.0 / pipeline.period if pipeline.period else None)
+        meta: Dict[str, Any] = {"backend": getattr(overlay, "backend", overlay.fabric.backend),
+                                "core_impl": getattr(overlay, "core_kind", "hardware")}
+        rec = await app[EXECUTORS].run(lambda: app[RECORDER].start(
+            seconds=seconds, frame_size=tuple(overlay.fabric.frame_size), fps=fps,
+            frame_no=pipeline.last_frame_number or 0, meta=meta))
+    except ApiError as exc:
+        return error_response(exc)
+    return web.json_response(rec.to_json(), status=201, headers={"Location": f"/api/recordings/{rec.id}"})
+
+
+async def list_recordings(request: web.Request) -> web.Response:
+    app = request.app
+    recorder = app[RECORDER]
+    infos = await app[EXECUTORS].run(app[RECORDINGS].list)
+    running = recorder.current
+    entries = [running.to_json()] if running is not None else []
+    last = recorder.last
+    return web.json_response({
+        "recordings": entries + [i.to_json() for i in infos if running is None or i.id != running.id],
+        "recording": running.id if running is not None else None,
+        "last_error": last.error if last is not None and last.error else None,
+    }, headers={"Cache-Control": "no-store"})
+
+
+async def get_recording(request: web.Request) -> web.Response:
+    app, rid = request.app, request.match_info["id"]
+    running = app[RECORDER].get(rid)
+    if running is not None:
+        return web.json_response(running.to_json(), headers={"Cache-Control": "no-store"})
+    try:
+        info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
+    except RecordingError as exc:
+        return error_response(exc)
+    return web.json_response(info.to_json(meta=True))
+
+
+async def stop_recording(request: web.Request) -> web.Response:
+    app, rid = request.app, request.match_info["id"]
+    rec = app[RECORDER].get(rid)
+    if rec is None:  # finished already (or never was): answer what there is
+        try:
+            info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
+        except RecordingError as exc:
+            return error_response(exc)
+        return web.json_response(info.to_json())
+    rec.stop("stopped")
+    kept = await asyncio.get_running_loop().run_in_executor(None, rec.join, STOP_WAIT_S)
+    if kept is None:
+        if rec.running:
+            return json_error(504, f"recording {rid} is still being written; list the recordings in a moment")
+        status = 507 if rec.end == "disk_full" else 503 if rec.frames == 0 else 500
+        return json_error(status, rec.error or "nothing was recorded")
+    return web.json_response(kept.to_json())
+
+
+async def recording_zip(request: web.Request) -> web.StreamResponse:
+    app, rid = request.app, request.match_info["id"]
+    if app[RECORDER].get(rid) is not None:
+        return json_error(409, f"recording {rid} is still running: stop it or wait for it to end, "
+                               "then download it")
+    store = app[RECORDINGS]
+    try:
+        chunks = await app[EXECUTORS].run(store.zip_stream, rid)
+    except RecordingError as exc:
+        return error_response(exc)
+    resp = web.StreamResponse(headers={"Content-Type": "application/zip",
+                                       "Content-Disposition": f'attachment; filename="{rid}.zip"'})
+    try:
+        await resp.prepare(request)
+        while True:
+            chunk = await app[EXECUTORS].run(next, chunks, b"")
+            if not chunk:
+                break
+            await resp.write(chunk)
+        await resp.write_eof()
+    finally:
+        chunks.close()  # type: ignore[attr-defined]  # a generator: closing it closes the files
+    return resp
+
+
+async def delete_recording(request: web.Request) -> web.Response:
+    app, rid = request.app, request.match_info["id"]
+    if app[RECORDER].get(rid) is not None:
+        return json_error(409, f"recording {rid} is running: stop it first (POST /api/recordings/{rid}/stop)")
+    player = app[VIRTUAL].player
+    if player is not None and player.running and player.id == rid:
+        return json_error(409, f"recording {rid} is playing through the virtual camera: choose another input "
+                               "or the live source first")
+    try:
+        await app[EXECUTORS].run(app[RECORDINGS].delete, rid)
+    except RecordingError as exc:
+        return error_response(exc)
+    return web.Response(status=204)
+
+
+# -- the virtual camera's side -----------------------------------------------------------------------
+
+async def open_replay(app: web.Application, rid: str) -> Any:
+    """The finished recording ``rid`` as a looping ReplaySource for the virtual camera.
+
+    ApiError 400 malformed id, 404 unknown (or still recording), 422 damaged or of
+    another frame size than the fabric's.
+    """
+    from ...overlays.emulated.cameras import ReplayError, ReplaySource
+
+    store = app[RECORDINGS]
+
+    def open_it() -> Any:
+        folder = store.path(rid)
+        try:
+            source = ReplaySource(folder, loop=True)
+        except ReplayError as exc:
+            raise ApiError(f"recording {rid} cannot be replayed: {exc}", status=422) from None
+        if not source.is_recording:
+            source.close()
+            raise ApiError(f"recording {rid} cannot be replayed: it has no recording.json", status=422)
+        w, h = app[OVERLAY].fabric.frame_size
+        if source.frame_size != (w, h):
+            rw, rh = source.frame_size
+            source.close()
+            raise ApiError(f"recording {rid} is {rw}x{rh}, the fabric takes {w}x{h}", status=422)
+        return source
+
+    return await app[EXECUTORS].run(open_it)

@@ -1,0 +1,249 @@
+"""What the page's capture viewer and live-view readouts need (issue 13, items 3 and 5).
+
+- ``GET /api/captures/{id}/thumb.jpg``: a small JPEG of a capture (its rectified left frame),
+  made on first use and kept in memory (:class:`ThumbnailCache`).
+- ``POST /api/captures/{id}/restore``: undo of ``DELETE /api/captures/{id}`` (the capture
+  comes back from the store's trash).
+- ``GET /api/point?x=&y=``: the rectified pixels, the disparity and the depth (metres, from the
+  calibration's Q matrix) at one pixel of the newest frame the disparity view showed.
+- ``GET /api/disparity``: what the disparity view's colours mean (its range and colour map) and
+  the depth of each disparity (``focal_px`` x ``baseline_m`` / d) under the active calibration.
+
+Handlers parse and answer on the event loop; decoding, block matching and disk run on the
+daemon's ``work`` threads.
+"""
+from __future__ import annotations
+
+import asyncio
+import functools
+import math
+import os
+import threading
+import time
+from collections import OrderedDict
+from typing import Any, Dict, List, Optional, Tuple
+
+import cv2
+import numpy as np
+from aiohttp import web
+
+from ..frames.captures import CaptureError, CaptureStore
+from ..frames.encoders import BroadcastClosed
+from ..frames.errors import ApiError
+from ..frames.pipeline import FrameSet
+from ..frames.views import STEREO_BM, disparity_raw
+from .state import CALIBRATION, CAPTURES, CONFIG, ENCODERS, EXECUTORS, FEED
+from .streams import error_response, json_error
+
+__all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_scale"]
+
+THUMB_CACHE_ENTRIES = 256  # about 5 KB each
+FRESH_S = 1.0  # a frame set older than this is not "the newest": /api/point waits for the next one
+POINT_QUERY = ("x", "y", "frame")
+_UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+class ThumbnailCache:
+    """Thumbnails by (capture id, size and change time of the folder's files): thread-safe LRU."""
+
+    def __init__(self, entries: int = THUMB_CACHE_ENTRIES) -> None:
+        self.entries = entries
+        self._lock = threading.Lock()
+        self._items: "OrderedDict[Tuple[Any, ...], bytes]" = OrderedDict()
+
+    def get(self, store: CaptureStore, capture_id: str) -> bytes:
+        """The JPEG (blocking: may decode a PNG). Errors as :meth:`CaptureStore.thumbnail`."""
+        folder = store.path(capture_id)
+        key: Tuple[Any, ...] = (str(store.root), folder.name)
+        for name in ("rect_left.png", "raw_left.png"):
+            try:
+                st = os.lstat(folder / name)
+                key += (name, st.st_size, st.st_mtime_ns, st.st_ino)
+            except OSError:
+                key += (name, None)
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
+        data = store.thumbnail(capture_id)
+        with self._lock:
+            self._items[key] = data
+            while len(self._items) > self.entries:
+                self._items.popitem(last=False)
+        return data
+
+
+THUMBS: "web.AppKey[ThumbnailCache]" = web.AppKey("stereocam.thumbnails")
+
+
+async def capture_thumb(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    try:
+        body = await request.app[EXECUTORS].run(request.app[THUMBS].get, store, request.match_info["id"])
+    except CaptureError as exc:
+        return error_response(exc)
+    # A capture never changes (a restored one is the same files): the browser may keep it.
+    return web.Response(body=body, content_type="image/jpeg",
+                        headers={"Cache-Control": "private, max-age=86400"})
+
+
+async def restore_capture(request: web.Request) -> web.Response:
+    store: CaptureStore = request.app[CAPTURES]
+    try:
+        info = await request.app[EXECUTORS].run(store.restore, request.match_info["id"])
+    except CaptureError as exc:
+        return error_response(exc)
+    return web.json_response(info.to_json(), headers={"Location": f"/api/captures/{info.id}"})
+
+
+# -- depth -------------------------------------------------------------------------------------
+
+def depth_scale(calibration: Any) -> Optional[Dict[str, Any]]:
+    """``focal_px``, ``baseline_m`` and ``Q`` of a calibration (None without one, or with no known unit).
+
+    From Q (OpenCV's ``stereoRectify``): Z = Q[2][3] / (Q[3][2] d + Q[3][3]) in the unit of T;
+    f = Q[2][3] and B = 1 / |Q[3][2]|, so Z = f B / d where both rectified principal points agree
+    (``CALIB_ZERO_DISPARITY``, what stereocam writes).
+    """
+    if calibration is None:
+        return None
+    Q = np.asarray(calibration.rect.Q, dtype=np.float64)
+    unit = _UNITS_TO_M.get(str(getattr(calibration, "units", "unknown")))
+    if Q.shape != (4, 4) or Q[3, 2] == 0:
+        return None
+    return {"focal_px": float(Q[2, 3]), "baseline_m": None if unit is None else float(unit / abs(Q[3, 2])),
+            "units": getattr(calibration, "units", "unknown"), "unit_m": unit, "Q": Q.tolist(),
+            "doffs_px": float(Q[3, 3] / Q[3, 2])}
+
+
+def point_at(fs: FrameSet, x: int, y: int, scale: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+    """The readout of rectified pixel (x, y) of ``fs`` (blocks: the disparity map may be computed)."""
+    p = fs.processed
+    out: Dict[str, Any] = {
+        "x": x, "y": y, "frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
+        "width": int(p.shape[1]), "height": int(p.shape[0]),
+        "rect_left": dict(zip("rgby", (int(v) for v in p[y, x, 0:4]), strict=True)),
+        "rect_right": dict(zip("rgby", (int(v) for v in p[y, x, 4:8]), strict=True)),
+    }
+    d16 = int(disparity_raw(fs)[y, x])
+    valid = d16 >= 16 * STEREO_BM["min_disparity"]
+    d = d16 / 16.0 if valid else None
+    out["disparity_px"] = d
+    out["depth_m"] = None
+    out["point_m"] = None
+    if d is not None and scale is not None and scale["unit_m"] is not None:
+        Q = np.asarray(scale["Q"], dtype=np.float64)
+        X, Y, Z, W = Q @ np.array([x, y, d, 1.0])
+        if W != 0 and math.isfinite(W) and Z / W > 0:
+            unit = scale["unit_m"]
+            out["depth_m"] = float(Z / W * unit)
+            out["point_m"] = [float(X / W * unit), float(Y / W * unit), float(Z / W * unit)]
+    return out
+
+
+def _int_param(request: web.Request, name: str, hi: int) -> int:
+    text = request.query.get(name)
+    if text is None:
+        raise ApiError(f"give {name}: a pixel of the rectified left image, 0 to {hi - 1}", status=400)
+    try:
+        value = int(text)
+    except ValueError:
+        raise ApiError(f"{name} must be a whole number of pixels, not {text[:20]!r}", status=400) from None
+    if not 0 <= value < hi:
+        raise ApiError(f"{name} = {value} is outside the image: 0 to {hi - 1}", status=400)
+    return value
+
+
+def _newest(app: web.Application, frame: Optional[int]) -> Optional[FrameSet]:
+    """The frame set the disparity view showed last (or ``frame`` if that is one at hand), if fresh."""
+    now = time.time()
+    candidates = []
+    _, shown = app[ENCODERS].disparity_output.current()
+    if isinstance(shown, FrameSet):
+        candidates.append(shown)
+    last = app[FEED].last_frame
+    if last is not None:
+        candidates.append(last)
+    for fs in candidates:
+        if frame is not None and fs.frame == frame:
+            return fs
+    for fs in candidates:
+        if now - fs.timestamp <= FRESH_S:
+            return fs
+    return None
+
+
+async def get_point(request: web.Request) -> web.Response:
+    app = request.app
+    try:
+        unknown = sorted(set(request.query) - set(POINT_QUERY))
+        if unknown:
+            raise ApiError(f"unknown query parameter {unknown[0][:20]!r}: give x, y and optionally frame",
+                           status=400)
+        w, h = app[FEED].frame_size
+        x, y = _int_param(request, "x", w), _int_param(request, "y", h)
+        frame = _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
+    except ApiError as exc:
+        return error_response(exc)
+    fs = _newest(app, frame)
+    if fs is None:
+        timeout = max(1.0, 2 * app[CONFIG].no_signal_s)
+        try:
+            fs = await app[FEED].next_frame(timeout=timeout)
+        except asyncio.TimeoutError:
+            return json_error(503, f"no signal: no frame came within {timeout:g} s")
+        except BroadcastClosed:
+            return json_error(503, "the daemon is shutting down")
+    state = app[CALIBRATION]
+    ran = state.for_frame(fs.fabric_count)
+    same = ran is not None and ran.get("id") == state.id
+    scale = depth_scale(state.calibration) if same else None
+    body = await app[EXECUTORS].run(point_at, fs, x, y, scale)
+    body["calibration_id"] = ran.get("id") if ran else None
+    body["focal_px"] = scale["focal_px"] if scale else None
+    body["baseline_m"] = scale["baseline_m"] if scale else None
+    why = None
+    if not same:
+        why = "the calibration changed while this frame was processed: hover again"
+    elif state.calibration is None:
+        why = "no calibration is known: the core passes frames through (apply one in the calibration panel)"
+    elif scale is None:
+        why = "the calibration's Q matrix gives no depth (Q[3][2] is 0)"
+    elif scale["unit_m"] is None:
+        why = "the calibration does not say the unit of its baseline (units: unknown)"
+    if why is not None:
+        body["depth_unavailable"] = why
+    return web.json_response(body, headers={"Cache-Control": "no-store"})
+
+
+async def get_disparity(request: web.Request) -> web.Response:
+    state = request.app[CALIBRATION]
+    scale = depth_scale(state.calibration)
+    body: Dict[str, Any] = {
+        "min_disparity": STEREO_BM["min_disparity"], "num_disparities": STEREO_BM["num_disparities"],
+        "block_size": STEREO_BM["block_size"], "colormap": "jet",
+        "calibration_id": state.id,
+        "focal_px": scale["focal_px"] if scale else None,
+        "baseline_m": scale["baseline_m"] if scale else None,
+        "doffs_px": scale["doffs_px"] if scale else None,
+        "frame_size": list(request.app[FEED].frame_size),
+        "colors": _jet_colours(),
+    }
+    return web.json_response(body, headers={"Cache-Control": "no-store"})
+
+
+@functools.lru_cache(maxsize=1)
+def _jet_colours() -> List[str]:
+    """The disparity view's 256 colours, level 0 to 255 (``#rrggbb``), exactly as it draws them."""
+    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(1, -1), cv2.COLORMAP_JET)[0]
+    return [f"#{int(r):02x}{int(g):02x}{int(b):02x}" for b, g, r in lut]
+
+
+def setup_routes(app: web.Application) -> None:
+    """Register the routes; call before the generic ``/api/captures/{id}/{file}`` route is added."""
+    app[THUMBS] = ThumbnailCache()
+    r = app.router
+    r.add_get(r"/api/captures/{id:[^/]+}/thumb.jpg", capture_thumb)
+    r.add_post(r"/api/captures/{id:[^/]+}/restore", restore_capture)
+    r.add_get("/api/point", get_point)
+    r.add_get("/api/disparity", get_disparity)
