@@ -1,6 +1,6 @@
 """stereocam's folder map; everything else about the package is in pyproject.toml (PEP 621).
 
-The repository follows the design card in SYSTEM.md: ``board/``, ``overlays/``,
+The repository follows the project's design card: ``board/``, ``overlays/``,
 ``drivers/`` and ``server/`` live at the top of the tree and are installed as
 sub-packages of ``stereocam`` (``stereocam.overlays`` and so on): ``FOLDERS`` is
 that map. Everything else is in ``stereocam/`` at its import path, and
@@ -34,7 +34,9 @@ def _packages() -> dict:
     found = {}
     for package, folder in FOLDERS.items():
         for here, dirs, files in os.walk(folder):
-            dirs[:] = sorted(d for d in dirs if d != "__pycache__" and not os.path.islink(os.path.join(here, d)))
+            dirs[:] = sorted(
+                d for d in dirs if d != "__pycache__" and not os.path.islink(os.path.join(here, d))
+            )
             if "__init__.py" in files:
                 rel = os.path.relpath(here, folder)
                 found[package if rel == "." else package + "." + rel.replace(os.sep, ".")] = here

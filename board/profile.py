@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
 from ..calibration.safe_yaml import YamlRefused, load
-from ..drivers.mt9v034 import SETTINGS_FIELDS, SYNC_MODES, SensorSettings
+from ..drivers.i2c import I2CBus
+from ..drivers.mt9v034 import MT9V034, SETTINGS_FIELDS, SYNC_MODES, SensorSettings, StereoSensors
 from ..overlays.spec import mt9v034 as spec
 
 __all__ = ["BoardProfile", "ProfileError", "DEFAULT_PROFILE", "ETC_ENV", "DEFAULT_ETC", "BOARD_FILE",
@@ -78,6 +79,20 @@ class BoardProfile:
     @property
     def i2c_device(self) -> str:
         return f"/dev/i2c-{self.i2c_bus}"
+
+    def stereo_sensors(self, bus: I2CBus) -> StereoSensors:
+        """The sensor pair this profile describes, on ``bus``; nothing is sent until its ``start()``.
+
+        On the board ``bus`` is ``LinuxI2CBus(profile.i2c_bus, timeout=profile.i2c_timeout)``;
+        emulated, ``EmulatedSensorPair.for_profile(profile, rig).bus``.
+        """
+        def make(camera: str, address: int) -> MT9V034:
+            return MT9V034(bus, address, name=camera, pixel_clock_hz=self.pixel_clock_hz)
+
+        return StereoSensors(make("left", self.left_address), make("right", self.right_address),
+                             sync=self.sync, master=self.master or "left",
+                             frame_size=(self.width, self.height), fps=self.fps,
+                             defaults=self.controls, aec_target=self.aec_target_bin)
 
 
 def load_profile(path: Union[str, "os.PathLike[str]", None] = None) -> BoardProfile:

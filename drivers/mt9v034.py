@@ -25,8 +25,9 @@ exposure (µs)         read ``WINDOW_WIDTH`` and ``HORIZONTAL_BLANKING`` (the ro
 ``set_sync``          read-modify-write of ``CHIP_CONTROL.SENSOR_MODE``
 
 :class:`StereoSensors` is the pair and the service the daemon's
-``/api/cameras`` calls: :meth:`~StereoSensors.start` brings both sensors up
-from the board profile without ever raising for a sensor that fails (it is
+``/api/cameras`` calls (the board profile makes it, handing it the bus, the two
+sensors and their settings): :meth:`~StereoSensors.start` brings both sensors up
+without ever raising for a sensor that fails (it is
 marked, logged and reported by :meth:`~StereoSensors.health` and
 :meth:`~StereoSensors.faults`), :meth:`~StereoSensors.apply` /
 :meth:`~StereoSensors.read` set and report the controls, and
@@ -43,15 +44,12 @@ import math
 import threading
 import time
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 from ..overlays.spec import mt9v034 as spec
 from ..overlays.spec.mt9v034 import MT9V034_MAP
 from .i2c import I2CBus, I2CError
 from .mmio import DriverError, RegisterRangeError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..board.profile import BoardProfile
 
 log = logging.getLogger(__name__)
 
@@ -508,19 +506,6 @@ class StereoSensors:
         self._controls: Dict[str, Dict[str, Any]] = {c: self.defaults.given() for c in CAMERAS}
         self._started = False
         self._lock = threading.RLock()
-
-    @classmethod
-    def from_profile(cls, profile: "BoardProfile", bus: I2CBus) -> "StereoSensors":
-        """The pair a :class:`stereocam.board.profile.BoardProfile` describes, on ``bus``.
-
-        On the board ``bus`` is ``LinuxI2CBus(profile.i2c_bus, timeout=profile.i2c_timeout)``;
-        emulated, ``EmulatedSensorPair.for_profile(profile, rig).bus``.
-        """
-        make = lambda cam, addr: MT9V034(bus, addr, name=cam, pixel_clock_hz=profile.pixel_clock_hz)  # noqa: E731
-        return cls(make("left", profile.left_address), make("right", profile.right_address),
-                   sync=profile.sync, master=profile.master or "left",
-                   frame_size=(profile.width, profile.height), fps=profile.fps,
-                   defaults=profile.controls, aec_target=profile.aec_target_bin)
 
     @property
     def left(self) -> MT9V034:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Dict, Optional, Union
 
-from ..overlays.model.config import plan
+from ..overlays.model.core_params import plan
 from ..overlays.model.linebuffer import LineBufferFit
 from ..overlays.spec.rectify import (
     CAMERAS,
@@ -67,13 +67,12 @@ class RectifyCore:
 
     def plan(self, left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int,
              height: int) -> "tuple[CoreConfig, LineBufferFit]":
-        """Check a calibration against this core; raises ``ConfigError`` with what to change."""
+        """Check a calibration against this core; raises ``CoreParamsError`` with what to change."""
         return plan(left, right, width, height, lb_rows=self.lb_rows,
                     max_width=self.max_width, max_height=self.max_height)
 
-    def program(self, left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int,
-                height: int, *,
-                wait: bool = True) -> "tuple[CoreConfig, LineBufferFit]":
+    def program(self, left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs],
+                width: int, height: int, *, wait: bool = True) -> "tuple[CoreConfig, LineBufferFit]":
         """Check a calibration, then write and APPLY it; a refused one leaves the core untouched."""
         config, fit = self.plan(left, right, width, height)
         self.load(config, wait=wait)
@@ -105,7 +104,8 @@ class RectifyCore:
         self.regs.wait("CONTROL", lambda v: not RECTIFY_MAP["CONTROL"].get(v, "APPLY"),
                        expected="cleared APPLY (no frame start reached the core?)", timeout=timeout)
         if self.regs.field("FLAGS", "CONFIG_ERROR"):
-            raise ConfigRefused("rectify: the core refused the parameters (CONFIG_ERROR); previous ones stay active")
+            raise ConfigRefused("rectify: the core refused the parameters (CONFIG_ERROR); "
+                                "previous ones stay active")
 
     def read_config(self) -> CoreConfig:
         """The shadow parameter set as the registers hold it."""
@@ -118,15 +118,16 @@ class RectifyCore:
                           self.regs.field("HEIGHT", "VALUE"), self.regs.field("LB_DELAY", "VALUE"))
 
     def set_mode(self, *, enable: Optional[bool] = None, bypass: Optional[bool] = None,
-                 gray: Optional[bool] = None, debug_row: Optional[int] = None, debug_line: Optional[bool] = None) -> None:
+                 gray: Optional[bool] = None, debug_row: Optional[int] = None,
+                 debug_line: Optional[bool] = None) -> None:
         """Change control bits; ``None`` leaves a setting as it is. Takes effect at the next frame."""
         if debug_row is not None:
             limit = self.max_height - 1
             if not 0 <= debug_row <= limit:
                 raise ValueError(f"debug row {debug_row} is outside 0..{limit}")
             self.regs.write("DEBUG_ROW", RECTIFY_MAP["DEBUG_ROW"].encode(VALUE=debug_row))
-        fields = {name: int(value) for name, value in (
-            ("ENABLE", enable), ("BYPASS", bypass), ("GRAY", gray), ("DEBUG_LINE", debug_line)) if value is not None}
+        bits = (("ENABLE", enable), ("BYPASS", bypass), ("GRAY", gray), ("DEBUG_LINE", debug_line))
+        fields = {name: int(value) for name, value in bits if value is not None}
         if fields:
             self.regs.modify("CONTROL", APPLY=0, **fields)
 

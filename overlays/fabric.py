@@ -6,27 +6,31 @@ read rectified frames, switch the mux back to live) using drivers only, so
 the same code runs on the board and on the emulated fabric. It is built by
 :func:`bind` from an ``ip_dict`` (pynq's format) plus a way to open register
 windows and an allocator, or by :func:`from_drivers` from drivers that pynq
-has already bound to the overlay's IP.
+has already bound to the overlay's IP. :class:`FabricOverlay` gives an
+overlay holding one the members of :class:`~.interface.Overlay` that the
+fabric answers.
 """
 from __future__ import annotations
 
 import logging
 import threading
-from typing import Any, Callable, Dict, Mapping, Tuple
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
 from ..drivers.mmio import Allocator, RegisterWindow, UnsupportedIP
 from ..drivers.rectify import RectifyCore
 from ..drivers.switch import AxisSwitch
-from ..drivers.vdma import VDMA
+from ..drivers.vdma import VDMA, MM2SChannel, S2MMChannel
+from .interface import COMMIT_TIMEOUT_S, Channel, ChannelStatus, Choice, StoredFrame
+from .model.result import CoreOptions
 from .spec.axis_switch import INPUT_NAMES, LIVE, VIRTUAL
 from .spec.overlay import INSTANCES
+from .spec.rectify import RECTIFY_MAP, CoreConfig
 
 log = logging.getLogger(__name__)
 
 SOURCES = {"live": LIVE, "virtual": VIRTUAL}
-COMMIT_TIMEOUT_S = 0.5  # a mux commit waits for the end of a packet (a line): microseconds when healthy
 
 
 class StereoFabric:
@@ -44,7 +48,7 @@ class StereoFabric:
         self.rectify = rectify
         self.allocate = allocate
         self.backend = backend
-        self.frame_size = frame_size
+        self.frame_size = (int(frame_size[0]), int(frame_size[1]))
         self.lock = threading.RLock()
         self.streaming = False
 
@@ -107,6 +111,66 @@ class StereoFabric:
         store, buf = self.proc_vdma.s2mm.latest_completed()
         return store, np.array(buf)
 
+    def wait_processed(self, timeout: float) -> None:
+        """Block until the processed channel completes a frame (:meth:`.interface.Overlay.wait_processed`)."""
+        self.proc_vdma.s2mm.wait_frame(timeout=timeout)
+
+    def processed_store(self) -> StoredFrame:
+        s2mm = self.proc_vdma.s2mm
+        store, buf = s2mm.latest_completed()
+        return StoredFrame(store, s2mm.num_fstores, buf)
+
+    def raw_store(self, store: Optional[int] = None) -> StoredFrame:
+        s2mm = self.raw_vdma.s2mm
+        if store is None:
+            store, buf = s2mm.latest_completed()
+        else:
+            store %= s2mm.num_fstores
+            buf = s2mm.buffers[store]
+        return StoredFrame(store, s2mm.num_fstores, buf)
+
+    @property
+    def raw_stores(self) -> int:
+        return int(self.raw_vdma.s2mm.num_fstores)
+
+    def frame_count(self) -> int:
+        """The core's ``FRAME_COUNT`` (one register read)."""
+        return int(self.rectify.regs.read("FRAME_COUNT"))
+
+    def wait_virtual_taken(self, timeout: float) -> int:
+        return int(self.proc_vdma.mm2s.wait_parked(timeout=timeout))
+
+    # -- the core -----------------------------------------------------------------------
+    def core_setup(self) -> Tuple[CoreConfig, CoreOptions]:
+        """``(CoreConfig, CoreOptions)`` the core runs with, read back from its registers (blocks)."""
+        rectify = self.rectify
+        config = rectify.read_config()
+        control = RECTIFY_MAP["CONTROL"].decode(rectify.regs.read("CONTROL"))
+        debug_row = rectify.regs.field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None
+        options = CoreOptions(lb_rows=rectify.lb_rows, lb_delay=config.lb_delay, gray=bool(control["GRAY"]),
+                              bypass=bool(control["BYPASS"]), debug_row=debug_row, colour=rectify.colour)
+        return config, options
+
+    # -- health -------------------------------------------------------------------------
+    def channel(self, name: Channel) -> Union[S2MMChannel, MM2SChannel]:
+        """The driver of one DMA channel, by its :data:`~.interface.Channel` name."""
+        if name == "vdma_raw.s2mm":
+            return self.raw_vdma.s2mm
+        if name == "vdma_proc.s2mm":
+            return self.proc_vdma.s2mm
+        if name == "vdma_proc.mm2s":
+            return self.proc_vdma.mm2s
+        raise ValueError(f"no DMA channel {name!r}")
+
+    def channel_status(self, name: Channel) -> ChannelStatus:
+        ch = self.channel(name)
+        if ch.config is None:
+            return ChannelStatus(configured=False, running=False, errors=())
+        return ChannelStatus(configured=True, running=bool(ch.running), errors=tuple(ch.errors()))
+
+    def restart_channel(self, name: Channel, timeout: Optional[float] = None) -> None:
+        self.channel(name).recover(timeout)
+
     def status(self) -> Dict[str, Any]:
         core = self.rectify.status()
         return {
@@ -126,19 +190,16 @@ class StereoFabric:
 
 
 def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, int], RegisterWindow],
-         allocate: Allocator, *, backend: str, frame_size: Tuple[int, int], timeout: float = 1.0) -> StereoFabric:
-    """Drivers for the overlay described by ``ip_dict`` (pynq's format: name -> phys_addr, addr_range, type, parameters).
+         allocate: Allocator, *, backend: str, frame_size: Tuple[int, int],
+         timeout: float = 1.0) -> StereoFabric:
+    """Drivers for the overlay described by ``ip_dict``.
 
+    ``ip_dict`` is pynq's format: name -> phys_addr, addr_range, type, parameters.
     Refuses an overlay that lacks an instance or has the wrong IP under a name.
     """
-    windows: Dict[str, RegisterWindow] = {}
-    for name, vlnvs in INSTANCES.items():
-        desc = ip_dict.get(name)
-        if desc is None:
-            raise UnsupportedIP(f"the overlay has no IP named {name!r}; found {', '.join(sorted(ip_dict)) or 'none'}")
-        if desc.get("type") not in vlnvs:
-            raise UnsupportedIP(f"IP {name!r} is {desc.get('type')!r}, expected {' or '.join(vlnvs)}")
-        windows[name] = open_window(int(desc["phys_addr"]), int(desc["addr_range"]))
+    require_instances(ip_dict)
+    windows = {name: open_window(int(ip_dict[name]["phys_addr"]), int(ip_dict[name]["addr_range"]))
+               for name in INSTANCES}
 
     def fstores(name: str) -> int:
         return int(ip_dict[name].get("parameters", {}).get("C_NUM_FSTORES", 3))
@@ -147,8 +208,10 @@ def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, i
         return int(ip_dict["mux"].get("parameters", {}).get("NUM_SI", 2))
 
     return StereoFabric(
-        raw_vdma=VDMA(windows["vdma_raw"], allocate, num_fstores=fstores("vdma_raw"), name="vdma_raw", timeout=timeout),
-        proc_vdma=VDMA(windows["vdma_proc"], allocate, num_fstores=fstores("vdma_proc"), name="vdma_proc", timeout=timeout),
+        raw_vdma=VDMA(windows["vdma_raw"], allocate, num_fstores=fstores("vdma_raw"), name="vdma_raw",
+                      timeout=timeout),
+        proc_vdma=VDMA(windows["vdma_proc"], allocate, num_fstores=fstores("vdma_proc"), name="vdma_proc",
+                       timeout=timeout),
         mux=AxisSwitch(windows["mux"], inputs=inputs(), name="mux", timeout=timeout),
         rectify=RectifyCore(windows["rectify"], timeout=timeout),
         allocate=allocate,
@@ -158,15 +221,17 @@ def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, i
 
 
 # The driver class each instance of INSTANCES needs, for overlays whose drivers are bound elsewhere (pynq).
-DRIVER_TYPES: Dict[str, type] = {"vdma_raw": VDMA, "vdma_proc": VDMA, "mux": AxisSwitch, "rectify": RectifyCore}
+DRIVER_TYPES: Dict[str, type] = {"vdma_raw": VDMA, "vdma_proc": VDMA, "mux": AxisSwitch,
+                                 "rectify": RectifyCore}
 
 
 def require_instances(ip_dict: Mapping[str, Mapping[str, Any]]) -> None:
-    """Refuse an overlay that lacks an instance or has the wrong IP under a name (the checks of :func:`bind`)."""
+    """Refuse an overlay that lacks an instance or has the wrong IP under a name (checked by :func:`bind`)."""
     for name, vlnvs in INSTANCES.items():
         desc = ip_dict.get(name)
         if desc is None:
-            raise UnsupportedIP(f"the overlay has no IP named {name!r}; found {', '.join(sorted(ip_dict)) or 'none'}")
+            found = ", ".join(sorted(ip_dict)) or "none"
+            raise UnsupportedIP(f"the overlay has no IP named {name!r}; found {found}")
         if desc.get("type") not in vlnvs:
             raise UnsupportedIP(f"IP {name!r} is {desc.get('type')!r}, expected {' or '.join(vlnvs)}")
 
@@ -186,3 +251,71 @@ def from_drivers(drivers: Mapping[str, Any], allocate: Allocator, *, backend: st
             raise UnsupportedIP(f"{name!r} is bound to {type(driver).__name__}, not a {cls.__name__} driver")
     return StereoFabric(raw_vdma=drivers["vdma_raw"], proc_vdma=drivers["vdma_proc"], mux=drivers["mux"],
                         rectify=drivers["rectify"], allocate=allocate, backend=backend, frame_size=frame_size)
+
+
+class FabricOverlay:
+    """The members of :class:`~.interface.Overlay` that an overlay's :attr:`fabric` answers.
+
+    A base for the overlays: each sets :attr:`fabric` and adds ``backend``,
+    ``rectify`` and its own ``start``/``stop``/``close``.
+    """
+
+    fabric: StereoFabric
+    choice: Optional[Choice] = None
+    core_kind: str = "hardware"
+    emulation_threads: Tuple[str, ...] = ()
+
+    @property
+    def frame_size(self) -> Tuple[int, int]:
+        return self.fabric.frame_size
+
+    @property
+    def raw_stores(self) -> int:
+        return self.fabric.raw_stores
+
+    @property
+    def streaming(self) -> bool:
+        return self.fabric.streaming
+
+    @property
+    def source(self) -> str:
+        return self.fabric.source
+
+    def select(self, source: str, timeout: float = COMMIT_TIMEOUT_S) -> None:
+        self.fabric.select(source, timeout)
+
+    def wait_processed(self, timeout: float) -> None:
+        self.fabric.wait_processed(timeout)
+
+    def processed_store(self) -> StoredFrame:
+        return self.fabric.processed_store()
+
+    def raw_store(self, store: Optional[int] = None) -> StoredFrame:
+        return self.fabric.raw_store(store)
+
+    def latest_raw(self) -> Tuple[int, np.ndarray]:
+        return self.fabric.latest_raw()
+
+    def latest_processed(self) -> Tuple[int, np.ndarray]:
+        return self.fabric.latest_processed()
+
+    def frame_count(self) -> int:
+        return self.fabric.frame_count()
+
+    def send_virtual(self, frame: np.ndarray) -> int:
+        return self.fabric.send_virtual(frame)
+
+    def wait_virtual_taken(self, timeout: float) -> int:
+        return self.fabric.wait_virtual_taken(timeout)
+
+    def core_setup(self) -> Tuple[CoreConfig, CoreOptions]:
+        return self.fabric.core_setup()
+
+    def status(self) -> Dict[str, Any]:
+        return self.fabric.status()
+
+    def channel_status(self, channel: Channel) -> ChannelStatus:
+        return self.fabric.channel_status(channel)
+
+    def restart_channel(self, channel: Channel, timeout: Optional[float] = None) -> None:
+        self.fabric.restart_channel(channel, timeout)

@@ -121,7 +121,9 @@ def _read_image(path: Path) -> np.ndarray:
     if image is None:
         raise UserError(f"{path}: not a readable image (PNG, JPEG, BMP, TIFF, PGM/PPM)")
     if image.dtype != np.uint8:
-        raise UserError(f"{path}: {image.dtype} pixels; the cameras and the core are 8-bit, convert the image first")
+        raise UserError(
+            f"{path}: {image.dtype} pixels; the cameras and the core are 8-bit, convert the image first"
+        )
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     if image.ndim == 3 and image.shape[2] == 1:
@@ -225,7 +227,8 @@ def cmd_rectify(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot create {outdir}: {exc.strerror}") from None
     for name, rgby in (("left", out[..., pixel.LEFT]), ("right", out[..., pixel.RIGHT])):
-        _write_png(outdir / f"{name}.png", rgby[..., pixel.Y] if gray else np.ascontiguousarray(rgby[..., :3]))
+        plane = rgby[..., pixel.Y] if gray else np.ascontiguousarray(rgby[..., :3])
+        _write_png(outdir / f"{name}.png", plane)
     print(
         f"wrote {outdir / 'left.png'} and {outdir / 'right.png'} ({w}x{h} {'gray' if gray else 'colour'}, "
         f"{'the RTL under Verilator' if args.core == 'rtl' else 'the model'}); "
@@ -268,7 +271,7 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
 
     from .drivers.mmio import DriverError
     from .drivers.rectify import RectifyCore
-    from .overlays.model.config import ConfigError
+    from .overlays.model.core_params import CoreParamsError
     from .overlays.rtl.core import RtlCore, RtlError
     from .overlays.rtl.toolchain import ToolMissing
     from .overlays.spec.rectify import DEFAULT_BUILD, SIZE_BITS
@@ -286,7 +289,7 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
             out = core.process(frame)
     except ToolMissing as exc:
         raise UserError(f"--core rtl: {exc}") from None
-    except (RtlError, DriverError, ConfigError) as exc:
+    except (RtlError, DriverError, CoreParamsError) as exc:
         raise UserError(f"--core rtl: {exc}") from None
     if out is None or out.shape != frame.shape:
         raise UserError(f"--core rtl: the RTL core returned {'no frame' if out is None else out.shape} "
@@ -399,11 +402,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from .overlays.backend import BackendError
     from .server.frames.captures import CaptureError
     from .server.http.app import ServeError, run
-    from .server.http.config import Config
-    from .server.http.config import ConfigError as SettingsError
+    from .server.http.settings import Settings, SettingsError
 
     try:
-        config = Config.load(args.config, host=args.host, port=args.port, backend=args.backend,
+        config = Settings.load(args.config, host=args.host, port=args.port, backend=args.backend,
                              captures=args.captures, state_dir=args.state_dir, calibration=args.calibration,
                              bitstream=args.bitstream, source=args.source, fps=args.fps,
                              core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir,
@@ -443,7 +445,8 @@ def cmd_install_service(args: argparse.Namespace) -> int:
         return 0
     try:
         done = install_service(unit_dir=Path(args.unit_dir), config=Path(args.config), venv=args.venv,
-                               host=args.host, port=args.port, captures=args.captures, start=not args.no_start)
+                               host=args.host, port=args.port, captures=args.captures,
+                               start=not args.no_start)
     except ServiceError as exc:
         raise UserError(str(exc)) from None
     for line in done:
@@ -453,16 +456,18 @@ def cmd_install_service(args: argparse.Namespace) -> int:
 
 def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
     from .server.http import systemd
-    from .server.http.config import BACKENDS, DEFAULT_CAPTURES
+    from .server.http.settings import BACKENDS, DEFAULT_CAPTURES
 
     s = sub.add_parser(
         "serve", help="run the daemon (web page, streams, API)",
         description="Serve live raw and rectified video, captures, the virtual camera and verify over HTTP. "
                     "Off the board it runs on the emulated fabric. Options override the --config file.")
-    s.add_argument("--host", help="address to listen on (default 127.0.0.1; the board's service uses 0.0.0.0)")
+    s.add_argument("--host",
+                   help="address to listen on (default 127.0.0.1; the board's service uses 0.0.0.0)")
     s.add_argument("--port", type=int, help="port (default 8080)")
     s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
-    s.add_argument("--config", metavar="FILE", help="settings file (YAML or JSON; keys as in server/http/config.py)")
+    s.add_argument("--config", metavar="FILE",
+                   help="settings file (YAML or JSON; keys as in server/http/settings.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
     s.add_argument("--state-dir", metavar="DIR",
                    help="where the page's calibration.yaml and calibration-pairs/ live "
@@ -477,7 +482,8 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "recorded pairs to replay")
     s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
     s.add_argument("--core-build", choices=("colour", "gray"),
-                   help="the rectify core build the emulated fabric has (default colour; see RECTIFY_CORE.md)")
+                   help="the rectify core build the emulated fabric has "
+                        "(default colour; see RECTIFY_CORE.md)")
     s.add_argument("--core", choices=("model", "rtl"),
                    help="what computes the emulated fabric's rectify core: model (default, numpy) or rtl "
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
@@ -498,8 +504,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
 
     i = sub.add_parser(
         "install-service", help="install and start the systemd service (on the board, as root)",
-        description=f"Write {systemd.DEFAULT_UNIT_DIR / systemd.UNIT_NAME} (Type=notify, watchdog, restart on "
-                    f"failure, in the PYNQ venv) and, if missing, the settings file; then systemctl "
+        description=f"Write {systemd.DEFAULT_UNIT_DIR / systemd.UNIT_NAME} (Type=notify, watchdog, "
+                    f"restart on failure, in the PYNQ venv) and, if missing, the settings file; "
+                    f"then systemctl "
                     f"daemon-reload and enable --now.")
     i.add_argument("--port", type=int, default=systemd.DEFAULT_PORT,
                    help=f"port for a new settings file (default {systemd.DEFAULT_PORT}; not 80 or 9090)")
@@ -520,7 +527,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
 def build_parser() -> argparse.ArgumentParser:
     from .overlays.spec.rectify import DEFAULT_LB_ROWS
 
-    parser = argparse.ArgumentParser(prog="stereocam", description="Zynq stereo camera: rectify core, fabric and daemon")
+    parser = argparse.ArgumentParser(
+        prog="stereocam", description="Zynq stereo camera: rectify core, fabric and daemon"
+    )
     parser.add_argument("--version", action="version", version=f"stereocam {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (--log-level debug)")
     parser.add_argument("--log-level", choices=LOG_LEVELS, default=None,
@@ -535,7 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a stereocam calibration.yaml, a MATLAB stereoParameters .mat, or two files "
                         "separated by a comma: intrinsics.yml,extrinsics.yml (OpenCV stereo_calib) or "
                         "left.yaml,right.yaml (ROS camera_info)")
-    p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="writes OUTDIR/left.png and OUTDIR/right.png")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
+                   help="writes OUTDIR/left.png and OUTDIR/right.png")
     p.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
                    help=f"line-buffer rows of the bitstream to model (default {DEFAULT_LB_ROWS})")
     p.add_argument("--core", choices=("model", "rtl"), default="model",
@@ -641,14 +651,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     from .calibration.calibrate import CalibrationError
     from .calibration.formats import CalibrationFileError
-    from .overlays.model.config import ConfigError
+    from .overlays.model.core_params import CoreParamsError
 
     parser = build_parser()
     args = parser.parse_args(list(argv) if argv is not None else None)
     setup_logging(_cli_log_level(args) or "info")
     try:
         return int(args.func(args))
-    except (UserError, CalibrationFileError, CalibrationError, ConfigError) as exc:
+    except (UserError, CalibrationFileError, CalibrationError, CoreParamsError) as exc:
         command = args.command if args.command != "calibration" else f"calibration {args.action}"
         priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
         print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)

@@ -64,6 +64,80 @@ def artifacts_dir(request: pytest.FixtureRequest) -> Path:
     return path
 
 
+# -- slow tests ----------------------------------------------------------------------------------
+# The fast loop (`./scripts/test --fast`: the current env, `-m "not slow"`) leaves out the tests
+# marked `slow` here, and only here: those that start another program (the daemon, a browser, a
+# player, a simulator, yosys, pip), drive the daemon through many frames, or time something; and
+# any test given a longer timeout than the default. A run without `-m` runs every test. An entry
+# is a folder ("tests/hdl/"), a module or a test (node id, all its parameters). Chosen from
+# `pytest --durations=0 -m "not slow" tests/`: keep the fast loop under a minute.
+SLOW = (
+    "tests/hdl/",  # Verilator builds, cocotb under Verilator and Icarus, yosys
+    # Chromium through playwright (their long timeouts mark them too)
+    "tests/test_browser.py",
+    "tests/test_browser_calibration.py",
+    "tests/test_browser_cameras.py",
+    "tests/test_browser_page.py",
+    "tests/test_browser_record.py",
+    "tests/test_browser_views.py",
+    # the daemon or scripts/serve as a subprocess, players (ffmpeg, VLC, OpenCV)
+    "tests/test_board_service.py",
+    "tests/test_hostile_clients.py",
+    "tests/test_quick_start.py",
+    "tests/test_server_service.py",
+    "tests/test_server_streams.py",
+    "tests/test_shutdown.py",
+    # benchmarks, and tests that time or load the daemon for seconds to minutes
+    "tests/test_bench.py",
+    "tests/test_bench_robustness.py",
+    "tests/test_bench_serve.py",
+    "tests/test_cpu_budget.py",
+    "tests/test_faults.py",
+    "tests/test_recordings.py",
+    # the daemon in process, driven through many frames (the quicker HTTP modules stay in)
+    "tests/test_fit.py",
+    "tests/test_server_api.py",
+    "tests/test_server_calibration.py",
+    "tests/test_server_calibration_panel.py",
+    "tests/test_server_cameras.py",
+    # yosys, pip wheel builds
+    "tests/test_hw_synth.py",
+    "tests/test_packaging.py",
+    # single tests of a second or more in otherwise quick modules
+    "tests/test_calibrate.py::test_synthetic_rig_calibrates_back_to_its_known_model",
+    "tests/test_captures_viewer.py::test_point_reads_the_disparity_map_and_gives_depth_from_q",
+    "tests/test_fabric.py::test_live_frames_come_out_rectified_bit_exact",
+    "tests/test_targets.py::test_eight_holds_calibrate_back_to_the_rigs_truth",
+    "tests/test_targets.py::test_target_is_a_camera_source_of_the_rigs_true_model",
+    "tests/test_vdma_emulated.py::test_timeouts_name_the_register_that_never_changed",
+)
+
+
+def _is_slow(item: pytest.Item, default_timeout: float) -> bool:
+    nodeid = item.nodeid
+    for entry in SLOW:
+        if entry.endswith("/"):
+            if nodeid.startswith(entry):
+                return True
+        elif nodeid == entry or nodeid.startswith((entry + "::", entry + "[")):
+            return True
+    timeout = item.get_closest_marker("timeout")
+    return bool(timeout and timeout.args and float(timeout.args[0]) > default_timeout)
+
+
+def _mark_slow(config: pytest.Config, items: list[pytest.Item]) -> None:
+    missing = sorted({e.split("::")[0] for e in SLOW if not (REPO_ROOT / e.split("::")[0]).exists()})
+    if missing:
+        raise pytest.UsageError(f"SLOW (tests/conftest.py) names missing paths: {', '.join(missing)}")
+    try:
+        default_timeout = float(config.getini("timeout") or 0)
+    except ValueError:  # no pytest-timeout: no timeout marks to compare either
+        default_timeout = float("inf")
+    for item in items:
+        if _is_slow(item, default_timeout):
+            item.add_marker(pytest.mark.slow)
+
+
 # -- the armhf env's subset ---------------------------------------------------------------------
 # The armhf env (README, "Test environments") runs Debian's armhf Python under qemu-user, many
 # times slower than the host. When pytest gets no test paths there (./scripts/test, CI), it runs
@@ -92,7 +166,7 @@ ARMHF_SUBSET = (
     "tests/test_calibration_file.py",
     "tests/test_safe_yaml.py",
     "tests/test_board_profile.py",
-    "tests/test_server_config.py",
+    "tests/test_server_settings.py",
     "tests/test_cli_rectify.py",
     # image decoding and capture files (Pillow, zip)
     "tests/test_uploads.py",
@@ -135,7 +209,9 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return True if rel not in ARMHF_SUBSET else None
 
 
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    _mark_slow(config, items)
     if not _armhf_subset_run(config):
         return
     missing = [m for m in ARMHF_SUBSET if not (REPO_ROOT / m).is_file()]

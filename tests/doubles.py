@@ -45,13 +45,16 @@ class RecordingWindow:
         exp = self._next("w", offset)
         if exp[2] != value:
             raise UnexpectedAccess(
-                f"access #{len(self.done)}: driver wrote {value:#010x} at {offset:#x}, expected {exp[2]:#010x}"
+                f"access #{len(self.done)}: driver wrote {value:#010x} at {offset:#x}, "
+                f"expected {exp[2]:#010x}"
             )
         self.done.append(("w", offset, value))
 
     def assert_done(self) -> None:
         if self.expected:
-            raise AssertionError(f"{len(self.expected)} expected accesses never happened, first: {self.expected[0]}")
+            raise AssertionError(
+                f"{len(self.expected)} expected accesses never happened, first: {self.expected[0]}"
+            )
 
 
 I2COp = Tuple[str, int, int, object]

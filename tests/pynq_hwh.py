@@ -58,7 +58,8 @@ def vdma_parameters(num_fstores: int = NUM_FSTORES) -> Dict[str, str]:
 
 
 def rectify_parameters(build: Build = DEFAULT_BUILD, *, lb_rows: Optional[int] = None) -> Dict[str, str]:
-    """The rectify core's Verilog parameters (``overlays/rtl/rectify_core.v``) as the IP packager records them."""
+    """The rectify core's Verilog parameters (``overlays/rtl/rectify_core.v``), as the IP packager
+    records them."""
     return {"MAX_WIDTH": str(build.max_width), "MAX_HEIGHT": str(build.max_height),
             "LB_ROWS": str(build.lb_rows if lb_rows is None else lb_rows), "COLOUR": str(int(build.colour))}
 
@@ -69,16 +70,20 @@ def stereocam_ips(*, num_fstores: int = NUM_FSTORES, build: Build = DEFAULT_BUIL
     params = {
         "vdma_raw": vdma_parameters(num_fstores),
         "vdma_proc": vdma_parameters(num_fstores),
-        "mux": {"NUM_SI": str(NUM_INPUTS), "NUM_MI": str(NUM_OUTPUTS), "ROUTING_MODE": "1", "TDATA_NUM_BYTES": "8"},
+        "mux": {"NUM_SI": str(NUM_INPUTS), "NUM_MI": str(NUM_OUTPUTS), "ROUTING_MODE": "1",
+                "TDATA_NUM_BYTES": "8"},
         "rectify": rectify_parameters(build, lb_rows=lb_rows),
     }
-    interface = {"vdma_raw": "S_AXI_LITE", "vdma_proc": "S_AXI_LITE", "mux": "S_AXI_CTRL", "rectify": "s_axil"}
+    interface = {"vdma_raw": "S_AXI_LITE", "vdma_proc": "S_AXI_LITE", "mux": "S_AXI_CTRL",
+                 "rectify": "s_axil"}
     return [Ip(name, INSTANCES[name][-1], ADDRESS_MAP[name], params[name], interface=interface[name])
             for name in INSTANCES]
 
 
 def _params(values: Mapping[str, str], indent: str) -> str:
-    return "".join(f'{indent}<PARAMETER NAME={quoteattr(k)} VALUE={quoteattr(v)}/>\n' for k, v in values.items())
+    return "".join(
+        f'{indent}<PARAMETER NAME={quoteattr(k)} VALUE={quoteattr(v)}/>\n' for k, v in values.items()
+    )
 
 
 def hwh(design: str, ips: List[Ip]) -> str:
@@ -91,11 +96,13 @@ def hwh(design: str, ips: List[Ip]) -> str:
         for ip in ips)
     modules = "".join(
         f'    <MODULE FULLNAME={quoteattr("/" + ip.name)} INSTANCE={quoteattr(ip.name)} IPTYPE="PERIPHERAL" '
-        f'IS_ENABLE="1" MODCLASS="PERIPHERAL" MODTYPE={quoteattr(ip.vlnv.split(":")[2])} VLNV={quoteattr(ip.vlnv)}>\n'
+        f'IS_ENABLE="1" MODCLASS="PERIPHERAL" MODTYPE={quoteattr(ip.vlnv.split(":")[2])} '
+        f'VLNV={quoteattr(ip.vlnv)}>\n'
         f'      <PARAMETERS>\n{_params(ip.parameters, "        ")}      </PARAMETERS>\n'
         f'      <PORTS/>\n'
         f'      <BUSINTERFACES>\n'
-        f'        <BUSINTERFACE BUSNAME="ps7_axi_periph_M{i:02d}_AXI" DATAWIDTH="32" NAME={quoteattr(ip.interface)} '
+        f'        <BUSINTERFACE BUSNAME="ps7_axi_periph_M{i:02d}_AXI" DATAWIDTH="32" '
+        f'NAME={quoteattr(ip.interface)} '
         f'TYPE="SLAVE" VLNV="xilinx.com:interface:aximm:1.0"/>\n'
         f'      </BUSINTERFACES>\n'
         f'    </MODULE>\n'
@@ -103,7 +110,8 @@ def hwh(design: str, ips: List[Ip]) -> str:
     return (
         '<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n'
         '<EDKSYSTEM EDWVERSION="1.2" TIMESTAMP="Mon Jan  1 00:00:00 2024" VIVADOVERSION="2022.1">\n'
-        f'  <SYSTEMINFO ARCH="zynq" DEVICE="7z020" NAME={quoteattr(design)} PACKAGE="clg400" SPEEDGRADE="-1"/>\n'
+        f'  <SYSTEMINFO ARCH="zynq" DEVICE="7z020" NAME={quoteattr(design)} PACKAGE="clg400" '
+        'SPEEDGRADE="-1"/>\n'
         '  <EXTERNALPORTS/>\n'
         '  <EXTERNALINTERFACES/>\n'
         '  <MODULES>\n'
@@ -163,11 +171,11 @@ def pynq_for_tests() -> "Optional[object]":
     """
     import os
 
-    from stereocam.overlays.emulated import pynq_device
+    from stereocam.overlays.pynq import import_pynq
 
     if os.environ.get("STEREOCAM_TEST_ENV") == "board":
-        return pynq_device.import_pynq()
+        return import_pynq()
     try:
-        return pynq_device.import_pynq()
+        return import_pynq()
     except ImportError:
         return None

@@ -1,7 +1,7 @@
 """The synthetic rig's true depth at a rectified pixel, for the depth readout's tests.
 
 The emulated fabric's default camera source is :class:`SyntheticRig`: planes at known places
-in the left camera's frame (``cameras._SCENE``: a wall, a floor, and two moving rectangles).
+in the left camera's frame (``scene.SCENE``: a wall, a floor, and two moving rectangles).
 A rectified left pixel (u, v) looks along ``R1^T K_rect^-1 (u, v, 1)`` (``K_rect`` from P1);
 the nearest plane it meets is the surface there, and its distance along the rectified
 camera's optical axis is the depth Z that disparity measures (Z = f B / d).
@@ -16,7 +16,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from stereocam.overlays.emulated.cameras import _SCENE
+from stereocam.overlays.emulated.scene import SCENE
 
 BLOCK_MARGIN_PX = 12  # StereoBM's 19-px block reaches 9 px; a little more for the rectified interpolation
 
@@ -62,9 +62,9 @@ def static_depth(rectification: "dict[str, Sequence]", u: int, v: int,
     for du in (-margin_px, 0, margin_px):
         for dv in (-margin_px, 0, margin_px):
             d = _ray(R1, P1, u + du, v + dv)
-            if any(_reachable(d, p, 0.01) for p in _SCENE if p.half_size is not None):
+            if any(_reachable(d, p, 0.01) for p in SCENE if p.half_size is not None):
                 return None
     d = _ray(R1, P1, u, v)
-    lam = min(_hit(d, p)[0] for p in _SCENE if p.half_size is None)
+    lam = min(_hit(d, p)[0] for p in SCENE if p.half_size is None)
     # |d|'s rectified z is 1, so lam is the rectified depth itself.
     return lam if np.isfinite(lam) else None

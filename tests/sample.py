@@ -106,7 +106,7 @@ def synthetic_views(
     anywhere in the image, kept only when the whole printed board is inside
     both images. About 2 s for 12 views at 752x480 (cached per session).
     """
-    from stereocam.overlays.emulated.cameras import SyntheticRig
+    from stereocam.overlays.emulated.render import SyntheticRig
 
     board = board_image(*SYNTH_PATTERN)
     size_m = board_size_m(SYNTH_PATTERN, SYNTH_SQUARE)

@@ -33,10 +33,10 @@ import numpy as np
 import pytest
 from aiohttp import web
 
-from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.http.app import create_app, program_default_calibration, serve
-from stereocam.server.http.config import Config
+from stereocam.server.http.settings import Settings
 
 SMALL = (376, 240)
 FULL = (752, 480)
@@ -78,7 +78,7 @@ def make_overlay(*, size: Tuple[int, int] = SMALL, fps: float = TEST_FPS, clock:
                  calibrate: bool = True) -> EmulatedOverlay:
     overlay = EmulatedOverlay(source=StillSource(size), fps=fps, clock=clock)
     if calibrate:
-        program_default_calibration(overlay, Config())
+        program_default_calibration(overlay, Settings())
     return overlay
 
 
@@ -86,7 +86,7 @@ def make_overlay(*, size: Tuple[int, int] = SMALL, fps: float = TEST_FPS, clock:
 class Daemon:
     app: web.Application
     overlay: EmulatedOverlay
-    config: Config
+    config: Settings
     url: str
     http: aiohttp.ClientSession
     _stop: asyncio.Event
@@ -133,7 +133,7 @@ def close_overlay_when_idle(overlay: EmulatedOverlay) -> None:
     ``overlay.close()`` gives that tick 2 s and then raises ClockStopTimeout; a full-size tick on a
     busy machine can take longer, so the wait here is WAIT_S (a tick that never ends still fails).
     """
-    overlay.hw.clock.stop(timeout=WAIT_S)
+    overlay.emulation.clock.stop(timeout=WAIT_S)
     overlay.close()
 
 
@@ -147,7 +147,7 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
         settings.setdefault("captures", str(tmp_path / "captures"))
         settings.setdefault("port", 0)
         settings.setdefault("min_free_mb", 0)
-        config = Config(**settings)
+        config = Settings(**settings)
         if overlay is None:
             overlay = make_overlay(calibrate=False)
         calibration = program_default_calibration(overlay, config) if calibrate else None

@@ -22,7 +22,6 @@ from stereocam.board.profile import (
     profile_from_dict,
 )
 from stereocam.drivers.i2c import LinuxI2CBus
-from stereocam.drivers.mt9v034 import StereoSensors
 from stereocam.server.http import app as app_module
 from stereocam.server.http import routes_cameras
 
@@ -124,7 +123,7 @@ def test_a_profile_naming_a_missing_bus_fails_fast_at_start(tmp_path: Path) -> N
     profile = profile_from_dict(yaml.safe_load(DEFAULT_PROFILE.read_text(encoding="utf-8").replace(
         "bus: 0 ", "bus: 7 ")))
     bus = LinuxI2CBus(profile.i2c_bus, timeout=profile.i2c_timeout, device_dir=str(tmp_path))
-    sensors = StereoSensors.from_profile(profile, bus)
+    sensors = profile.stereo_sensors(bus)
     t0 = time.monotonic()
     health = sensors.start()
     assert time.monotonic() - t0 < 1.0

@@ -28,11 +28,11 @@ import pytest
 from stereocam import cli
 from stereocam.bench.serve import free_port, wait_healthy
 from stereocam.overlays.pynq.lock import DEFAULT_LOCK
-from stereocam.server.http import config as config_module
+from stereocam.server.http import settings as config_module
 from stereocam.server.http import systemd
 
 REPO = Path(__file__).resolve().parent.parent
-MAX_EXPOSURE = 5.0  # issue 12: `systemd-analyze security` at most 5.0
+MAX_EXPOSURE = 5.0  # `systemd-analyze security` at most 5.0
 TIMESTAMP = re.compile(r"\d{4}-\d\d-\d\d[ T]\d\d:\d\d:\d\d")
 WAIT_S = 120.0  # last-resort bound of a wait for something that does happen
 
@@ -204,10 +204,10 @@ def test_log_levels_are_the_configs() -> None:
     assert cli._cli_log_level(parse(["--log-level", "warning", "serve"])) == "warning"
     assert cli._cli_log_level(parse(["-v", "serve"])) == "debug"
     assert cli._cli_log_level(parse(["serve"])) is None, "then the settings file's, else info"
-    assert config_module.Config.from_mapping({"log_level": "WARNING"}).log_level == "warning"
-    with pytest.raises(config_module.ConfigError,
+    assert config_module.Settings.from_mapping({"log_level": "WARNING"}).log_level == "warning"
+    with pytest.raises(config_module.SettingsError,
                        match="log_level must be one of debug, info, warning, error, got 'loud'"):
-        config_module.Config.from_mapping({"log_level": "loud"})
+        config_module.Settings.from_mapping({"log_level": "loud"})
 
 
 def test_setup_logging_leaves_a_logging_set_up_by_someone_else_alone() -> None:
@@ -290,7 +290,8 @@ def test_serve_logs_for_journald_with_priorities_and_no_timestamps(tmp_path: Pat
     assert d.proc.returncode == 0, lines
     assert all(p is not None for p in priorities(lines)), [ln for ln in lines if not ln.startswith("<")]
     assert not any(TIMESTAMP.search(line) for line in lines), "journald adds the time itself"
-    assert any(line.startswith("<6>stereocam.server.http.app: serving on http://127.0.0.1:") for line in lines)
+    serving = "<6>stereocam.server.http.app: serving on http://127.0.0.1:"
+    assert any(line.startswith(serving) for line in lines)
     assert any(line.startswith("<4>") and "refused a malformed request" in line for line in lines)
     # The board profile the daemon uses: the machine's (STEREOCAM_ETC), logged where it is loaded.
     used = f"board profile etc-board: {tmp_path / 'etc' / 'board.yaml'}"

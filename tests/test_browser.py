@@ -223,7 +223,7 @@ def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
 def test_views_are_thumbnails_until_clicked_and_show_why_the_budget_lowers_them(
         tmp_path: Path, artifacts_dir: Path) -> None:
     """Thumbnails on the page, full size on click; each view's rate and why the CPU budget lowers it;
-    nothing encoded while the page is hidden (issue 12, item 1)."""
+    nothing encoded while the page is hidden."""
     budget = ["--cpu-budget", "0.05"]
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, extra_args=budget) as base:
         width, height = get_json(base + "/api/status")["frame_size"]

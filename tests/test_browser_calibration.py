@@ -1,4 +1,4 @@
-"""The page's calibration panel (issue 4), in headless Chromium, against the real daemon.
+"""The page's calibration panel, in headless Chromium, against the real daemon.
 
 ``stereocam serve --source checkerboard``: the emulated rig sees a 9x6 board (25 mm squares)
 held in a new pose every 1.5 s. By clicking only, the test opens the panel, waits until the
@@ -34,7 +34,8 @@ EXPECTED = ("status of 409", "status of 422", "status of 503", "status of 404")
 
 @pytest.fixture
 def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, extra_args=["--source", "checkerboard"]) as base:
+    args = ["--source", "checkerboard"]
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, extra_args=args) as base:
         yield base
 
 

@@ -1,4 +1,4 @@
-"""The page's camera controls (issue 5), in headless Chromium, against the real daemon.
+"""The page's camera controls, in headless Chromium, against the real daemon.
 
 Same approach as ``tests/test_browser.py``: ``stereocam serve`` as a subprocess on a free
 port (emulated fabric and sensors), Debian's ``/usr/bin/chromium`` driven by Playwright.
@@ -134,7 +134,8 @@ def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
         " r.dispatchEvent(new Event('change', {bubbles: true})); }", HIGH_US)
     # The number input follows (then shows the value in use: whole sensor rows, so close to it).
     page.wait_for_function(
-        "us => Math.abs(Number(document.getElementById('camera-exposure').value) - us) <= 0.05 * us", arg=HIGH_US)
+        "us => Math.abs(Number(document.getElementById('camera-exposure').value) - us) <= 0.05 * us",
+        arg=HIGH_US)
     deadline = time.monotonic() + WAIT_S
     bright = dark
     while True:

@@ -1,4 +1,4 @@
-"""The page as a person uses it (issue 13, items 1, 6, 7 and 8): headless Chromium, the real daemon.
+"""The page as a person uses it: headless Chromium, the real daemon.
 
 Same approach as ``tests/test_browser.py``: ``stereocam serve`` as a subprocess on a free port
 (emulated fabric), Debian's ``/usr/bin/chromium`` driven by Playwright, a screenshot of each

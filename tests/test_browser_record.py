@@ -1,4 +1,4 @@
-"""Fit on upload and recordings from the page (issue 13, items 2 and 4): headless Chromium, the real daemon.
+"""Fit on upload and recordings from the page: headless Chromium, the real daemon.
 
 - Fit: a 707x481 pair is refused as it is (exact), previewed with ``pad`` (the preview is
   752x480 per camera, side by side), sent with ``pad``, and Verify says identical.

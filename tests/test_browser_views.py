@@ -1,5 +1,4 @@
-"""The live views' tools and the capture viewer, in Debian's Chromium against the real daemon (issue 13,
-items 3 and 5).
+"""The live views' tools and the capture viewer, in Debian's Chromium against the real daemon.
 
 Views: frame number and delivered/target rate on every view; the disparity view's colour scale
 (the daemon's own JET colours, 0..128 px, labelled in metres from the calibration); **depth under the

@@ -26,8 +26,8 @@ from stereocam.calibration.file import (
 from stereocam.calibration.formats import CalibrationFileError
 from stereocam.calibration.stereo import rectify
 from stereocam.cli import main
-from stereocam.overlays.model.config import (
-    ConfigError,
+from stereocam.overlays.model.core_params import (
+    CoreParamsError,
     FrameSizeError,
     LineBufferTooSmall,
     ParameterOutOfRange,
@@ -226,7 +226,7 @@ def test_register_range_frame_size_and_line_buffer_are_checked_on_load(tmp_path,
         parse_yaml("schema_version: 1\nmodel {\nid: 1\n")
     with pytest.raises(CalibrationFileError, match="is for 640x480 images, not 752x480"):
         load_calibration(path, image_size=(752, 480))
-    with pytest.raises(ConfigError):
+    with pytest.raises(CoreParamsError):
         load_calibration(path, lb_rows=10)
 
 
@@ -564,7 +564,8 @@ def test_loaded_calibration_feeds_the_core(written) -> None:
     cal = load_calibration(written)
     config = cal.core_config()
     assert (config.width, config.height, config.lb_delay) == (640, 480, 35)
-    assert config.left == camera_registers(cal.left, 640, 480) and config.right == camera_registers(cal.right, 640, 480)
+    assert config.left == camera_registers(cal.left, 640, 480)
+    assert config.right == camera_registers(cal.right, 640, 480)
     assert cal.summary() == (
         f"calibration {cal.id}: 640x480, baseline {cal.model.baseline:.6g} m, line buffer 63 rows (delay 35)"
     )
@@ -604,7 +605,7 @@ def _set(section: str, name: str, value: Any):
      "rectification.P2 is not the projection"),
 ])
 def test_physically_meaningless_calibrations_are_refused(written, change, message) -> None:
-    """Numbers that fit the registers but describe no stereo rig (issue 10, item 4)."""
+    """Numbers that fit the registers but describe no stereo rig."""
     text = _edited(written, change)
     with pytest.raises(CalibrationFileError, match=re.escape(message)):
         parse_yaml(text, where="cal", derive_missing=True)
@@ -612,7 +613,8 @@ def test_physically_meaningless_calibrations_are_refused(written, change, messag
 
 
 def test_a_rectification_of_another_rig_is_refused(written) -> None:
-    def rotate(doc: Dict[str, Any]) -> None:  # turn the right camera 3 degrees behind the rectification's back
+    # Turn the right camera 3 degrees behind the rectification's back.
+    def rotate(doc: Dict[str, Any]) -> None:
         R = np.array(doc["model"]["R"]) @ cv2.Rodrigues(np.array([0.0, np.radians(3), 0.0]))[0]
         doc["model"]["R"] = R.tolist()
 

@@ -9,17 +9,11 @@ import numpy as np
 import pytest
 
 from stereocam.calibration.stereo import StereoModel
-from stereocam.overlays.emulated import cameras
-from stereocam.overlays.emulated.cameras import (
-    CameraSource,
-    ReplayEnded,
-    ReplayError,
-    ReplaySource,
-    SourceClosedError,
-    SyntheticRig,
-    rig_model,
-    undistort_normalized,
-)
+from stereocam.overlays.emulated.cameras import CameraSource, SourceClosedError
+from stereocam.overlays.emulated.lens import rig_model, undistort_normalized
+from stereocam.overlays.emulated.render import SyntheticRig
+from stereocam.overlays.emulated.replay import ReplayEnded, ReplayError, ReplaySource
+from stereocam.overlays.emulated.scene import SCENE
 from stereocam.overlays.emulated.targets import board_corners, board_image, board_size_m
 from stereocam.overlays.model import camera_in as camera_model
 from stereocam.overlays.spec import camera_in as camera_spec
@@ -251,7 +245,7 @@ def test_left_and_right_views_agree_with_the_calibration(rig: SyntheticRig) -> N
     """Points on the box face (1.0 m) and the wall appear in the right view where the model projects them."""
     frame = rig.read(0, 0.0)  # t = 0: the box is at its rest position
     left, right = frame[..., 3], frame[..., 7]
-    box = next(p for p in cameras._SCENE if p.name == "box")
+    box = next(p for p in SCENE if p.name == "box")
     ox, oy, oz = box.origin
     m = rig.model
     rvec2, _ = cv2.Rodrigues(m.R)
@@ -308,8 +302,8 @@ def test_plane_views_background_and_validation(small_rig: SyntheticRig) -> None:
     far = small_rig.render_plane_views(target, (0.2, 0.2), R, (-0.1, -0.1, 5.0), background="scene",
                                        supersample=1)
     assert far[0][60, 94] != 200  # behind the wall: hidden by the scene
-    full = small_rig.render_plane_views(target, (0.2, 0.2), R, (-0.1, -0.1, 0.5), background=30, supersample=1,
-                                        rgby=True)  # the IP's whole output: Y is the gray view
+    full = small_rig.render_plane_views(target, (0.2, 0.2), R, (-0.1, -0.1, 0.5), background=30,
+                                        supersample=1, rgby=True)  # the IP's whole output: Y is the gray view
     assert full[0].shape == left.shape + (4,)
     assert np.array_equal(full[0][..., 3], left) and np.array_equal(full[1][..., 3], right)
     edge = full[0][:, 80:110].astype(int)  # where the print meets the background the CFA shows in R, G, B

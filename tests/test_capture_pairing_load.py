@@ -1,4 +1,4 @@
-"""200 captures under load, each replayed through the virtual camera: none pairs frames (issue 10, item 1).
+"""200 captures under load, each replayed through the virtual camera: none pairs frames.
 
 A capture's rectified pair must be what the core makes of its raw pair, whatever else the daemon
 is doing. Here the emulated cameras see a moving scene (every frame differs) while four MJPEG
@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.http.state import CAPTURES
 
 from .server_fixtures import SMALL, start_daemon_fixture, wait_for_frames  # noqa: F401

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.overlays.emulated.cameras import ReplaySource
+from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.overlays.spec import pixel
 from stereocam.server.frames import captures
 from stereocam.server.frames.captures import (

@@ -1,4 +1,4 @@
-"""The API behind the capture viewer and the live views' readouts (issue 13, items 3 and 5).
+"""The API behind the capture viewer and the live views' readouts.
 
 - ``GET /api/captures/{id}/thumb.jpg``: a small JPEG of the rectified left frame; safe against path
   tricks and symbolic links; cached.

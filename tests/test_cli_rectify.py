@@ -35,13 +35,15 @@ def run_error(capsys, argv) -> str:
 
 def test_gray_pair_is_rectified_like_opencv(tmp_path, calfiles, capsys) -> None:
     left, right = pair_paths(3)
-    assert main(["rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path / "out"), str(left), str(right)]) == 0
+    args = ["rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path / "out"), str(left), str(right)]
+    assert main(args) == 0
     out = capsys.readouterr().out
     assert "line buffer: 63 of 80 rows needed (delay 35)" in out
     cal = calibrate_sample()
     for path, K, D, R, P in ((left, cal.model.K1, cal.model.D1, cal.rect.R1, cal.rect.P1),
                              (right, cal.model.K2, cal.model.D2, cal.rect.R2, cal.rect.P2)):
-        got = cv2.imread(str(tmp_path / "out" / ("left.png" if path == left else "right.png")), cv2.IMREAD_UNCHANGED)
+        name = "left.png" if path == left else "right.png"
+        got = cv2.imread(str(tmp_path / "out" / name), cv2.IMREAD_UNCHANGED)
         assert got.ndim == 2, "gray input gives gray output"
         src = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         m1, m2 = cv2.initUndistortRectifyMap(K, D, R, P, (640, 480), cv2.CV_16SC2)
@@ -55,11 +57,14 @@ def test_colour_pair_gives_colour_output(tmp_path, calfiles) -> None:
         img = cv2.applyColorMap(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), cv2.COLORMAP_TURBO)
         paths.append(tmp_path / f"c{i}.png")
         cv2.imwrite(str(paths[-1]), img)
-    assert main(["rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path / "o"), *map(str, paths)]) == 0
+    args = ["rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path / "o"), *map(str, paths)]
+    assert main(args) == 0
     got = cv2.imread(str(tmp_path / "o" / "left.png"), cv2.IMREAD_UNCHANGED)
     assert got.shape == (480, 640, 3)
     cal = calibrate_sample()
-    m1, m2 = cv2.initUndistortRectifyMap(cal.model.K1, cal.model.D1, cal.rect.R1, cal.rect.P1, (640, 480), cv2.CV_16SC2)
+    m1, m2 = cv2.initUndistortRectifyMap(
+        cal.model.K1, cal.model.D1, cal.rect.R1, cal.rect.P1, (640, 480), cv2.CV_16SC2
+    )
     expected = cv2.remap(cv2.imread(str(paths[0])), m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     assert np.count_nonzero(got == expected) >= 0.999 * got.size
     assert not np.array_equal(got[..., 0], got[..., 2])
@@ -69,13 +74,14 @@ def test_console_script_runs(tmp_path, calfiles) -> None:
     exe = shutil.which("stereocam", path=os.path.dirname(sys.executable))
     assert exe, "the stereocam console script is installed beside the interpreter"
     left, right = pair_paths(1)
-    done = subprocess.run([exe, "rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path), str(left), str(right)],
-                          capture_output=True, text=True, timeout=120)
+    args = [exe, "rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path), str(left), str(right)]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "left.png").stat().st_size > 1000 and (tmp_path / "right.png").is_file()
-    bad = subprocess.run([exe, "rectify", "--calibration", "nope.yml", "-o", str(tmp_path), str(left), str(right)],
-                         capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and "two files separated by a comma" in bad.stderr and "Traceback" not in bad.stderr
+    args = [exe, "rectify", "--calibration", "nope.yml", "-o", str(tmp_path), str(left), str(right)]
+    bad = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "two files separated by a comma" in bad.stderr
+    assert "Traceback" not in bad.stderr
 
 
 def write_yml(path: Path, **mats) -> Path:
@@ -152,10 +158,11 @@ def test_bad_images_get_one_line_and_exit_2(tmp_path, calfiles, capsys) -> None:
         (deep, right, "uint16 pixels"),
         (tmp_path / "nope.png", right, "nope.png: no such file"),
     ):
-        assert message in run_error(capsys, ["rectify", "--calibration", cal, "-o", str(tmp_path / "o"), str(l_img), str(r_img)])
+        args = ["rectify", "--calibration", cal, "-o", str(tmp_path / "o"), str(l_img), str(r_img)]
+        assert message in run_error(capsys, args)
 
 
-# -- --fit: a pair of another size than the calibration's (issue 13, item 2) -------------------------
+# -- --fit: a pair of another size than the calibration's -------------------------
 
 def gray(path: Path) -> np.ndarray:
     return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)

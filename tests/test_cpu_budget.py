@@ -1,4 +1,4 @@
-"""The CPU budget (issue 12, item 1): views share a number of cores instead of all falling behind.
+"""The CPU budget: views share a number of cores instead of all falling behind.
 
 The floor check runs ``stereocam serve --cpu-budget 0.3`` as a subprocess, reads its CPU from
 ``/proc`` without the emulated fabric's thread, and watches all seven views, then one
@@ -100,7 +100,7 @@ async def test_the_pipeline_sees_every_frame_and_copies_only_what_is_wanted() ->
     published: List[Any] = []
     alive = threading.Event()
     wanted: Dict[str, Any] = {"rate": 0.0}
-    pipeline = Pipeline(overlay.fabric, publish=published.append, alive=alive.set,
+    pipeline = Pipeline(overlay, publish=published.append, alive=alive.set,
                         copy_rate=lambda: wanted["rate"])
     overlay.start()
     pipeline.start()
@@ -210,7 +210,7 @@ def test_the_daemon_cpu_reading_leaves_out_the_emulated_fabric_thread() -> None:
 
 
 def test_within_0_3_cores_every_view_keeps_2_fps_and_one_view_gets_its_full_rate() -> None:
-    """Issue 12's check: seven views watched for a minute within 0.3 cores (0.35 allowed), each at
+    """The budget's floor: seven views watched for a minute within 0.3 cores (0.35 allowed), each at
     2 fps or more; then one view alone at the fabric's rate: the plan gives it that rate, and a 10 s
     window delivers it (windows are tried for up to 5 minutes: a machine busy with other work can
     take frames from a window, which is the scheduler's doing, not the budget's)."""

@@ -2,7 +2,7 @@
 
 A 32-bit process (the armhf test env, a board's 3G/1G kernel) has about 3 GiB of address
 space: an emulated overlay that held a 256 MiB array for its window allowed about a dozen
-overlays alive at once (issue 12). Measured two ways: what :class:`EmulatedDDR` says its
+overlays alive at once. Measured two ways: what :class:`EmulatedDDR` says its
 allocations hold, and what the process allocated (tracemalloc, which numpy reports its
 array memory to), so that neither the DDR's bookkeeping nor the measure alone decides.
 """
@@ -82,13 +82,13 @@ def test_overlays_opened_and_closed_in_sequence_give_their_memory_back() -> None
             ov = EmulatedOverlay(clock="stepped", source=FlatSource())
             ov.start()
             ov.step(2)
-            ddr = ov.hw.ddr
+            ddr = ov.emulation.ddr
             assert 0 < ddr.held_bytes < 16 * MIB, "an open overlay holds its frame buffers only"
             ov.close()
             kept.append(ov)
         gc.collect()
-        assert [ov.hw.ddr.held_bytes for ov in kept] == [0] * 4
-        assert [ov.hw.ddr.num_buffers for ov in kept] == [0] * 4
+        assert [ov.emulation.ddr.held_bytes for ov in kept] == [0] * 4
+        assert [ov.emulation.ddr.num_buffers for ov in kept] == [0] * 4
         grown = tracemalloc.get_traced_memory()[0] - before
     finally:
         tracemalloc.stop()

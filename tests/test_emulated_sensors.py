@@ -14,10 +14,10 @@ import pytest
 from stereocam.board.profile import BoardProfile, load_profile, profile_from_dict
 from stereocam.drivers.i2c import I2CNack
 from stereocam.drivers.mt9v034 import SensorRangeError, SensorUnavailable, StereoSensors
-from stereocam.overlays.emulated.cameras import SyntheticRig
-from stereocam.overlays.emulated.fabric import EmulatedFabric
 from stereocam.overlays.emulated.i2c import EmulatedI2CBus
+from stereocam.overlays.emulated.logic import EmulatedFabric
 from stereocam.overlays.emulated.regblock import EmulationError
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.overlays.emulated.sensors import EmulatedMT9V034, EmulatedSensorPair, pattern_image
 from stereocam.overlays.model.camera_in import demosaic, demosaic_camera
 from stereocam.overlays.spec import mt9v034 as spec
@@ -40,7 +40,7 @@ def profile() -> BoardProfile:
 
 def rig_up(rig: SyntheticRig, profile: BoardProfile, **kw: Any) -> Tuple[EmulatedSensorPair, StereoSensors]:
     pair = EmulatedSensorPair.for_profile(profile, rig, **kw)
-    return pair, StereoSensors.from_profile(profile, pair.bus)
+    return pair, profile.stereo_sensors(pair.bus)
 
 
 @pytest.fixture
@@ -153,7 +153,8 @@ def test_flips_flip(rig: SyntheticRig, started: Tuple[EmulatedSensorPair, Stereo
     plain = frame(pair, rig)
 
     def mirrored(f: np.ndarray, want: np.ndarray, cams: slice) -> None:
-        """``f`` is the camera input's output for the flipped read-out: the mirror image, resampled by the CFA."""
+        """``f`` is the camera input's output for the flipped read-out: the mirror image, resampled by
+        the CFA."""
         assert np.array_equal(f, demosaic(*rig.raw))
         got, ref = f[..., cams].astype(int), want[..., cams].astype(int)
         assert np.abs(got - ref).mean() < 0.5 * np.abs(got - plain[..., cams]).mean()

@@ -9,8 +9,9 @@ import pytest
 from stereocam.bench.rectify import bench_calibration
 from stereocam.drivers.vdma import FrameShapeError
 from stereocam.overlays.backend import BackendError, choose, open_overlay
-from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.emulated.render import SyntheticRig
+from stereocam.overlays.interface import CHANNELS, Overlay, RectifyControl
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.model.result import CoreOptions
 from stereocam.overlays.spec.axis_switch import LIVE, VIRTUAL
@@ -36,7 +37,8 @@ def overlay(calibration):
 
 def model_for(overlay, calibration) -> RectifyModel:
     cfg = overlay.rectify.read_config()
-    return RectifyModel(*calibration, W, H, CoreOptions(lb_rows=overlay.rectify.lb_rows, lb_delay=cfg.lb_delay))
+    options = CoreOptions(lb_rows=overlay.rectify.lb_rows, lb_delay=cfg.lb_delay)
+    return RectifyModel(*calibration, W, H, options)
 
 
 def test_live_frames_come_out_rectified_bit_exact(overlay, calibration) -> None:
@@ -44,14 +46,15 @@ def test_live_frames_come_out_rectified_bit_exact(overlay, calibration) -> None:
     seen = set()
     for _ in range(4):
         overlay.step()
-        if overlay.hw.counters.ticks < 2:
+        if overlay.emulation.counters.ticks < 2:
             continue
         raw_store, raw = overlay.fabric.latest_raw()
         proc_store, proc = overlay.fabric.latest_processed()
         np.testing.assert_array_equal(proc, model.process(raw).frame)
         seen.add(hash(raw.tobytes()))
     assert len(seen) >= 2, "the rig moves: consecutive raw frames differ"
-    assert overlay.hw.counters.per_input[LIVE] == 4 and overlay.hw.counters.per_input[VIRTUAL] == 0
+    per_input = overlay.emulation.counters.per_input
+    assert per_input[LIVE] == 4 and per_input[VIRTUAL] == 0
     assert not overlay.fabric.status()["core"]["flags"]["LB_OVERFLOW"]
 
 
@@ -81,13 +84,45 @@ def test_stop_returns_the_mux_to_live_and_is_idempotent(overlay) -> None:
     overlay.stop()
     assert overlay.fabric.source == "live"
     assert not overlay.fabric.rectify.status().control["ENABLE"]
-    frames = overlay.hw.counters.proc_frames
+    frames = overlay.emulation.counters.proc_frames
     overlay.step(3)
-    assert overlay.hw.counters.proc_frames == frames, "a stopped fabric writes no frames"
+    assert overlay.emulation.counters.proc_frames == frames, "a stopped fabric writes no frames"
     overlay.stop()
     overlay.start()
     overlay.step(2)
-    assert overlay.hw.counters.proc_frames > frames
+    assert overlay.emulation.counters.proc_frames > frames
+
+
+def test_the_overlay_is_what_the_daemon_asks_for(overlay: EmulatedOverlay, calibration) -> None:
+    """The emulated overlay satisfies the typed seam, and its members answer from the fabric."""
+    seam: Overlay = overlay  # mypy checks the members; isinstance checks they exist
+    assert isinstance(seam, Overlay) and isinstance(seam.rectify, RectifyControl)
+    assert seam.backend == "emulated" and seam.core_kind == "model" and seam.choice is None
+    assert seam.frame_size == (W, H) and seam.streaming and seam.raw_stores == 3
+    config, options = seam.core_setup()
+    assert config == seam.rectify.read_config() and options.lb_rows == seam.rectify.lb_rows
+    assert not options.bypass and options.debug_row is None
+    overlay.step(2)
+    count = seam.frame_count()
+    processed = seam.processed_store()
+    assert processed.stores == 3 and processed.pixels.shape == (H, W, 8)
+    raw = seam.raw_store()
+    assert seam.raw_store(raw.store - 1).store == (raw.store - 1) % raw.stores
+    overlay.step()
+    seam.wait_processed(1.0)
+    assert seam.frame_count() == count + 1
+    for channel in CHANNELS:
+        status = seam.channel_status(channel)
+        assert status.configured and status.running and status.fatal == ()
+    seam.select("virtual")
+    frame = np.zeros((H, W, 8), dtype=np.uint8)
+    store = seam.send_virtual(frame)
+    overlay.step()
+    assert seam.wait_virtual_taken(1.0) == store and seam.source == "virtual"
+    seam.restart_channel("vdma_proc.mm2s", 1.0)
+    assert seam.channel_status("vdma_proc.mm2s").running
+    seam.stop()
+    assert not seam.streaming and not seam.channel_status("vdma_raw.s2mm").running
 
 
 def test_realtime_clock_moves_frames(calibration) -> None:
@@ -95,8 +130,8 @@ def test_realtime_clock_moves_frames(calibration) -> None:
         ov.rectify.program(*calibration, W, H)
         _, first = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0)
         store, _ = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0)
-        assert ov.hw.clock.frames >= 2
-    assert ov.fabric.source == "live" and not ov.hw.clock.running
+        assert ov.emulation.clock.frames >= 2
+    assert ov.fabric.source == "live" and not ov.emulation.clock.running
 
 
 def test_backend_choice_says_why(tmp_path, monkeypatch) -> None:
@@ -126,14 +161,15 @@ if os.environ.get("STEREOCAM_TEST_ENV") == "board":
     # over a pynq.Device whose registers and memory are the emulated fabric's.
 
     def test_pynq_bound_fabric_is_bit_exact(calibration) -> None:
-        from stereocam.overlays.emulated.pynq_device import EmulatedPynqDevice
         from stereocam.overlays.pynq.overlay import bind_pynq
         from stereocam.overlays.spec.overlay import ADDRESS_MAP
 
+        from .pynq_device import EmulatedPynqDevice
+
         ov = EmulatedOverlay(clock="stepped")
         try:
-            dev = EmulatedPynqDevice(ov.hw.ddr, {n: (ADDRESS_MAP[n], b) for n, b in ov.hw.blocks.items()},
-                                     tick=ov.step)
+            blocks = {n: (ADDRESS_MAP[n], b) for n, b in ov.emulation.blocks.items()}
+            dev = EmulatedPynqDevice(ov.emulation.ddr, blocks, tick=ov.step)
             fabric = bind_pynq(ov.ip_dict, dev, frame_size=(W, H))
             assert type(fabric.rectify.regs.window).__module__ == "pynq.mmio"
             cfg, fit = fabric.rectify.program(*calibration, W, H)

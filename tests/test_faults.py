@@ -1,4 +1,4 @@
-"""Injected faults are reported while they last and every part recovers after (issue 10, item 6).
+"""Injected faults are reported while they last and every part recovers after.
 
 The faults are made in the emulated fabric the way the hardware shows them
 (:mod:`stereocam.overlays.emulated.faults`); the daemon finds them through
@@ -22,7 +22,7 @@ from stereocam.overlays.emulated.faults import FaultError, FaultInjector
 from stereocam.overlays.fabric import SOURCES
 from stereocam.server.http import routes_cameras
 from stereocam.server.http.app import ServeError, create_app
-from stereocam.server.http.config import Config, ConfigError
+from stereocam.server.http.settings import Settings, SettingsError
 from stereocam.server.http.state import FABRIC_HEALTH, PIPELINE
 
 from .server_fixtures import make_overlay, start_daemon_fixture, wait_for_frames  # noqa: F401
@@ -50,7 +50,7 @@ def test_a_dma_fault_halts_the_channel_on_every_restart_until_it_ends() -> None:
     overlay = make_overlay(clock="stepped")
     try:
         overlay.start()
-        faults = FaultInjector(overlay.hw)
+        faults = FaultInjector(overlay.emulation)
         s2mm = overlay.fabric.raw_vdma.s2mm
         overlay.step(2)
         assert s2mm.errors() == () and s2mm.running
@@ -64,7 +64,7 @@ def test_a_dma_fault_halts_the_channel_on_every_restart_until_it_ends() -> None:
         s2mm.recover()
         overlay.step(2)
         assert s2mm.errors() == () and s2mm.running
-        assert overlay.hw.vdma_proc.s2mm.frames > 0  # the other channels never noticed
+        assert overlay.emulation.vdma_proc.s2mm.frames > 0  # the other channels never noticed
     finally:
         overlay.close()
 
@@ -75,7 +75,7 @@ def test_a_hung_reset_finishes_when_the_fault_ends() -> None:
     overlay = make_overlay(clock="stepped")
     try:
         overlay.start()
-        faults = FaultInjector(overlay.hw)
+        faults = FaultInjector(overlay.emulation)
         mm2s = overlay.fabric.proc_vdma.mm2s
         fault = faults.inject("reset_hang", "vdma_proc.mm2s")
         overlay.step(1)
@@ -96,14 +96,14 @@ def test_the_mux_refuses_commits_while_the_fault_lasts() -> None:
     overlay = make_overlay(clock="stepped")
     try:
         overlay.start()
-        faults = FaultInjector(overlay.hw)
+        faults = FaultInjector(overlay.emulation)
         fault = faults.inject("mux_refuse")
         with pytest.raises(RegisterTimeout, match="commit never finished"):
             overlay.fabric.select("virtual", timeout=0.05)
-        assert overlay.hw.mux.selected == SOURCES["live"]
+        assert overlay.emulation.mux.selected == SOURCES["live"]
         faults.end(fault.id)
         overlay.fabric.select("live", timeout=5.0)
-        assert overlay.hw.mux.selected == SOURCES["live"]
+        assert overlay.emulation.mux.selected == SOURCES["live"]
     finally:
         overlay.close()
 
@@ -111,7 +111,7 @@ def test_the_mux_refuses_commits_while_the_fault_lasts() -> None:
 def test_bad_injections_are_refused_with_what_to_give() -> None:
     overlay = make_overlay(clock="stepped")
     try:
-        faults = FaultInjector(overlay.hw)
+        faults = FaultInjector(overlay.emulation)
         with pytest.raises(FaultError, match="unknown fault kind 'meltdown'; known: camera_stall"):
             faults.inject("meltdown")
         with pytest.raises(FaultError, match="needs a target, one of: vdma_raw.s2mm"):
@@ -136,22 +136,22 @@ async def test_without_the_flag_there_is_no_fault_route(start_daemon) -> None:
     d = await start_daemon()
     async with d.http.post("/api/faults", json={"kind": "camera_stall"}) as resp:
         assert resp.status in (404, 405)
-    assert d.overlay.hw.cameras_running
+    assert d.overlay.emulation.cameras_running
 
 
 def test_a_settings_file_cannot_allow_fault_injection(tmp_path) -> None:
     path = tmp_path / "stereocam.yaml"
     path.write_text("allow_fault_injection: true\n")
-    with pytest.raises(ConfigError, match="only the --allow-fault-injection flag sets it"):
-        Config.from_file(path)
+    with pytest.raises(SettingsError, match="only the --allow-fault-injection flag sets it"):
+        Settings.from_file(path)
 
 
 def test_fault_injection_is_refused_off_the_emulated_fabric() -> None:
     overlay = make_overlay(clock="stepped")
     try:
-        overlay.fabric.backend = "pynq"  # as the board's overlay says
+        overlay.fault_injection = None  # as the board's overlay has
         with pytest.raises(ServeError, match="emulated fabric only"):
-            create_app(Config(allow_fault_injection=True), overlay)
+            create_app(Settings(allow_fault_injection=True), overlay)
     finally:
         overlay.close()
 
@@ -224,7 +224,7 @@ async def _works_again(d: Any, what: str) -> None:
     elif what == "mux":
         async with d.http.put("/api/source", json={"source": "live"}) as resp:
             assert resp.status == 200, await resp.text()
-        assert d.overlay.hw.mux.selected == SOURCES["live"]
+        assert d.overlay.emulation.mux.selected == SOURCES["live"]
     elif what.startswith("sensor."):
         async with d.http.get("/api/cameras") as resp:
             body = await resp.json()

@@ -1,4 +1,4 @@
-"""Fit on upload (issue 13, item 2): exact, crop, pad and scale, in the upload code and over HTTP."""
+"""Fit on upload: exact, crop, pad and scale, in the upload code and over HTTP."""
 from __future__ import annotations
 
 import io

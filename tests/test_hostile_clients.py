@@ -1,4 +1,4 @@
-"""Hostile and slow clients (issue 10): what the daemon does; how fast is ``stereocam bench robustness``'s.
+"""Hostile and slow clients: what the daemon does; how fast is ``stereocam bench robustness``'s.
 
 - 2,000 malformed requests (:func:`stereocam.bench.robustness.malformed_requests`: uploads, JSON,
   YAML calibrations, headers, request lines, on every endpoint) and malformed WebSocket messages
@@ -190,7 +190,7 @@ async def test_a_slow_reader_is_sent_the_newest_frame_and_skips_what_it_missed(s
     """The cameras move one frame at a time (stepped clock) while a client with 4 KB of receive buffer
     reads nothing: the daemon sends it what fits in its buffers, then waits. When the client reads
     again, the next frame it gets is the newest, not the ones it missed; and each frame the daemon
-    sent it was the newest the daemon had at that moment (issue 10, item 7)."""
+    sent it was the newest the daemon had at that moment."""
     d = await start_daemon(overlay=make_overlay(clock="stepped", calibrate=False), no_signal_s=60)
     loop = asyncio.get_running_loop()
     feed = d.app[FEED]

@@ -1,4 +1,4 @@
-"""``GET /metrics`` through prometheus_client: clean under ``promtool check metrics`` (issue 12, item 3).
+"""``GET /metrics`` through prometheus_client: clean under ``promtool check metrics``.
 
 The daemon runs with the cameras extension (sensor gauges) and an injected DMA fault (fault
 gauges and counters), so every family the daemon can show is in the scrape that Debian's

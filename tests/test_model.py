@@ -20,7 +20,9 @@ from stereocam.overlays.spec.rectify import CameraParams, CameraRegs, camera_reg
 def random_params(rng: np.random.Generator, w: int, h: int, *, strength: float = 1.0) -> CameraParams:
     """A plausible camera: intrinsics, distortion and a small rectifying rotation."""
     f = rng.uniform(0.6, 1.4) * w
-    K = np.array([[f, 0, w / 2 + rng.uniform(-3, 3)], [0, f * rng.uniform(0.97, 1.03), h / 2 + rng.uniform(-3, 3)], [0, 0, 1]])
+    K = np.array([[f, 0, w / 2 + rng.uniform(-3, 3)],
+                  [0, f * rng.uniform(0.97, 1.03), h / 2 + rng.uniform(-3, 3)],
+                  [0, 0, 1]])
     R, _ = cv2.Rodrigues(rng.normal(0, 0.03 * strength, 3))
     P = K.copy()
     P[0, 2] += rng.uniform(-2, 2)
@@ -32,7 +34,8 @@ def random_params(rng: np.random.Generator, w: int, h: int, *, strength: float =
 
 def translate(dx: float, dy: float, *, w: int = 40, h: int = 30, k1: float = 0.0) -> CameraParams:
     """Pure translation by (dx, dy) pixels, optionally with radial distortion."""
-    return CameraParams((1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0), float(w), float(w), w / 2, h / 2, k1, 0.0, 0.0, 0.0)
+    return CameraParams((1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0),
+                        float(w), float(w), w / 2, h / 2, k1, 0.0, 0.0, 0.0)
 
 
 def random_frame(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
@@ -148,7 +151,8 @@ def test_too_small_buffer_is_bit_exact_too(seed: int) -> None:
 def test_degenerate_positions_give_zero() -> None:
     """Z <= 0 left of a column: those pixels give 0 in both models."""
     frame = np.full((30, 40, 8), 77, dtype=np.uint8)
-    z0 = CameraParams((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, -5.0), 40.0, 40.0, 20.0, 15.0, 0.0, 0.0, 0.0, 0.0)
+    z0 = CameraParams((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, -5.0),
+                      40.0, 40.0, 20.0, 15.0, 0.0, 0.0, 0.0, 0.0)
     assert source_position(z0, 5, 3, 40, 30) is None
     assert source_position(z0, 4, 3, 40, 30) is None
     ref, fast = both(frame, z0, z0, CoreOptions(lb_rows=30))
@@ -160,7 +164,8 @@ def test_degenerate_positions_give_zero() -> None:
 # possible a pixel just inside it (|X| < 4 Z alone cannot be valid: r2 < 8 needs |xn| < 2.83):
 # (registers, pixel, valid).
 LIMITS = {
-    "Z <= 0": (CameraRegs((1 << 35, 0, 0, 0, 1 << 35, 0, 0, 0, 0), 32 << 20, 32 << 20, 0, 0, 0, 0, 0, 0), (3, 3), False),
+    "Z <= 0": (CameraRegs((1 << 35, 0, 0, 0, 1 << 35, 0, 0, 0, 0), 32 << 20, 32 << 20, 0, 0, 0, 0, 0, 0),
+               (3, 3), False),
     "|X| = 4 Z": (exact_regs(), (128, 0), False),
     "r2 >= 8": (exact_regs(), (70, 70), False),  # (70/32)^2 * 2 = 9.6
     "r2 < 8": (exact_regs(), (64, 63), True),  # 7.9
@@ -201,9 +206,13 @@ def random_raw_registers(rng: np.random.Generator) -> CameraRegs:
 
 @pytest.mark.parametrize("seed", range(8))
 def test_fixed_point_forms_agree_on_any_registers(seed: int) -> None:
-    """position() (Python integers) and positions() (int64 numpy) are the same function, even for wild sets."""
+    """position() (Python integers) and positions() (int64 numpy) are the same function, even for
+    wild sets."""
     rng = np.random.default_rng(100 + seed)
-    regs = random_raw_registers(rng) if seed % 2 else camera_registers(random_params(rng, 64, 48, strength=6.0), 64, 48)
+    if seed % 2:
+        regs = random_raw_registers(rng)
+    else:
+        regs = camera_registers(random_params(rng, 64, 48, strength=6.0), 64, 48)
     x = rng.integers(0, 2048, 400)
     y = rng.integers(0, 2048, 400)
     iu, iv, ok = fixed.positions(regs, x, y)
@@ -287,7 +296,8 @@ def test_gray_build_rectifies_the_stream_gray_byte() -> None:
     plain = frame.copy()
     plain[..., 0:3] = frame[..., 3:4]
     plain[..., 4:7] = frame[..., 7:8]
-    colour_of_gray = RectifyModel(left, right, w, h, CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay, gray=True))
+    gray_options = CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay, gray=True)
+    colour_of_gray = RectifyModel(left, right, w, h, gray_options)
     np.testing.assert_array_equal(ref.frame, colour_of_gray.process(plain).frame)
     colour = rectify_reference(frame, left, right, CoreOptions(lb_rows=fit.rows, lb_delay=fit.delay)).frame
     assert not np.array_equal(colour[..., 3], ref.frame[..., 3]), "colour build: gray follows R, G, B"

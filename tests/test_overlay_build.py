@@ -26,7 +26,7 @@ import pytest
 
 from stereocam.drivers.vdma import VDMA
 from stereocam.overlays import backend
-from stereocam.overlays.emulated.fabric import EmulatedFabric, StreamCore
+from stereocam.overlays.emulated.logic import EmulatedFabric, StreamCore
 from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
 from stereocam.overlays.fabric import bind
 from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma

@@ -59,7 +59,7 @@ def dists(tmp_path_factory: pytest.TempPathFactory) -> Dists:
     """An sdist of a copy of this tree, and the wheel pip builds from that sdist offline."""
     root = tmp_path_factory.mktemp("packaging")
     src = root / "src"
-    shutil.copytree(REPO, src, ignore=NOT_SOURCES)
+    shutil.copytree(REPO, src, ignore=NOT_SOURCES, symlinks=True)  # stereocam/ links as in a checkout
     hook = "import sys; from setuptools import build_meta; print(build_meta.build_sdist(sys.argv[1]))"
     name = run([sys.executable, "-c", hook, str(root / "sdist")], cwd=src).stdout.strip().splitlines()[-1]
     sdist = root / "sdist" / name
@@ -113,13 +113,13 @@ def expected_files() -> Set[str]:
     for folder, installed in FOLDERS.items():
         for path in (REPO / folder).rglob("*.py"):
             rel = path.relative_to(REPO / folder)
-            if rel.parts[0] in ("rtl", "vivado") or "__pycache__" in rel.parts:
-                continue  # not packages: the HDL's cocotb helpers are data, not modules
+            if rel.parts[0] == "vivado" or "__pycache__" in rel.parts:
+                continue  # not a package: the overlay's build scripts are data
             if (path.parent / "__init__.py").exists():
                 out.add(f"{installed}/{rel}")
     out |= {f"stereocam/board/{p.name}" for p in (REPO / "board").glob("*.service")}
     out |= {f"stereocam/board/{p.name}" for p in (REPO / "board").glob("*.yaml")}
-    out |= {f"stereocam/server/static/{p.name}" for p in (REPO / "server" / "static").iterdir()
+    out |= {f"stereocam/server/http/static/{p.name}" for p in (REPO / "server" / "http" / "static").iterdir()
             if p.is_file()}
     out |= {f"stereocam/overlays/rtl/{p.name}" for p in (REPO / "overlays" / "rtl").glob("*.v")}
     return out

@@ -29,13 +29,13 @@ from stereocam.drivers.mmio import UnsupportedIP
 from stereocam.drivers.rectify import RectifyCore
 from stereocam.drivers.switch import AxisSwitch
 from stereocam.drivers.vdma import VDMA
-from stereocam.overlays.emulated import pynq_device as pd
-from stereocam.overlays.emulated.cameras import SyntheticRig
-from stereocam.overlays.emulated.fabric import EmulatedFabric
+from stereocam.overlays.emulated.logic import EmulatedFabric
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.overlays.spec.axis_switch import LIVE, VIRTUAL
 from stereocam.overlays.spec.overlay import ADDRESS_MAP, INSTANCES, VDMA_VLNVS, WINDOW_SIZE
 from stereocam.overlays.spec.rectify import CORE_ID, DEFAULT_BUILD, RECTIFY_MAP
 
+from . import pynq_device as pd
 from .pynq_hwh import Ip, pynq_for_tests, rectify_parameters, stereocam_ips, write_overlay
 
 pynq: Optional[Any] = pynq_for_tests()
@@ -46,13 +46,13 @@ W, H = 752, 480  # the core's WIDTH/HEIGHT at reset: frames pass in BYPASS witho
 OWNER = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from stereocam.overlays.emulated import pynq_device as pd
-    from stereocam.overlays.emulated.fabric import EmulatedFabric
+    from stereocam.overlays.emulated.logic import EmulatedFabric
+    from tests import pynq_device as pd
     from stereocam.overlays.spec.overlay import ADDRESS_MAP
     from stereocam.overlays.pynq.overlay import PynqPLState, StereocamOverlay
     hw = EmulatedFabric(clock="stepped")
-    dev = pd.EmulatedPynqDevice(hw.ddr, {{n: (ADDRESS_MAP[n], b) for n, b in hw.blocks.items()}}, tick=hw.step,
-                                programmed=False, state_dir=Path({state!r}))
+    windows = {{n: (ADDRESS_MAP[n], b) for n, b in hw.blocks.items()}}
+    dev = pd.EmulatedPynqDevice(hw.ddr, windows, tick=hw.step, programmed=False, state_dir=Path({state!r}))
     ov = StereocamOverlay(Path({bit!r}), device=dev, lock=Path({lock!r}),
                           pl_state=PynqPLState(dev.state_file, fpga_manager=dev.fpga_manager))
     print("bound", flush=True)
@@ -109,7 +109,8 @@ if pynq is not None:
         ov = pynq.Overlay(str(board.bit), device=board.dev, download=False)
         for name, vlnvs in INSTANCES.items():
             desc = ov.ip_dict[name]
-            assert (desc["type"], desc["phys_addr"], desc["addr_range"]) == (vlnvs[-1], ADDRESS_MAP[name], WINDOW_SIZE)
+            assert (desc["type"], desc["phys_addr"], desc["addr_range"]) == (
+                vlnvs[-1], ADDRESS_MAP[name], WINDOW_SIZE)
         assert ov.ip_dict["vdma_raw"]["parameters"]["C_NUM_FSTORES"] == "3"
         assert ov.ip_dict["rectify"]["parameters"] == rectify_parameters(DEFAULT_BUILD)
         assert board.dev.downloads == [] and board.dev.bus_accesses == 0
@@ -168,7 +169,8 @@ if pynq is not None:
         ov = board.open()
         try:
             assert board.dev.downloads == [str(board.bit)] * 2
-            assert not board.dev.state_file.exists(), "pynq cleared the stale record; its metadata cached, wrote none"
+            assert not board.dev.state_file.exists(), (
+                "pynq cleared the stale record; its metadata cached, wrote none")
             ov.fabric.status()
             board.foreign()
             pynq.Overlay(str(board.tmp / "base" / "base.bit"), device=board.dev)
@@ -181,7 +183,8 @@ if pynq is not None:
         ips = [ip if ip.name != "rectify" else Ip(ip.name, ip.vlnv, ip.base, rectify_parameters(lb_rows=64),
                                                   interface=ip.interface) for ip in stereocam_ips()]
         wrong = write_overlay(board.tmp / "lb64", "stereocam", ips)
-        with pytest.raises(UnsupportedIP, match=r"rectify: LB_ROWS=64 in the \.hwh but 80 in the core's register"):
+        with pytest.raises(UnsupportedIP,
+                           match=r"rectify: LB_ROWS=64 in the \.hwh but 80 in the core's register"):
             board.open(wrong)
         board.open().close()  # the refused overlay let go of the fabric
 
@@ -189,11 +192,14 @@ if pynq is not None:
         other = board.foreign("base", [ip for ip in stereocam_ips() if ip.name != "mux"])
         with pytest.raises(UnsupportedIP, match="the overlay has no IP named 'mux'"):
             board.open(other)
-        switch = [ip if ip.name != "mux" else Ip("mux", ip.vlnv, ip.base, {"NUM_SI": "2", "ROUTING_MODE": "0"})
+        switch = [ip if ip.name != "mux"
+                  else Ip("mux", ip.vlnv, ip.base, {"NUM_SI": "2", "ROUTING_MODE": "0"})
                   for ip in stereocam_ips()]
-        with pytest.raises(UnsupportedIP, match=r"mux: ROUTING_MODE=0 \(TDEST routing\) has no control registers"):
+        with pytest.raises(UnsupportedIP,
+                           match=r"mux: ROUTING_MODE=0 \(TDEST routing\) has no control registers"):
             board.open(board.foreign("tdest", switch))
-        assert board.dev.downloads == [str(board.tmp / "tdest" / "tdest.bit")], "the first was refused unloaded"
+        assert board.dev.downloads == [str(board.tmp / "tdest" / "tdest.bit")], (
+            "the first was refused unloaded")
         board.open().close()
 
     def test_our_overlay_binds_our_drivers_whatever_pynq_has_registered(board: Board, monkeypatch) -> None:
@@ -213,7 +219,8 @@ if pynq is not None:
         with pytest.raises(FabricBusy) as err:
             board.open()
         message = str(err.value)
-        assert message.startswith(f"the fabric is in use by `{FabricLock(board.lock).holder()['cmdline'][:50]}")
+        cmdline = FabricLock(board.lock).holder()["cmdline"]
+        assert message.startswith(f"the fabric is in use by `{cmdline[:50]}")
         assert f"(pid {os.getpid()}) since " in message
         assert f": close its overlay or end process {os.getpid()} first (lock: {board.lock})" in message
         assert (board.dev.downloads, board.dev.bus_accesses) == (downloads, accesses)
@@ -225,13 +232,14 @@ if pynq is not None:
                               lock=str(board.lock))
         env = {**os.environ, "INVOCATION_ID": "0123456789abcdef"}  # what systemd gives a service
         with subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              env=env, text=True) as owner:
+                              env=env, text=True, cwd=Path(__file__).resolve().parents[1]) as owner:
             try:
                 assert owner.stdout is not None and owner.stdout.readline() == "bound\n"
-                with pytest.raises(FabricBusy, match=rf"^the fabric is in use by the stereocam service \(pid "
-                                                     rf"{owner.pid}: `{re.escape(sys.executable)} -c .*`\) since "
-                                                     r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d: stop it with "
-                                                     r"`systemctl stop stereocam` first"):
+                busy = (rf"^the fabric is in use by the stereocam service \(pid "
+                        rf"{owner.pid}: `{re.escape(sys.executable)} -c .*`\) since "
+                        r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d: stop it with "
+                        r"`systemctl stop stereocam` first")
+                with pytest.raises(FabricBusy, match=busy):
                     board.open()
                 assert board.dev.downloads == []
                 owner.send_signal(signal.SIGKILL)  # a crash: no close(), no cleanup
@@ -253,7 +261,8 @@ if pynq is not None:
                 r"pynq records .*/base\.bit since .*, not .*/stereocam\.bit")
         with pytest.raises(FabricLost, match=lost):
             ov.fabric.status()
-        for call in (lambda: ov.fabric.select("live"), ov.fabric.latest_processed, ov.rectify.status, ov.stop):
+        calls = (lambda: ov.fabric.select("live"), ov.fabric.latest_processed, ov.rectify.status, ov.stop)
+        for call in calls:
             with pytest.raises(FabricLost, match="restart stereocam"):
                 call()
         ov.close()  # no DMA stop: it would touch the bus
@@ -270,9 +279,11 @@ if pynq is not None:
         ov = board.open(probe_interval=0.0)
         try:
             ov.fabric.status()
-            board.hw.core.set("ID", 0x12345678)  # another design answers at our address; pynq recorded nothing
-            with pytest.raises(FabricLost, match="the rectify core's ID register reads 0x12345678, not 0x52454354: "
-                                                 "the PL no longer holds the stereocam overlay"):
+            # Another design answers at our address; pynq recorded nothing.
+            board.hw.core.set("ID", 0x12345678)
+            gone = ("the rectify core's ID register reads 0x12345678, not 0x52454354: "
+                    "the PL no longer holds the stereocam overlay")
+            with pytest.raises(FabricLost, match=gone):
                 ov.fabric.status()
             accesses = board.dev.bus_accesses
             with pytest.raises(FabricLost):

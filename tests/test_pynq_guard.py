@@ -64,9 +64,10 @@ if pynq is not None:
                               env=env, text=True) as holder:
             try:
                 assert holder.stdout is not None and holder.stdout.readline() == "held\n"
-                with pytest.raises(FabricBusy, match=rf"^refusing to load base.bit: the fabric is in use by the "
-                                                     rf"stereocam service \(pid {holder.pid}: .*\) since .*: stop "
-                                                     r"it with `systemctl stop stereocam` first"):
+                busy = (rf"^refusing to load base.bit: the fabric is in use by the "
+                        rf"stereocam service \(pid {holder.pid}: .*\) since .*: stop "
+                        r"it with `systemctl stop stereocam` first")
+                with pytest.raises(FabricBusy, match=busy):
                     guarded("device", "base.bit")
                 assert calls == ["free.bit"]  # never reached the device
             finally:

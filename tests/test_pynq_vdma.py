@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 from stereocam.drivers.vdma import VDMA
-from stereocam.overlays.emulated import pynq_device as pd
 from stereocam.overlays.emulated.ddr import EmulatedBuffer, EmulatedDDR
 from stereocam.overlays.emulated.regblock import EmulationError
 from stereocam.overlays.emulated.vdma import EmulatedVDMA
 from stereocam.overlays.spec.pixel import pack, rgby
 from stereocam.overlays.spec.vdma import VDMA_MAP
 
+from . import pynq_device as pd
 from .pynq_hwh import pynq_for_tests
 
 pynq: Optional[Any] = pynq_for_tests()

@@ -1,4 +1,4 @@
-"""Recordings (issue 13, item 4): every raw pair of N seconds, lossless, replayable by --source and the
+"""Recordings: every raw pair of N seconds, lossless, replayable by --source and the
 virtual camera; listed, downloaded, deleted, refused when the disk would fill or one already runs."""
 from __future__ import annotations
 
@@ -14,14 +14,15 @@ from typing import Any, Callable, Dict, List, Tuple
 import numpy as np
 import pytest
 
-from stereocam.overlays.emulated.cameras import ReplayError, ReplaySource
+from stereocam.overlays.backend import camera_source
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.emulated.replay import ReplayError, ReplaySource
 from stereocam.overlays.spec.pixel import pack, rgby
 from stereocam.server.frames import recordings as recordings_module
 from stereocam.server.frames.pipeline import Pipeline
-from stereocam.server.http.app import _camera_source, program_default_calibration
-from stereocam.server.http.config import Config
+from stereocam.server.http.app import program_default_calibration
 from stereocam.server.http.routes_recordings import RECORDER, RECORDINGS
+from stereocam.server.http.settings import Settings
 from stereocam.server.http.state import CALIBRATION, PIPELINE, VIRTUAL
 
 from .server_fixtures import SMALL, WAIT_S, rig_frame, start_daemon_fixture, wait_for_frames  # noqa: F401
@@ -154,7 +155,7 @@ async def test_a_10_s_recording_replays_through_source_with_the_same_frame_count
     assert all(b > a for a, b in zip(stamps, stamps[1:], strict=False)), stamps  # each camera frame once
 
     # Through --source: what `stereocam serve --source FOLDER` plays, on a fabric at the recording's rate.
-    played = _camera_source(Config(source=str(folder)))
+    played = camera_source(str(folder))
     assert isinstance(played, ReplaySource) and played.is_recording
     overlay = EmulatedOverlay(source=played, fps=meta["fps"], clock="stepped").start()
     seen: List[int] = []
@@ -247,11 +248,11 @@ async def test_a_recording_makes_the_pipeline_copy_every_frame_then_only_what_is
 
 def test_every_frame_hands_each_copied_frame_to_the_consumer_whatever_the_copy_rate() -> None:
     overlay = counting_overlay(clock="stepped")
-    program_default_calibration(overlay, Config())  # the core runs (it passes nothing through before)
+    program_default_calibration(overlay, Settings())  # the core runs (it passes nothing through before)
     overlay.start()
     published: List[Any] = []
     got: List[Any] = []
-    pipeline = Pipeline(overlay.fabric, publish=published.append, copy_rate=lambda: 0.0)  # copies nothing
+    pipeline = Pipeline(overlay, publish=published.append, copy_rate=lambda: 0.0)  # copies nothing
     pipeline.start()
 
     def step(n: int) -> None:
@@ -285,7 +286,7 @@ def test_a_raw_pair_that_comes_twice_is_recorded_once(tmp_path) -> None:
     hands over frame n with raw n + 1, and frame n + 1 with the same raw store again."""
     overlay = counting_overlay(clock="stepped")
     source = CountingSource()
-    pipeline = Pipeline(overlay.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(overlay, publish=lambda fs: None)
     store = recordings_module.RecordingStore(tmp_path / "recordings")
     recorder = recordings_module.Recorder(store, pipeline, raw_stores=3)
     rec = recorder.start(seconds=None, frame_size=SMALL, fps=REC_FPS, frame_no=100)
@@ -395,7 +396,7 @@ async def test_bad_requests_and_no_signal_are_refused(start_daemon) -> None:
     bad_json = {"Content-Type": "application/json"}
     async with d.http.post("/api/recordings", data=b"{nope", headers=bad_json) as resp:
         assert resp.status == 400
-    d.overlay.hw.cameras_running = False
+    d.overlay.emulation.cameras_running = False
     await wait_until("no signal", lambda: not d.app[PIPELINE].last_frame_age() or
                      d.app[PIPELINE].last_frame_age() > 2 * d.config.no_signal_s)
     async with d.http.post("/api/recordings", json={"seconds": 1}) as resp:

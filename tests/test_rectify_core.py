@@ -10,7 +10,7 @@ from stereocam.drivers.mmio import RegisterTimeout, UnsupportedIP
 from stereocam.drivers.rectify import ConfigRefused, RectifyCore
 from stereocam.overlays.emulated.rectify import EmulatedRectifyCore
 from stereocam.overlays.emulated.regblock import ReadOnlyRegister, UnknownRegister
-from stereocam.overlays.model.config import FrameSizeError, LineBufferTooSmall, ParameterOutOfRange
+from stereocam.overlays.model.core_params import FrameSizeError, LineBufferTooSmall, ParameterOutOfRange
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.model.result import CoreOptions
 from stereocam.overlays.spec.rectify import (
@@ -53,7 +53,8 @@ def tilted_params(rng: np.random.Generator) -> CameraParams:
 def test_driver_refuses_a_foreign_ip() -> None:
     with pytest.raises(UnsupportedIP, match="ID register reads 0xdeadbeef"):
         RectifyCore(RecordingWindow([("r", 0x000, 0xDEADBEEF)]))
-    with pytest.raises(UnsupportedIP, match="version 1.x is not supported by this driver .2.x.: load a bitstream"):
+    with pytest.raises(UnsupportedIP,
+                       match="version 1.x is not supported by this driver .2.x.: load a bitstream"):
         RectifyCore(RecordingWindow([("r", 0x000, CORE_ID), ("r", 0x004, 0x00010000)]))
 
 
@@ -108,7 +109,8 @@ def test_programmed_core_output_equals_the_model(emulated) -> None:
     core.enable()
     frame = rng.integers(0, 256, (H, W, 8), dtype=np.uint8)
     out = hw.process(frame)
-    expected = RectifyModel(left, right, W, H, CoreOptions(lb_rows=16, lb_delay=fit.delay)).process(frame).frame
+    model = RectifyModel(left, right, W, H, CoreOptions(lb_rows=16, lb_delay=fit.delay))
+    expected = model.process(frame).frame
     np.testing.assert_array_equal(out, expected)
     assert core.status().frame_count == 1
     assert core.read_config() == cfg
@@ -133,7 +135,8 @@ def test_apply_latches_between_frames_and_waits_for_a_frame_in_flight(emulated) 
     assert core.status().apply_pending and hw.active.left == regs(b)
     with hw.lock:
         hw.set_field("STATUS", "BUSY", 0)
-    np.testing.assert_array_equal(hw.process(frame)[:, :-1, 0], frame[:, 1:, 0])  # latched at this frame's start
+    # Latched at this frame's start.
+    np.testing.assert_array_equal(hw.process(frame)[:, :-1, 0], frame[:, 1:, 0])
     assert not core.status().apply_pending
 
 
@@ -184,7 +187,8 @@ def test_overflow_and_size_flags_are_sticky_and_write_one_to_clear(emulated) -> 
 
 
 def test_frame_size_rules(emulated) -> None:
-    """RECTIFY_CORE.md "Malformed input": extra lines are ignored, missing lines give 0 rows, a wrong width drops."""
+    """RECTIFY_CORE.md "Malformed input": extra lines are ignored, missing lines give 0 rows, a wrong
+    width drops."""
     hw, core = emulated
     p = translate(0.5, 3.25, w=W, h=H)
     cfg, fit = core.program(p, p, W, H)
@@ -213,7 +217,8 @@ def test_frame_size_rules(emulated) -> None:
 def test_disabled_core_emits_nothing_and_unprogrammed_core_passes_through() -> None:
     hw = EmulatedRectifyCore()
     core = RectifyCore(hw)
-    assert (core.max_width, core.lb_rows, core.colour) == (DEFAULT_BUILD.max_width, DEFAULT_BUILD.lb_rows, True)
+    build = (DEFAULT_BUILD.max_width, DEFAULT_BUILD.lb_rows, True)
+    assert (core.max_width, core.lb_rows, core.colour) == build
     frame = np.random.default_rng(4).integers(0, 256, (480, 752, 8), dtype=np.uint8)
     assert hw.process(frame) is None
     core.enable()

@@ -9,7 +9,7 @@ import pytest
 from stereocam.board.profile import ProfileError, load_profile
 from stereocam.calibration.file import CalibrationFileError, load_calibration, parse_yaml
 from stereocam.calibration.safe_yaml import MAX_DEPTH, YamlRefused, load
-from stereocam.server.http.config import Config, ConfigError
+from stereocam.server.http.settings import Settings, SettingsError
 
 
 @pytest.fixture(params=["libyaml", "python"], autouse=True)
@@ -66,7 +66,7 @@ def test_every_yaml_reader_refuses_the_bomb(tmp_path: Path) -> None:
     with pytest.raises(CalibrationFileError, match="YAML aliases"):
         parse_yaml("schema_version: 2\n" + bomb, where="calibration")
     for name, prefix, call, error in (
-        ("c.yaml", "", lambda p: Config.from_file(p), ConfigError),
+        ("c.yaml", "", lambda p: Settings.from_file(p), SettingsError),
         ("profile.yaml", "", lambda p: load_profile(p), ProfileError),
         ("left.yaml", "# a ROS camera_matrix file\n",
          lambda p: load_calibration(f"{p},{p}", image_size=(752, 480)), CalibrationFileError),

@@ -14,7 +14,7 @@ from stereocam.calibration.file import Calibration, load_calibration
 from stereocam.calibration.stereo import rectify
 from stereocam.server.http import routes_calibration
 from stereocam.server.http.app import default_extensions, program_default_calibration
-from stereocam.server.http.config import Config
+from stereocam.server.http.settings import Settings
 
 from .server_fixtures import SMALL, make_overlay, start_daemon_fixture  # noqa: F401
 
@@ -23,7 +23,7 @@ YAML = {"Content-Type": "application/yaml"}
 
 
 def rig_calibration(daemon, *, alpha: float = 0.0, **model_changes) -> Calibration:
-    model = daemon.overlay.hw.source.model
+    model = daemon.overlay.emulation.source.model
     if model_changes:
         model = dataclasses.replace(model, **model_changes)
     return Calibration.derive(model, rectify(model, alpha=alpha), alpha=alpha, source="test rig")
@@ -104,7 +104,7 @@ async def test_put_programs_saves_and_reports_a_new_calibration(start_daemon, tm
 async def test_put_replaces_the_given_calibration_file(start_daemon, tmp_path) -> None:
     overlay = make_overlay(calibrate=False)
     path = tmp_path / "mine.yaml"
-    model = overlay.hw.source.model
+    model = overlay.emulation.source.model
     first = Calibration.derive(model, rectify(model, alpha=0.0), alpha=0.0)
     first.save(path)
     daemon = await start_daemon(overlay=overlay, extensions=EXT, calibration=str(path))
@@ -222,17 +222,17 @@ async def test_capture_records_the_new_calibration_id(start_daemon) -> None:
 def test_program_default_calibration_reads_a_stereocam_yaml(tmp_path) -> None:
     overlay = make_overlay(calibrate=False)
     try:
-        model = overlay.hw.source.model
+        model = overlay.emulation.source.model
         cal = Calibration.derive(model, rectify(model, alpha=0.2), alpha=0.2, source="bench")
         path = cal.save(tmp_path / "cal.yaml")
-        state = program_default_calibration(overlay, Config(calibration=str(path)))
+        state = program_default_calibration(overlay, Settings(calibration=str(path)))
         assert state.id == cal.id and state.rows_needed == cal.rows_needed and "bench" in state.description
         cfg = overlay.fabric.rectify.read_config()
         assert (cfg.left, cfg.right) == core_registers(cal)
         with pytest.raises(ValueError, match="376x240"):
             model2, rect2, _, _ = bench_calibration()
             big = Calibration.derive(model2, rect2).save(tmp_path / "big.yaml")
-            program_default_calibration(overlay, Config(calibration=str(big)))
+            program_default_calibration(overlay, Settings(calibration=str(big)))
     finally:
         overlay.close()
 
@@ -272,11 +272,10 @@ def test_frames_are_labelled_with_the_calibration_they_ran_with() -> None:
 async def test_a_capture_during_a_calibration_change_names_the_calibration_its_frames_ran_with(
         start_daemon, tmp_path, monkeypatch) -> None:
     """The core runs the new registers while the file is still being written (slow storage): a capture
-    taken then must not be labelled with the old calibration (issue 10, item 4)."""
+    taken then must not be labelled with the old calibration."""
     import asyncio
 
     from stereocam.overlays.model.fast import RectifyModel
-    from stereocam.server.http.routes_api import core_model_setup
     from stereocam.server.http.state import CALIBRATION, CAPTURES
 
     daemon = await start_daemon(extensions=EXT)
@@ -294,8 +293,8 @@ async def test_a_capture_during_a_calibration_change_names_the_calibration_its_f
     for cal in cals:  # the rectified frame each calibration gives for the rig's still frame
         async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
             assert r.status == 200, await r.text()
-        config, options = core_model_setup(daemon.overlay.fabric.rectify)
-        raw = daemon.overlay.hw.source.frame
+        config, options = daemon.overlay.core_setup()
+        raw = daemon.overlay.emulation.source.frame
         expected[cal.id] = RectifyModel(config.left, config.right, config.width, config.height,
                                         options).process(raw).frame
     for cal in cals * 2:

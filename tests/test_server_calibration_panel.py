@@ -24,8 +24,8 @@ from stereocam.cli import main as cli_main
 from stereocam.server.frames.calibration_pairs import SETTINGS_FILE
 from stereocam.server.http import routes_calibration, routes_calibration_panel
 from stereocam.server.http.app import default_extensions, program_default_calibration
-from stereocam.server.http.config import Config
 from stereocam.server.http.routes_calibration_panel import PANEL, Candidate
+from stereocam.server.http.settings import Settings
 
 from .sample import SYNTH_SQUARE, synthetic_views
 from .server_fixtures import FULL, WAIT_S, make_overlay, start_daemon_fixture  # noqa: F401
@@ -166,7 +166,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     assert np.asarray(body["right"]).shape == (54, 2)
 
     # Without signal the answer is an immediate 503, not a queue of pollers waiting for frames.
-    daemon.overlay.hw.cameras_running = False
+    daemon.overlay.emulation.cameras_running = False
     await show_nothing(daemon)
     capture_wait = max(1.0, 2 * daemon.config.no_signal_s)  # how long a capture waits for a frame
     await asyncio.sleep(capture_wait)
@@ -174,7 +174,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     async with daemon.http.get("/api/calibration/corners") as r:
         assert r.status == 503 and "no signal" in (await r.json())["error"]
     assert asyncio.get_running_loop().time() - t0 < capture_wait, "the poll waited for a frame"
-    daemon.overlay.hw.cameras_running = True
+    daemon.overlay.emulation.cameras_running = True
     await show(daemon, left, right)
 
     # Many pollers at once share one detection.
@@ -190,7 +190,8 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
 async def test_pairs_are_refused_without_the_board_and_when_the_view_repeats(start_daemon, tmp_path) -> None:
     daemon = await start(start_daemon)
     status, err = await capture_pair(daemon)
-    assert status == 422 and "not found in either image" in err["error"] and "nothing was stored" in err["error"]
+    assert status == 422 and "not found in either image" in err["error"]
+    assert "nothing was stored" in err["error"]
     assert (await session(daemon))["count"] == 0
     assert not any(p.name[0].isdigit() for p in (tmp_path / "calibration-pairs").iterdir())
 
@@ -208,7 +209,8 @@ async def test_pairs_are_refused_without_the_board_and_when_the_view_repeats(sta
     assert 0 < body["coverage"]["left"] < 1 and 0 < body["coverage"]["right"] < 1
     pid, first_cover = body["pair"]["id"], body["coverage"]
     folder = tmp_path / "calibration-pairs" / pid
-    assert {"raw_left.png", "raw_right.png", "rect_left.png", "meta.json"} <= {p.name for p in folder.iterdir()}
+    stored = {p.name for p in folder.iterdir()}
+    assert {"raw_left.png", "raw_right.png", "rect_left.png", "meta.json"} <= stored
     meta = json.loads((folder / "meta.json").read_text())
     assert meta["purpose"] == "calibration-pair" and meta["source"] == "virtual"
     assert np.array_equal(cv2.imread(str(folder / "raw_left.png"), cv2.IMREAD_GRAYSCALE), views[0][0])
@@ -284,7 +286,8 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
     report = cand["report"]
     assert report["pairs_used"] == 8 and report["rms"] < 0.3 and report["row_error_mean"] < 0.1
     assert cand["fits"] is True and report["rows_needed"] <= report["lb_rows"] == 80
-    assert all("id" in p for p in report["pairs"]) and cand["worst_pair"] in [p["id"] for p in report["pairs"]]
+    assert all("id" in p for p in report["pairs"])
+    assert cand["worst_pair"] in [p["id"] for p in report["pairs"]]
     for side, K in (("left", truth.K1), ("right", truth.K2)):
         assert abs(report[side]["fx"] / K[0, 0] - 1) < 0.005 and abs(report[side]["fy"] / K[1, 1] - 1) < 0.005
         assert abs(report[side]["cx"] - K[0, 2]) < 2 and abs(report[side]["cy"] - K[1, 2]) < 2
@@ -333,13 +336,14 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
                      "-o", str(tmp_path / "cli.yaml"), str(tmp_path / "calibration-pairs")])
     assert code == 0
     cli = load_calibration(tmp_path / "cli.yaml")
-    assert cli.quality["pairs_used"] == [{"name": p["id"], "rms_px": round(p["rms"], 6)} for p in report["pairs"]]
+    used = [{"name": p["id"], "rms_px": round(p["rms"], 6)} for p in report["pairs"]]
+    assert cli.quality["pairs_used"] == used
     assert np.allclose(cli.model.K1, saved.model.K1) and np.allclose(cli.model.T, saved.model.T)
 
     # Without --calibration, the next start programs what the page applied.
     overlay = make_overlay(size=FULL, fps=20.0, calibrate=False)
     try:
-        state = program_default_calibration(overlay, Config(captures=str(tmp_path / "captures")))
+        state = program_default_calibration(overlay, Settings(captures=str(tmp_path / "captures")))
         assert state.id == cand["id"] and state.calibration == saved
         cfg = overlay.fabric.rectify.read_config()
         assert (cfg.left, cfg.right) == (programmed.left, programmed.right)
@@ -351,7 +355,7 @@ async def test_a_saved_calibration_that_cannot_run_is_skipped_at_start(tmp_path,
     (tmp_path / "calibration.yaml").write_text("schema: broken\n")
     overlay = make_overlay(size=FULL, fps=20.0, calibrate=False)
     try:
-        state = program_default_calibration(overlay, Config(captures=str(tmp_path / "captures")))
+        state = program_default_calibration(overlay, Settings(captures=str(tmp_path / "captures")))
     finally:
         overlay.close()
     assert state.id is not None and state.id.startswith("synthetic-rig-")
@@ -360,8 +364,10 @@ async def test_a_saved_calibration_that_cannot_run_is_skipped_at_start(tmp_path,
 
 async def test_apply_refuses_a_candidate_the_line_buffer_cannot_hold(start_daemon, tmp_path) -> None:
     daemon = await start(start_daemon)
-    model = daemon.overlay.hw.source.model
-    wide = dataclasses.replace(model, D1=np.array([-0.45, 0.1, 0.0, 0.0]), D2=np.array([-0.45, 0.1, 0.0, 0.0]))
+    model = daemon.overlay.emulation.source.model
+    wide = dataclasses.replace(
+        model, D1=np.array([-0.45, 0.1, 0.0, 0.0]), D2=np.array([-0.45, 0.1, 0.0, 0.0])
+    )
     cal = Calibration.derive(wide, rectify(wide, alpha=1.0), alpha=1.0, source="test")
     assert cal.rows_needed > 80
     panel = daemon.app[PANEL]
@@ -375,10 +381,14 @@ async def test_apply_refuses_a_candidate_the_line_buffer_cannot_hold(start_daemo
     assert not (tmp_path / "calibration.yaml").exists()
 
 
-@pytest.mark.parametrize("method,path", [("POST", "/api/calibration/pairs"), ("DELETE", "/api/calibration/pairs"),
-                                         ("PUT", "/api/calibration/session"), ("POST", "/api/calibration/compute"),
-                                         ("POST", "/api/calibration/apply")])
-async def test_changes_from_another_origin_or_without_the_token_are_refused(start_daemon, method, path) -> None:
+@pytest.mark.parametrize("method,path", [
+    ("POST", "/api/calibration/pairs"), ("DELETE", "/api/calibration/pairs"),
+    ("PUT", "/api/calibration/session"), ("POST", "/api/calibration/compute"),
+    ("POST", "/api/calibration/apply"),
+])
+async def test_changes_from_another_origin_or_without_the_token_are_refused(
+    start_daemon, method, path
+) -> None:
     daemon = await start(start_daemon, access_token="panel-secret")
     async with daemon.http.request(method, path, json={}, headers={"Origin": "http://evil.example"}) as r:
         assert r.status == 403
@@ -411,4 +421,4 @@ async def test_state_dir_holds_the_pairs_and_the_calibration_file(start_daemon, 
     async with daemon.http.get("/api/calibration") as r:
         assert (await r.json())["file"] == str(tmp_path / "state" / "calibration.yaml")
     with pytest.raises(ValueError, match="state_dir"):
-        Config(state_dir="  ")
+        Settings(state_dir="  ")

@@ -1,4 +1,4 @@
-"""The camera sensors over HTTP (issue 5): GET/PUT /api/cameras, status, metrics, capture metadata."""
+"""The camera sensors over HTTP: GET/PUT /api/cameras, status, metrics, capture metadata."""
 from __future__ import annotations
 
 import asyncio
@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.overlays.emulated.cameras import SyntheticRig
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.http import routes_cameras
 from stereocam.server.http.app import default_extensions
 from stereocam.server.http.routes_cameras import CAMERA_SERVICE
@@ -201,7 +201,7 @@ async def test_captures_and_metrics_carry_the_values(start_daemon) -> None:
     assert 'stereocam_sensor_ok{camera="left"} 1.0' in text
 
 
-# -- a sensor that stops answering, then answers again (issue 10, item 6) --------------------------------
+# -- a sensor that stops answering, then answers again --------------------------------
 
 WAIT_S = 10.0  # generous: the daemon checks every REFRESH_S (0.25 s); 1 s / 2 s are the benchmark's
 

@@ -1,4 +1,4 @@
-"""Malformed requests get a one-line 4xx, never a 500 or a traceback in the log (issue 10, item 3)."""
+"""Malformed requests get a one-line 4xx, never a 500 or a traceback in the log."""
 from __future__ import annotations
 
 import asyncio
@@ -68,17 +68,22 @@ async def test_a_multipart_part_header_over_8_kb_is_a_400(start_daemon, tracebac
 
 async def test_authorization_that_is_not_utf8_is_a_401(start_daemon, tracebacks) -> None:
     d = await start_daemon(access_token="open-sesame")
-    status, answer = await raw_request(d.port, b"PUT /api/source HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-                                       b"Authorization: Bearer \xff\xfe\x80\r\nContent-Type: application/json\r\n"
-                                       b"Content-Length: 19\r\nConnection: close\r\n\r\n"
-                                       b'{"source": "live"}\n')
+    request = (b"PUT /api/source HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+               b"Authorization: Bearer \xff\xfe\x80\r\nContent-Type: application/json\r\n"
+               b"Content-Length: 19\r\nConnection: close\r\n\r\n"
+               b'{"source": "live"}\n')
+    status, answer = await raw_request(d.port, request)
     assert status == 401 and b"needs the access token" in answer, answer
     assert tracebacks() == []
 
 
-@pytest.mark.parametrize("line", [b"GARBAGE\r\n\r\n", b"GET /\x00\x01 HTTP/1.1\r\nHost: x\r\n\r\n",
-                                  b"GET / HTTP/9.9\r\nHost: x\r\n\r\n", b"GET / HTTP/1.1\r\nBad Header\r\n\r\n"])
-async def test_malformed_request_lines_are_a_400_and_one_log_line(start_daemon, tracebacks, caplog, line) -> None:
+@pytest.mark.parametrize("line", [
+    b"GARBAGE\r\n\r\n", b"GET /\x00\x01 HTTP/1.1\r\nHost: x\r\n\r\n",
+    b"GET / HTTP/9.9\r\nHost: x\r\n\r\n", b"GET / HTTP/1.1\r\nBad Header\r\n\r\n",
+])
+async def test_malformed_request_lines_are_a_400_and_one_log_line(
+    start_daemon, tracebacks, caplog, line
+) -> None:
     d = await start_daemon()
     status, _ = await raw_request(d.port, line)
     assert status == 400
@@ -88,16 +93,18 @@ async def test_malformed_request_lines_are_a_400_and_one_log_line(start_daemon, 
         assert r.status == 200
 
 
-async def test_a_mux_that_does_not_commit_is_a_503_and_the_daemon_carries_on(start_daemon, tracebacks) -> None:
+async def test_a_mux_that_does_not_commit_is_a_503_and_the_daemon_carries_on(
+    start_daemon, tracebacks
+) -> None:
     d = await start_daemon()
-    d.overlay.hw.mux.hang_update = True
+    d.overlay.emulation.mux.hang_update = True
     try:
         async with d.http.put("/api/source", json={"source": "live"}) as r:
             body = await r.json()
         assert r.status == 503, body
         assert body["error"].startswith("the mux did not switch to live (") and "\n" not in body["error"]
     finally:
-        d.overlay.hw.mux.hang_update = False
+        d.overlay.emulation.mux.hang_update = False
     async with d.http.put("/api/source", json={"source": "live"}) as r:
         assert r.status == 200, await r.text()
     async with d.http.get("/api/status") as r:

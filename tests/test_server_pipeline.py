@@ -12,17 +12,10 @@ import pytest
 
 from stereocam.drivers.vdma import ChannelFault
 from stereocam.overlays.model.fast import RectifyModel
-from stereocam.server.frames.encoders import (
-    BroadcastClosed,
-    EncoderKey,
-    Encoders,
-    FrameFeed,
-    Latest,
-    encoded_for,
-)
+from stereocam.server.frames.encoders import EncoderKey, Encoders, encoded_for
+from stereocam.server.frames.feed import BroadcastClosed, FrameFeed, Latest
 from stereocam.server.frames.pipeline import FrameSet, NoSignal, OnceCache, Pipeline, SourceState
 from stereocam.server.frames.views import VIEWS, ViewUnavailable, render, view_size
-from stereocam.server.http.routes_api import core_model_setup
 
 from .server_fixtures import SMALL, make_overlay
 
@@ -48,7 +41,7 @@ def stepped():
 
 
 def model_of(overlay) -> RectifyModel:
-    config, options = core_model_setup(overlay.fabric.rectify)
+    config, options = overlay.core_setup()
     return RectifyModel(config.left, config.right, config.width, config.height, options)
 
 
@@ -60,7 +53,7 @@ def frame_set(processed: np.ndarray, raw=None, n: int = 1) -> FrameSet:
 # -- pipeline -------------------------------------------------------------------------------------
 
 def test_grab_copies_a_synchronised_pair_once_per_frame(stepped) -> None:
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
     model = model_of(stepped)
     stepped.step(2)
     with pipeline.raw_wanted():
@@ -81,7 +74,7 @@ def test_grab_copies_a_synchronised_pair_once_per_frame(stepped) -> None:
 
 
 def test_drops_are_counted_from_the_frame_counter(stepped) -> None:
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
     stepped.step(2)
     a = pipeline.grab()
     stepped.step(4)
@@ -91,7 +84,7 @@ def test_drops_are_counted_from_the_frame_counter(stepped) -> None:
 
 
 def test_a_copy_that_straddles_a_frame_is_retried_then_dropped(stepped, monkeypatch) -> None:
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
     stepped.step(2)
     counter = iter(range(100, 200))
     monkeypatch.setattr(pipeline, "frame_count", lambda: next(counter))  # the fabric moves during every copy
@@ -104,7 +97,7 @@ def test_a_copy_that_straddles_a_frame_is_retried_then_dropped(stepped, monkeypa
 
 
 def test_virtual_input_is_the_raw_pair_from_its_effective_frame(stepped) -> None:
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
     stepped.step(2)
     virtual = np.zeros((H, W, 8), np.uint8)
     virtual.flags.writeable = False
@@ -122,7 +115,7 @@ def test_thread_publishes_every_frame_and_beats_without_frames() -> None:
     overlay = make_overlay(fps=30)
     published = []
     beats = []
-    pipeline = Pipeline(overlay.fabric, publish=published.append,
+    pipeline = Pipeline(overlay, publish=published.append,
                         heartbeat=lambda: beats.append(time.monotonic()), wait_s=0.05)
     overlay.start()
     try:
@@ -133,11 +126,11 @@ def test_thread_publishes_every_frame_and_beats_without_frames() -> None:
             assert numbers == sorted(set(numbers))
             # Measured rates (a busy machine lowers them: their size is not the point here).
             assert pipeline.meter.rate() > 0 and pipeline.fabric_fps() > 0
-            ticks = overlay.hw.counters.ticks
-            overlay.hw.cameras_running = False
+            ticks = overlay.emulation.counters.ticks
+            overlay.emulation.cameras_running = False
             # A tick that began after that one sees no camera frame; then the pipeline drains
             # what the fabric still holds (at most a frame or two, each followed by a beat).
-            wait_until(lambda: overlay.hw.counters.ticks > ticks + 1, "a tick without cameras")
+            wait_until(lambda: overlay.emulation.counters.ticks > ticks + 1, "a tick without cameras")
             b = len(beats)
             wait_until(lambda: len(beats) >= b + 3, "the pipeline beating after the cameras stopped")
             n, b = len(published), len(beats)
@@ -153,7 +146,7 @@ def test_thread_publishes_every_frame_and_beats_without_frames() -> None:
 
 def test_a_channel_fault_is_counted_and_left_to_fabric_health(stepped, monkeypatch) -> None:
     """The pipeline thread goes on waiting; it does not restart the channel (a hung reset would stall it)."""
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None, wait_s=0.05)
+    pipeline = Pipeline(stepped, publish=lambda fs: None, wait_s=0.05)
     s2mm = stepped.fabric.proc_vdma.s2mm
     calls = {"wait": 0, "recover": 0}
 
@@ -245,7 +238,7 @@ async def test_feed_keeps_the_newest_set_and_marks_no_signal() -> None:
 
 def test_views_are_derived_once_per_frame(stepped) -> None:
     stepped.step(2)
-    pipeline = Pipeline(stepped.fabric, publish=lambda fs: None)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
     with pipeline.raw_wanted():
         fs = pipeline.grab()
     assert fs is not None and fs.raw is not None
@@ -274,7 +267,7 @@ def test_views_are_derived_once_per_frame(stepped) -> None:
 
 def test_disparity_uses_the_papers_block_matcher(stepped) -> None:
     stepped.step(2)
-    fs = Pipeline(stepped.fabric, publish=lambda fs: None).grab()
+    fs = Pipeline(stepped, publish=lambda fs: None).grab()
     assert fs is not None
     bm = cv2.StereoBM.create(numDisparities=128, blockSize=19)
     bm.setUniquenessRatio(15)
@@ -290,7 +283,7 @@ async def test_encoders_run_only_while_subscribed_and_encode_each_frame_once() -
     feed.attach(asyncio.get_running_loop())
     overlay = make_overlay(clock="stepped")
     overlay.start()
-    pipeline = Pipeline(overlay.fabric, publish=feed.push)
+    pipeline = Pipeline(overlay, publish=feed.push)
     overlay.step(1)  # the first processed frame completes with the second tick
     timings = []
     with concurrent.futures.ThreadPoolExecutor(2) as pool:

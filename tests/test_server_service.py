@@ -113,7 +113,7 @@ def test_pipeline_heartbeat_stops_when_the_thread_is_stuck() -> None:
             time.sleep(0.01)
         return real_grab(self)
 
-    pipeline = Pipeline(overlay.fabric, publish=lambda fs: None, wait_s=0.05)
+    pipeline = Pipeline(overlay, publish=lambda fs: None, wait_s=0.05)
     pipeline.grab = grab.__get__(pipeline)  # type: ignore[method-assign]
 
     def beats_after(t: float) -> bool:
@@ -305,26 +305,26 @@ def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> Non
     from stereocam.bench.rectify import bench_calibration
     from stereocam.calibration.formats import write_opencv_pair
     from stereocam.calibration.stereo import rectify
-    from stereocam.overlays.emulated.cameras import SyntheticRig
     from stereocam.overlays.emulated.overlay import EmulatedOverlay
+    from stereocam.overlays.emulated.render import SyntheticRig
     from stereocam.overlays.spec.rectify import camera_registers
-    from stereocam.server.http.config import Config
+    from stereocam.server.http.settings import Settings
 
     from .server_fixtures import StillSource
 
     _, _, left, right = bench_calibration()
     overlay = EmulatedOverlay(source=SyntheticRig(motion=False), clock="stepped")  # not started: core idle
     try:
-        state = app_module.program_default_calibration(overlay, Config())
+        state = app_module.program_default_calibration(overlay, Settings())
         config = overlay.fabric.rectify.read_config()
         w, h = overlay.fabric.frame_size  # the same as the benchmarks' calibration, as registers
         assert (config.left, config.right) == (camera_registers(left, w, h), camera_registers(right, w, h))
         assert state.id is not None and state.id.startswith("synthetic-rig-")
         assert state.rows_needed is not None and state.lb_rows == 80 and state.rows_needed <= 80
 
-        rig_model = overlay.hw.source.model
+        rig_model = overlay.emulation.source.model
         intr, extr = write_opencv_pair(rig_model, rectify(rig_model, alpha=0.0), tmp_path)
-        from_files = app_module.program_default_calibration(overlay, Config(calibration=f"{intr},{extr}"))
+        from_files = app_module.program_default_calibration(overlay, Settings(calibration=f"{intr},{extr}"))
         assert from_files.id is not None and from_files.id.startswith("opencv-")
         assert str(intr) in from_files.description
         loaded = overlay.fabric.rectify.read_config()
@@ -336,7 +336,7 @@ def test_default_calibration_is_the_rigs_and_files_are_accepted(tmp_path) -> Non
     source.model = None  # a replayed recording: no known calibration
     overlay = EmulatedOverlay(source=source, clock="stepped")
     try:
-        state = app_module.program_default_calibration(overlay, Config())
+        state = app_module.program_default_calibration(overlay, Settings())
         assert state.id is None and "passes frames through" in state.description
     finally:
         overlay.close()

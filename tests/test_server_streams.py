@@ -225,7 +225,7 @@ async def test_no_signal_frame_within_a_second_and_recovery(start_daemon) -> Non
         await read_parts(resp, 2)
         async with d.http.get("/healthz") as health:
             assert health.status == 200 and (await health.text()).strip() == "ok"
-        d.overlay.hw.cameras_running = False
+        d.overlay.emulation.cameras_running = False
         t0 = time.monotonic()
         while True:
             headers, body = (await read_parts(resp, 1))[0]
@@ -240,7 +240,7 @@ async def test_no_signal_frame_within_a_second_and_recovery(start_daemon) -> Non
         async with d.http.get("/snapshot/rect_left.jpg") as snap:
             assert snap.status == 503 and "no signal" in (await snap.json())["error"]
         assert d.app[FEED].signal is False
-        d.overlay.hw.cameras_running = True
+        d.overlay.emulation.cameras_running = True
         deadline = time.monotonic() + WAIT_S
         while True:
             headers, _ = (await read_parts(resp, 1))[0]
@@ -412,7 +412,7 @@ async def test_streams_end_and_the_daemon_stops_within_two_seconds(start_daemon)
 
 async def test_a_slow_reader_gets_the_newest_frame_not_one_that_waited_in_buffers(start_daemon) -> None:
     """One part read every 0.5 s from a 25 fps stream: each part is the frame that was newest when the
-    client last made room, about 0.5 s old, not one from seconds ago (issue 10, item 7)."""
+    client last made room, about 0.5 s old, not one from seconds ago."""
     d = await start_daemon()
     await wait_for_frames(d, 2)
     sock = socket.socket()

@@ -1,4 +1,4 @@
-"""SIGTERM while a ``PUT /api/calibration`` is being worked on (issue 10, item 8).
+"""SIGTERM while a ``PUT /api/calibration`` is being worked on.
 
 ``server/API.md``, ``server/http/app.py`` and ``board/stereocam.service`` promise: SIGTERM stops the
 streams and the VDMA channels and returns the mux to live within 2 s. A valid calibration file
@@ -23,7 +23,7 @@ import pytest
 from stereocam.bench.serve import wait_healthy
 from stereocam.calibration.file import MAX_FILE_CHARS, Calibration, load_calibration
 from stereocam.calibration.stereo import rectify
-from stereocam.overlays.emulated.cameras import SyntheticRig
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.http import routes_calibration
 from stereocam.server.http.routes_calibration import ACTIVE, previous_path
 from stereocam.server.http.state import Executors
@@ -180,7 +180,7 @@ async def test_abandon_stops_a_busy_check_and_cancels_its_await() -> None:
 
 async def test_stopping_lets_a_calibration_being_written_finish(start_daemon, tmp_path, monkeypatch) -> None:
     daemon = await start_daemon(extensions=(routes_calibration.setup,))
-    model = daemon.overlay.hw.source.model
+    model = daemon.overlay.emulation.source.model
     old, new = rig_calibration(0.0, model), rig_calibration(0.6, model)
     saved = tmp_path / "calibration.yaml"  # <captures>/../calibration.yaml
     async with daemon.http.put("/api/calibration", data=old.to_yaml(), headers=YAML) as r:
@@ -214,7 +214,7 @@ async def test_put_refuses_a_file_the_next_start_could_not_read(start_daemon, tm
     """The file is written as :meth:`Calibration.to_yaml` lays it out: a compact quality section
     grows, and past the size limit the next start would refuse the file (and start without it)."""
     daemon = await start_daemon(extensions=(routes_calibration.setup,))
-    head = rig_calibration(0.3, daemon.overlay.hw.source.model).to_yaml()
+    head = rig_calibration(0.3, daemon.overlay.emulation.source.model).to_yaml()
     text = head + "quality:\n  x: [" + ",".join(["0"] * ((MAX_FILE_CHARS - len(head) - 20) // 2)) + "]\n"
     assert len(text) <= MAX_FILE_CHARS
     async with daemon.http.put("/api/calibration", data=text, headers=YAML) as r:

@@ -1,4 +1,5 @@
-"""overlays/RECTIFY_CORE.md, overlays/spec/rectify.py and overlays/rtl/rectify_spec.vh describe the same core."""
+"""overlays/RECTIFY_CORE.md, overlays/spec/rectify.py and overlays/rtl/rectify_spec.vh describe the
+same core."""
 from __future__ import annotations
 
 import re

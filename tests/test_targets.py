@@ -12,9 +12,10 @@ import pytest
 from stereocam.board.profile import load_profile
 from stereocam.calibration.calibrate import ImagePair, Pattern, calibrate_pairs, detect_corners
 from stereocam.calibration.stereo import StereoModel
-from stereocam.drivers.mt9v034 import StereoSensors
-from stereocam.overlays.emulated.cameras import CameraSource, SourceClosedError, SyntheticRig, rig_model
-from stereocam.overlays.emulated.fabric import EmulatedFabric
+from stereocam.overlays.emulated.cameras import CameraSource, SourceClosedError
+from stereocam.overlays.emulated.lens import rig_model
+from stereocam.overlays.emulated.logic import EmulatedFabric
+from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.overlays.emulated.sensors import EmulatedSensorPair
 from stereocam.overlays.emulated.targets import (
     CheckerboardTarget,
@@ -152,7 +153,7 @@ def test_the_emulated_sensors_drive_the_target() -> None:
     profile = load_profile()
     target = CheckerboardTarget(SyntheticRig(size=(188, 120)), hold_s=0.1)
     pair = EmulatedSensorPair.for_profile(profile, target)
-    sensors = StereoSensors.from_profile(profile, pair.bus)
+    sensors = profile.stereo_sensors(pair.bus)
     assert sensors.start()["ok"]
     fabric = EmulatedFabric(source=target, clock="stepped", sensors=pair, fps=60.0, ddr_size=16 << 20)
     try:

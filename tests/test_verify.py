@@ -29,7 +29,7 @@ def test_identical_frames() -> None:
     js = report.to_json()
     assert json.loads(json.dumps(js, allow_nan=False)) == js
     assert js["identical"] is True and js["psnr_db"] is None and js["differing"] == 0
-    assert js["channels"]["R_Y"] == {"differing": 0, "share": 0.0, "max_difference": 0, "psnr_db": None}
+    assert js["channels"]["R_Y"] == {"differing": 0, "share": 0.0, "max_diff": 0, "psnr_db": None}
     assert js["cameras"]["left"]["psnr_db"] is None
     image = difference_image(a, a.copy())
     assert image.shape == (H, 2 * W, 3) and image.dtype == np.uint8 and not image.any()
@@ -51,14 +51,14 @@ def test_differences_are_counted_per_channel_camera_and_overall() -> None:
     n = W * H
     ch = report.channels
     assert ch["L_R"].differing == 3 and ch["L_R"].share == pytest.approx(3 / n)
-    assert ch["L_R"].max_difference == int(d[..., 0].max())
-    assert ch["L_G"].differing == 1 and ch["L_B"].differing == 1 and ch["L_B"].max_difference == 2
-    assert ch["R_Y"].differing == 1 and ch["R_Y"].max_difference == int(d[10, 20, 7])
+    assert ch["L_R"].max_diff == int(d[..., 0].max())
+    assert ch["L_G"].differing == 1 and ch["L_B"].differing == 1 and ch["L_B"].max_diff == 2
+    assert ch["R_Y"].differing == 1 and ch["R_Y"].max_diff == int(d[10, 20, 7])
     assert ch["L_Y"] == ChannelStats(0, 0.0, 0, None) and ch["R_R"].psnr_db is None
     assert report.cameras["left"].differing == 4  # (0,0) (2,3) (29,39) (7,5)
     assert report.cameras["right"].differing == 1
     assert report.overall.differing == 5 and report.overall.share == pytest.approx(5 / n)
-    assert report.overall.max_difference == int(d.max())
+    assert report.overall.max_diff == int(d.max())
 
     def psnr(sq: np.ndarray) -> float:
         return 10 * math.log10(255**2 / sq.mean())
@@ -185,5 +185,5 @@ def test_full_size_frame_is_fast_enough() -> None:
     b[::7, ::5, 2] ^= 1
     report = compare(a, b)
     assert report.channels["L_B"].differing == len(range(0, 480, 7)) * len(range(0, 752, 5))
-    assert report.channels["L_B"].max_difference == 1 and report.overall.max_difference == 1
+    assert report.channels["L_B"].max_diff == 1 and report.overall.max_diff == 1
     assert difference_image(a, b).shape == (480, 1504, 3)

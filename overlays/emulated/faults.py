@@ -25,7 +25,12 @@ import itertools
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional, Tuple
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, Tuple
+
+from ..interface import FaultError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .logic import EmulatedFabric
 
 __all__ = ["KINDS", "CHANNELS", "Fault", "FaultInjector", "FaultError"]
 
@@ -44,10 +49,6 @@ KINDS: Dict[str, Optional[Tuple[str, ...]]] = {
     "sensor_silent": SENSORS,
     "mux_refuse": None,
 }
-
-
-class FaultError(ValueError):
-    """A fault that cannot be injected (unknown kind or target, or one on that part already)."""
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,14 @@ class Fault:
 
 
 class FaultInjector:
-    """Injects and ends faults on an :class:`~.fabric.EmulatedFabric` (its sensors, once attached)."""
+    """Injects and ends faults on an :class:`~.fabric.EmulatedFabric` (its sensors, once attached).
 
-    def __init__(self, fabric: Any) -> None:
+    The emulated overlay's :attr:`~..interface.Overlay.fault_injection`.
+    """
+
+    kinds = KINDS
+
+    def __init__(self, fabric: EmulatedFabric) -> None:
         self.fabric = fabric
         self._lock = threading.Lock()
         self._ids = itertools.count(1)

@@ -13,7 +13,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from ..model.config import ConfigError, check_frame_size
+from ..model.core_params import CoreParamsError, check_frame_size
 from ..model.fast import RectifyModel
 from ..model.frames import fit_frame, padded
 from ..model.result import CoreOptions
@@ -32,7 +32,7 @@ from .regblock import RegisterBlock
 
 
 class EmulatedRectifyCore(RegisterBlock):
-    """The core as built with ``max_width`` x ``max_height``, ``lb_rows`` rows and a colour or gray datapath."""
+    """The core as built: ``max_width`` x ``max_height``, ``lb_rows`` rows, a colour or gray datapath."""
 
     def __init__(
         self, *, max_width: int = DEFAULT_BUILD.max_width, max_height: int = DEFAULT_BUILD.max_height,
@@ -73,11 +73,13 @@ class EmulatedRectifyCore(RegisterBlock):
         """The parameter set software has written, whether or not applied."""
         cams = {}
         for cam in CAMERAS:
-            values = {n: words_to_i64(self.get(f"{cam}_{n}_LO"), self.get(f"{cam}_{n}_HI")) for n in PARAM_NAMES}
+            values = {n: words_to_i64(self.get(f"{cam}_{n}_LO"), self.get(f"{cam}_{n}_HI"))
+                      for n in PARAM_NAMES}
             cams[cam] = CameraRegs.from_values(values)
         return CoreConfig(
             cams["L"], cams["R"],
-            self.get_field("WIDTH", "VALUE"), self.get_field("HEIGHT", "VALUE"), self.get_field("LB_DELAY", "VALUE"),
+            self.get_field("WIDTH", "VALUE"), self.get_field("HEIGHT", "VALUE"),
+            self.get_field("LB_DELAY", "VALUE"),
         )
 
     def _latch(self) -> None:
@@ -86,10 +88,10 @@ class EmulatedRectifyCore(RegisterBlock):
         try:
             check_frame_size(cfg.width, cfg.height, self.max_width, self.max_height)
             if cfg.left.problems() or cfg.right.problems():
-                raise ConfigError("a parameter is outside its register's range")
+                raise CoreParamsError("a parameter is outside its register's range")
             if cfg.lb_delay >= self.max_height:
-                raise ConfigError("LB_DELAY beyond the frame")
-        except ConfigError:
+                raise CoreParamsError("LB_DELAY beyond the frame")
+        except CoreParamsError:
             self.raise_bits("FLAGS", RECTIFY_MAP["FLAGS"].bit("CONFIG_ERROR"))
         else:
             self.active = cfg
@@ -144,7 +146,8 @@ class EmulatedRectifyCore(RegisterBlock):
                 self._latch()
         return result.frame
 
-    def _model(self, cfg: Optional[CoreConfig], width: int, height: int, options: CoreOptions) -> RectifyModel:
+    def _model(self, cfg: Optional[CoreConfig], width: int, height: int,
+               options: CoreOptions) -> RectifyModel:
         key = (cfg, width, height, options)
         model = self._models.get(key)
         if model is None:

@@ -3,14 +3,14 @@
 The daemon's calibration panel needs cameras that see a checkerboard in
 many poses, with a known true calibration to compare the result with.
 :class:`CheckerboardTarget` is that camera source: the
-:class:`.cameras.SyntheticRig`'s scene with a printed board held still in
+:class:`.render.SyntheticRig`'s scene with a printed board held still in
 front of it, moved to a new random pose every ``hold_s`` seconds.
 
 :func:`board_image` is the printed board, :func:`random_board_poses` the
 poses (random tilt, 0.35 to 0.7 m away, anywhere in the image, the whole
 print inside both images); the tests' synthetic calibration views use both.
 
-Board coordinates (what :meth:`.cameras.SyntheticRig.render_plane_views`
+Board coordinates (what :meth:`.render.SyntheticRig.render_plane_views`
 takes): metres, x along the print's columns, y along its rows, z = 0 on the
 print, origin at the print's outer top-left corner. The print is a
 ``cols`` x ``rows`` inner-corner checkerboard with a one-square white
@@ -29,7 +29,8 @@ import numpy as np
 
 from ...calibration.stereo import StereoModel
 from ..spec.pixel import pack
-from .cameras import SourceClosedError, SyntheticRig
+from .cameras import SourceClosedError
+from .render import SyntheticRig
 
 __all__ = [
     "CheckerboardTarget",
@@ -159,7 +160,7 @@ class CheckerboardTarget:
     """The synthetic rig's cameras watching a person hold a checkerboard up to them, pose after pose.
 
     A :class:`.cameras.CameraSource`: each frame is ``rig``'s scene (the
-    default :class:`.cameras.SyntheticRig`) as background with a printed
+    default :class:`.render.SyntheticRig`) as background with a printed
     ``pattern`` = (cols, rows) inner-corner board of ``square``-metre
     squares in front, gray (R = G = B = Y). The board holds still for
     ``hold_s`` seconds of the frame clock's ``t``, then jumps to the next
@@ -168,7 +169,7 @@ class CheckerboardTarget:
     of the hold. :attr:`model` is the rig's true calibration, which a
     calibration from these frames must give back.
 
-    Each pose is rendered once (:meth:`.cameras.SyntheticRig.render_plane_views`,
+    Each pose is rendered once (:meth:`.render.SyntheticRig.render_plane_views`,
     ``supersample`` x ``supersample`` samples a pixel) and cached with the
     sensor settings, so steady frames cost a copy (~1 ms at 752 x 480).
     Rendering a pose at 752 x 480 takes ~120 ms with ``supersample=2``
@@ -293,7 +294,7 @@ class CheckerboardTarget:
         self, camera: int, *, gain: float = 1.0, exposure_scale: float = 1.0, flip_h: bool = False,
         flip_v: bool = False, test_pattern: Optional[np.ndarray] = None, noise: Optional[float] = None,
     ) -> None:
-        """Set camera ``camera``'s sensor stage: :meth:`.cameras.SyntheticRig.set_sensor`."""
+        """Set camera ``camera``'s sensor stage: :meth:`.render.SyntheticRig.set_sensor`."""
         with self._lock:
             self._rig.set_sensor(camera, gain=gain, exposure_scale=exposure_scale, flip_h=flip_h,
                                  flip_v=flip_v, test_pattern=test_pattern, noise=noise)

@@ -118,14 +118,16 @@ class _CameraPlan:
             weights = ((FRAC_ONE - fu) * (FRAC_ONE - fv), fu * (FRAC_ONE - fv), (FRAC_ONE - fu) * fv, fu * fv)
             f_first, f_last = first[fy, 0], last[fy, 0]
             self.fix_taps = []
-            for (dx, dy), w in zip(NEIGHBOURS, weights):
+            for (dx, dy), w in zip(NEIGHBOURS, weights, strict=True):
                 xs, ys = (iu >> FRAC_BITS) + dx, (iv >> FRAC_BITS) + dy
                 ok = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height) & (ys >= f_first) & (ys <= f_last)
                 self.fix_taps.append((np.where(ok, ys, 0), np.where(ok, xs, 0), np.where(ok, w, 0)))
 
     def run(self, src: np.ndarray) -> np.ndarray:
         """Rectify one camera's contiguous ``(H, W, C)`` or ``(H, W)`` image."""
-        out = cv2.remap(src, self.map1, self.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        out = cv2.remap(
+            src, self.map1, self.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        )
         if out.ndim == 2 and src.ndim == 3:
             out = out[..., None]
         if self.overflow:
@@ -153,7 +155,10 @@ class RectifyModel:
         self.options = options
         self.plans: Dict[int, _CameraPlan] = {}
         if not options.bypass:
-            self.plans = {0: _CameraPlan(left, width, height, options), 1: _CameraPlan(right, width, height, options)}
+            self.plans = {
+                0: _CameraPlan(left, width, height, options),
+                1: _CameraPlan(right, width, height, options),
+            }
 
     @property
     def lb_overflow(self) -> bool:
@@ -174,7 +179,9 @@ class RectifyModel:
         src[..., 3] = gray_of(src[..., :3])
         return src
 
-    def process(self, frame: np.ndarray, out: Optional[np.ndarray] = None, *, rows: Optional[int] = None) -> ModelResult:
+    def process(
+        self, frame: np.ndarray, out: Optional[np.ndarray] = None, *, rows: Optional[int] = None
+    ) -> ModelResult:
         """Run one ``(H, W, 8)`` frame.
 
         ``rows`` (the malformed-input rule, :mod:`.frames`): only the first
@@ -183,7 +190,9 @@ class RectifyModel:
         """
         h, w = self.height, self.width
         if frame.shape != (h, w, 8) or frame.dtype != np.uint8:
-            raise ValueError(f"the model is set up for ({h}, {w}, 8) uint8 frames, got {frame.shape} {frame.dtype}")
+            raise ValueError(
+                f"the model is set up for ({h}, {w}, 8) uint8 frames, got {frame.shape} {frame.dtype}"
+            )
         if out is None:
             out = np.empty_like(frame)
         overflow = self.lb_overflow

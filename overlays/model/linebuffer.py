@@ -35,7 +35,7 @@ def rows_needed(
     """
     smaps = list(maps) if maps is not None else [SourceMap.compute(p, width, height) for p in cameras]
     y = np.arange(height, dtype=np.int64)
-    los, his = zip(*(m.neighbour_rows_needed(width, height) for m in smaps))
+    los, his = zip(*(m.neighbour_rows_needed(width, height) for m in smaps), strict=True)
     lo = np.minimum.reduce(los)
     hi = np.maximum.reduce(his)
     used = hi >= 0

@@ -10,7 +10,7 @@ switch. This module imports ``pynq.lib`` (where those are defined) before
 defining its classes, so in a process that imports it, ours are the ones
 pynq picks, for every overlay of that process: load pynq's base overlay
 (whose HDMI hierarchy needs ``AxiVDMA``) in another process.
-:class:`~.pynq_overlay.StereocamOverlay` does not depend on that order: it
+:class:`~.overlay.StereocamOverlay` does not depend on that order: it
 binds these classes to its instances by name.
 
 Each class *is* our driver (a subclass of it) on the ``pynq.MMIO`` that
@@ -35,10 +35,10 @@ from ...drivers.mmio import Allocator, DriverError, RegisterWindow, UnsupportedI
 from ...drivers.rectify import RectifyCore
 from ...drivers.switch import AxisSwitch
 from ...drivers.vdma import VDMA
-from ..emulated.pynq_device import import_pynq
 from ..spec.axis_switch import NUM_INPUTS
 from ..spec.overlay import SWITCH_VLNVS, VDMA_VLNVS
 from ..spec.rectify import VLNV as RECTIFY_VLNV
+from . import import_pynq
 
 __all__ = ["BusGuard", "FabricLost", "GuardedWindow", "PynqAxisSwitch", "PynqRectifyCore", "PynqVDMA",
            "pynq_allocator"]
@@ -119,7 +119,8 @@ class PynqRectifyCore(RectifyCore, DefaultIP):
         name = description.get("fullpath", "rectify")
         reported: Dict[str, int] = {"MAX_WIDTH": self.max_width, "MAX_HEIGHT": self.max_height,
                                     "LB_ROWS": self.lb_rows, "COLOUR": int(self.colour)}
-        wrong = [f"{param}={hwh} in the .hwh but {reg} in the core's register" for param, reg in reported.items()
+        wrong = [f"{param}={hwh} in the .hwh but {reg} in the core's register"
+                 for param, reg in reported.items()
                  if (hwh := _parameter(description, param)) is not None and hwh != reg]
         if wrong:
             raise UnsupportedIP(

@@ -4,12 +4,12 @@ Reprogramming the PL under the running daemon ends its streams mid-transfer and 
 the AXI bus on its next register access. pynq offers no hook for that, but every
 ``pynq.Overlay(...)`` imports the modules registered under the ``pynq.lib`` entry-point
 group before it downloads anything (``Overlay._register_drivers``); stereocam registers this
-module there (``setup.py``). Imported, it wraps ``EmbeddedDevice.download`` so that, while
-another process holds the fabric lock (:mod:`.fabric_lock`), a download raises
-:class:`~.fabric_lock.FabricBusy` naming the daemon and how to stop it. The daemon's own
-download (it holds the lock) goes through.
+module there (pyproject.toml's entry points). Imported, it wraps ``EmbeddedDevice.download``
+so that, while another process holds the fabric lock (:mod:`.lock`), a download raises
+:class:`~.lock.FabricBusy` naming the daemon and how to stop it. The daemon's own download
+(it holds the lock) goes through.
 
-It imports no driver: binding our drivers to pynq's VLNVs (:mod:`.pynq_drivers`) stays
+It imports no driver: binding our drivers to pynq's VLNVs (:mod:`.drivers`) stays
 opt-in, so a notebook's base overlay keeps pynq's own VDMA driver. A process that calls
 ``Bitstream(...).download()`` without ever making an ``Overlay`` is not covered.
 """

@@ -1,7 +1,7 @@
 """Who owns the fabric: an exclusive ``flock`` that says who holds it. No pynq import.
 
-The daemon's overlay (:mod:`.pynq_overlay`) takes it before pynq reads or programs
-anything; :mod:`.pynq_guard`, imported by pynq into every process that makes an
+The daemon's overlay (:mod:`.overlay`) takes it before pynq reads or programs
+anything; :mod:`.guard`, imported by pynq into every process that makes an
 ``Overlay``, asks it before any bitstream download, so a notebook cannot reprogram the
 fabric under a running daemon.
 """
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import IO, Any, Dict, Optional
 
-from ..backend import BackendError
+from ..interface import BackendError
 
 __all__ = ["FabricBusy", "FabricLock", "LOCK_ENV", "DEFAULT_LOCK", "held_by_another_process"]
 
@@ -55,8 +55,8 @@ class FabricLock:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fh = open(self.path, "a+", encoding="utf-8")  # not "w": the holder's record must survive
         except OSError as exc:
-            raise BackendError(f"cannot open the fabric lock {self.path}: {exc.strerror}; run as root (pynq needs "
-                               f"it) or set {LOCK_ENV} to a writable path") from None
+            raise BackendError(f"cannot open the fabric lock {self.path}: {exc.strerror}; run as root "
+                               f"(pynq needs it) or set {LOCK_ENV} to a writable path") from None
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -93,7 +93,8 @@ class FabricLock:
         cmd = cmd if len(cmd) <= 100 else cmd[:97] + "..."
         since = who.get("since", "an unknown time")
         if who.get("service"):
-            holder, hint = f"the stereocam service (pid {pid}: `{cmd}`)", "stop it with `systemctl stop stereocam`"
+            holder = f"the stereocam service (pid {pid}: `{cmd}`)"
+            hint = "stop it with `systemctl stop stereocam`"
         else:
             holder, hint = f"`{cmd}` (pid {pid})", f"close its overlay or end process {pid}"
         return f"the fabric is in use by {holder} since {since}: {hint} first (lock: {self.path})"

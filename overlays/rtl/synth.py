@@ -1,6 +1,6 @@
 """``stereocam hw synth``: the rectify core's resources from yosys, beside the paper's Table 1.
 
-No open tool here can place and route a Zynq design (see ``shared/CORE2.md``), so
+No open tool here can place and route a Zynq design (Vivado alone can), so
 the only resource figure we can get for the RTL in ``overlays/rtl/`` is yosys 0.23
 ``synth_xilinx -family xc7``. Its counts run above Vivado's (no place and route: no
 LUT packing, no cross-boundary optimisation, no retiming), so a build within the
@@ -435,7 +435,8 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
         description=f"Run yosys synth_xilinx -family xc7 on every *.v in overlays/rtl/ (top {TOP}) with the "
                     f"build's parameters, and print its LUT, LUTRAM, FF, BRAM36 and DSP48E1 beside the "
                     f"paper's Table 1, the build's floor and the {DEVICE}'s totals. Results are cached in "
-                    f"~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, 2 on a tool or input error.")
+                    f"~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
+                    f"2 on a tool or input error.")
     s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
                    help="which build's parameters (default gray)")
     s.add_argument("--json", action="store_true", help="print one JSON object on stdout")

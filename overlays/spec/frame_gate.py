@@ -10,7 +10,7 @@ when every output takes it, so one consumer that stops (the mux routing the virt
 channel that is not running, the core holding its input) would stall the other and the cameras.
 One gate on each broadcaster output never holds TREADY low, so the broadcaster and ``camera_in``
 never wait; each branch gets whole frames when it keeps up and loses whole frames when it does
-not, as on the emulated fabric (``overlays/emulated/fabric.py``: ``tick``), where the raw path
+not, as on the emulated fabric (``overlays/emulated/logic.py``: ``tick``), where the raw path
 runs whatever the mux selects.
 
 Ports (one clock, ``aclk``; ``aresetn`` active low, synchronous):

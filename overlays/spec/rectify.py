@@ -162,7 +162,8 @@ RECTIFY_MAP = RegisterMap(
             fields=(Field("MINOR", 0, 16), Field("MAJOR", 16, 16)),
         ),
         Register("MAX_WIDTH", 0x008, Access.RO, DEFAULT_MAX_WIDTH, doc="widest frame the line buffer holds"),
-        Register("MAX_HEIGHT", 0x00C, Access.RO, DEFAULT_MAX_HEIGHT, doc="tallest frame the row counters reach"),
+        Register("MAX_HEIGHT", 0x00C, Access.RO, DEFAULT_MAX_HEIGHT,
+                 doc="tallest frame the row counters reach"),
         Register("LB_ROWS", 0x010, Access.RO, DEFAULT_LB_ROWS, doc="input rows an output row may read"),
         Register("CAPS", 0x014, Access.RO, int(DEFAULT_BUILD.colour),
                  fields=(Field("COLOUR", 0, doc="R, G, B rectified too"),)),
@@ -173,7 +174,8 @@ RECTIFY_MAP = RegisterMap(
                 Field("BYPASS", 1, doc="output = input, no rectification"),
                 Field("GRAY", 2, doc="R, G, B outputs carry the rectified gray value"),
                 Field("DEBUG_LINE", 3, doc="draw output row DEBUG_ROW white on both cameras"),
-                Field("APPLY", 4, access=Access.SC, doc="latch the shadow parameters at the next frame start"),
+                Field("APPLY", 4, access=Access.SC,
+                      doc="latch the shadow parameters at the next frame start"),
             ),
         ),
         Register(
@@ -188,7 +190,8 @@ RECTIFY_MAP = RegisterMap(
             fields=(
                 Field("LB_OVERFLOW", 0, doc="an output pixel needed a row outside the line buffer"),
                 Field("SIZE_ERROR", 1, doc="an input frame did not match WIDTH x HEIGHT"),
-                Field("CONFIG_ERROR", 2, doc="APPLY refused: a parameter out of range or WIDTH/HEIGHT/LB_DELAY invalid"),
+                Field("CONFIG_ERROR", 2,
+                      doc="APPLY refused: a parameter out of range or WIDTH/HEIGHT/LB_DELAY invalid"),
             ),
         ),
         Register("FRAME_COUNT", 0x02C, Access.RO, 0, doc="output frames completed, wraps at 2**32"),
@@ -238,11 +241,12 @@ class CameraParams:
     p2: float
 
     def lens(self) -> Dict[str, float]:
-        return dict(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy, K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
+        return dict(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy,
+                    K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
 
     def values(self) -> Dict[str, float]:
         """``H00``..``H22`` then the lens values, by name (what calibration files store)."""
-        out = {n: float(v) for n, v in zip(HINV_NAMES, self.hinv)}
+        out = {n: float(v) for n, v in zip(HINV_NAMES, self.hinv, strict=True)}
         out.update(self.lens())
         return out
 
@@ -270,8 +274,9 @@ class CameraRegs:
     p2: int
 
     def values(self) -> Dict[str, int]:
-        out = {name: int(v) for name, v in zip(N_NAMES, self.n)}
-        out.update(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy, K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
+        out = {name: int(v) for name, v in zip(N_NAMES, self.n, strict=True)}
+        out.update(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy,
+                   K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
         return out
 
     @classmethod

@@ -170,7 +170,8 @@ class RegisterMap(Generic[R]):
             if r.name in self._by_name:
                 raise ValueError(f"{name}: register {r.name} defined twice")
             if r.offset in self._by_offset:
-                raise ValueError(f"{name}: offset {r.offset:#x} used by {self._by_offset[r.offset].name} and {r.name}")
+                other = self._by_offset[r.offset].name
+                raise ValueError(f"{name}: offset {r.offset:#x} used by {other} and {r.name}")
             if r.offset >= size:
                 raise ValueError(f"{name}: {r.name} at {r.offset:#x} lies outside the {size:#x}-byte window")
             self._by_name[r.name] = r

@@ -39,7 +39,7 @@ from ...calibration.calibrate import (
 from ...overlays.model.fast import RectifyModel
 from ...overlays.model.result import CoreOptions
 from ...overlays.spec import pixel
-from .captures import CaptureInfo, CaptureStore
+from .captures import CAPTURE_FILES, CaptureInfo, CaptureStore
 from .errors import ApiError
 
 log = logging.getLogger(__name__)
@@ -107,14 +107,14 @@ class PanelSettings:
             value = doc["square_mm"]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or not MIN_SQUARE_MM <= value <= MAX_SQUARE_MM:
-                raise PanelError(f"square_mm is the side of one square in millimetres, from {MIN_SQUARE_MM:g} to "
-                                 f"{MAX_SQUARE_MM:g}; got {value!r}", status=400)
+                raise PanelError(f"square_mm is the side of one square in millimetres, from "
+                                 f"{MIN_SQUARE_MM:g} to {MAX_SQUARE_MM:g}; got {value!r}", status=400)
             square = float(value) / 1000.0
         if "alpha" in doc:
             value = doc["alpha"]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
-                raise PanelError(f"alpha is from 0 (only valid pixels) to 1 (every source pixel); got {value!r}",
-                                 status=400)
+                raise PanelError(f"alpha is from 0 (only valid pixels) to 1 (every source pixel); "
+                                 f"got {value!r}", status=400)
             alpha = float(value)
         return PanelSettings(Pattern(cols, rows, square), alpha)
 
@@ -165,7 +165,8 @@ def detect_frame(raw: np.ndarray, pattern: Pattern, *, thorough: bool) -> Dict[s
     slower detector (pair capture); the live preview leaves it out.
     """
     t0 = time.perf_counter()
-    left = detect_corners(np.ascontiguousarray(raw[..., pixel.LEFT][..., pixel.Y]), pattern, thorough=thorough)
+    left = detect_corners(np.ascontiguousarray(raw[..., pixel.LEFT][..., pixel.Y]), pattern,
+                          thorough=thorough)
     right = detect_corners(np.ascontiguousarray(raw[..., pixel.RIGHT][..., pixel.Y]), pattern,
                            thorough=thorough)
     if left is not None and right is not None and float(np.dot(left[-1] - left[0], right[-1] - right[0])) < 0:
@@ -269,7 +270,7 @@ def compute(store: CaptureStore, ids: Sequence[str], settings: PanelSettings, re
     :class:`PanelError` (422) with the calibrator's message when it cannot
     calibrate (too few pairs showing the pattern, divergence, registers).
     """
-    pairs = [ImagePair(i, store.root / i / "raw_left.png", store.root / i / "raw_right.png") for i in ids]
+    pairs = [ImagePair(i, store.root / i / CAPTURE_FILES[0], store.root / i / CAPTURE_FILES[1]) for i in ids]
     if len(pairs) < min_pairs:
         raise PanelError(f"{len(pairs)} pairs are stored and at least {min_pairs} are needed: capture more "
                          "pairs, moving and tilting the board between them")
@@ -281,7 +282,7 @@ def compute(store: CaptureStore, ids: Sequence[str], settings: PanelSettings, re
             progress=progress, **limits,
             source=f"stereocam serve calibration panel: {len(pairs)} pairs, pattern {settings.pattern}, "
                    f"squares {settings.pattern.square * 1000:g} mm, alpha {settings.alpha:g}")
-    except ValueError as exc:  # CalibrationError, NotEnoughPairs, ConfigError: all say what to do
+    except ValueError as exc:  # CalibrationError, NotEnoughPairs, CoreParamsError: all say what to do
         raise PanelError(str(exc)) from None
     return report
 

@@ -7,8 +7,9 @@ A capture is a folder ``<root>/<id>/`` holding
     meta.json                       what the caller passed, plus id, created, images, files
 
 and, only where needed, ``<frame>_y.png`` (see "Pixels" below). The names of
-the raw pair are the ones :class:`..overlays.emulated.cameras.ReplaySource`
-reads, so a capture folder (or the whole store) replays as a live source.
+the raw pair are the ones the emulated cameras' replay and the calibration
+read (:mod:`..calibration.image_files` names them), so a capture folder (or
+the whole store) replays as a live source.
 
 Pixels. A frame is an ``(H, W, 4)`` RGBY view of the stream (or ``(H, W, 3)``
 RGB, or ``(H, W)`` gray) and is stored losslessly as PNG:
@@ -70,6 +71,7 @@ from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, T
 import cv2
 import numpy as np
 
+from ...calibration.image_files import CAPTURE_FILES, RAW_FRAMES, capture_file
 from ...overlays.spec import pixel
 from .errors import ApiError
 
@@ -83,7 +85,10 @@ __all__ = [
     "CaptureDiskFull",
     "CaptureDamaged",
     "CaptureConflict",
+    "CAPTURE_FILES",
     "FRAME_NAMES",
+    "THUMB_FRAMES",
+    "capture_file",
     "META_FILE",
     "ID_PATTERN",
     "DEFAULT_MIN_FREE_BYTES",
@@ -92,7 +97,8 @@ __all__ = [
     "THUMB_WIDTH",
 ]
 
-FRAME_NAMES = ("raw_left", "raw_right", "rect_left", "rect_right")
+FRAME_NAMES = RAW_FRAMES + ("rect_left", "rect_right")
+THUMB_FRAMES = ("rect_left", "raw_left")  # what a thumbnail shows: the first of these that can be read
 META_FILE = "meta.json"
 FORMAT = "stereocam-capture/1"
 ID_PATTERN = r"[0-9]{8}T[0-9]{6}Z-[0-9]{6,10}-[0-9a-f]{4}"
@@ -338,18 +344,49 @@ def _encode_frame(name: str, frame: Any) -> Tuple[Dict[str, Any], List[Tuple[str
     if h == 0 or w == 0:
         raise ValueError(f"frame {name} is empty: {a.shape}")
     r, g, b, y = (a[..., i] for i in range(4))
-    entry: Dict[str, Any] = {"file": f"{name}.png", "width": int(w), "height": int(h)}
+    file, y_file = capture_file(name), capture_file(name, y_plane=True)
+    entry: Dict[str, Any] = {"file": file, "width": int(w), "height": int(h)}
     if np.array_equal(r, g) and np.array_equal(r, b) and np.array_equal(r, y):
         entry.update(color="gray", y_file=None)
-        return entry, [(f"{name}.png", _png(name, r))]
+        return entry, [(file, _png(name, r))]
     rgb = a[..., :3]
-    files = [(f"{name}.png", _png(name, rgb))]
+    files = [(file, _png(name, rgb))]
     if np.array_equal(y, pixel.gray_of(rgb)):
         entry.update(color="rgb", y_file=None)
     else:
-        entry.update(color="rgb", y_file=f"{name}_y.png")
-        files.append((f"{name}_y.png", _png(f"{name}_y", np.ascontiguousarray(y))))
+        entry.update(color="rgb", y_file=y_file)
+        files.append((y_file, _png(f"{name}_y", np.ascontiguousarray(y))))
     return entry, files
+
+
+def _encode_frames(frames: Mapping[str, np.ndarray]) -> Tuple[Dict[str, Any], List[Tuple[str, bytes]]]:
+    """meta.json's ``images`` and the PNG files of a capture's :data:`FRAME_NAMES` frames.
+
+    ``ValueError`` unless ``frames`` has exactly those keys and each pair's
+    left and right frames have the same size.
+    """
+    missing = [n for n in FRAME_NAMES if n not in frames]
+    extra = sorted(str(n) for n in frames if n not in FRAME_NAMES)
+    if missing or extra:
+        raise ValueError(
+            f"frames must have exactly the keys {', '.join(FRAME_NAMES)}"
+            + (f"; missing {', '.join(missing)}" if missing else "")
+            + (f"; unknown {', '.join(extra)}" if extra else "")
+        )
+    images: Dict[str, Any] = {}
+    files: List[Tuple[str, bytes]] = []
+    for name in FRAME_NAMES:
+        entry, pngs = _encode_frame(name, frames[name])
+        images[name] = entry
+        files.extend(pngs)
+    for a, b in (("raw_left", "raw_right"), ("rect_left", "rect_right")):
+        sa = (images[a]["width"], images[a]["height"])
+        sb = (images[b]["width"], images[b]["height"])
+        if sa != sb:
+            raise ValueError(
+                f"frames {a} ({sa[0]}x{sa[1]}) and {b} ({sb[0]}x{sb[1]}) must have the same size"
+            )
+    return images, files
 
 
 def _decode_png(data: bytes) -> Optional[np.ndarray]:
@@ -465,28 +502,7 @@ class CaptureStore:
         remains and :meth:`list` is unchanged.
         """
         user_meta, frame_no = self._check_meta(meta)
-        missing = [n for n in FRAME_NAMES if n not in frames]
-        extra = sorted(str(n) for n in frames if n not in FRAME_NAMES)
-        if missing or extra:
-            raise ValueError(
-                f"frames must have exactly the keys {', '.join(FRAME_NAMES)}"
-                + (f"; missing {', '.join(missing)}" if missing else "")
-                + (f"; unknown {', '.join(extra)}" if extra else "")
-            )
-        images: Dict[str, Any] = {}
-        files: List[Tuple[str, bytes]] = []
-        for name in FRAME_NAMES:
-            entry, pngs = _encode_frame(name, frames[name])
-            images[name] = entry
-            files.extend(pngs)
-        for a, b in (("raw_left", "raw_right"), ("rect_left", "rect_right")):
-            sa = (images[a]["width"], images[a]["height"])
-            sb = (images[b]["width"], images[b]["height"])
-            if sa != sb:
-                raise ValueError(
-                    f"frames {a} ({sa[0]}x{sa[1]}) and {b} ({sb[0]}x{sb[1]}) must have the same size"
-                )
-
+        images, files = _encode_frames(frames)
         now = self._clock()
         if now.tzinfo is None:
             raise ValueError("the store's clock must return an aware datetime (e.g. in timezone.utc)")
@@ -500,8 +516,27 @@ class CaptureStore:
             meta_size = len(_dumps(doc)) + _MAX_ID_LENGTH
         except (TypeError, ValueError) as exc:
             raise ValueError(f"meta is not JSON-serialisable: {exc}") from exc
+        self._check_space(sum(len(d) for _, d in files) + meta_size + 64 * 1024)  # + folder and inode slack
+        cid, meta_bytes = self._write(now, frame_no, doc, files)
 
-        need = sum(len(d) for _, d in files) + meta_size + 64 * 1024  # + folder and inode slack
+        stored = [CaptureFile(f["name"], f["bytes"], f["sha256"]) for f in doc["files"]]
+        stored.append(CaptureFile(META_FILE, len(meta_bytes)))
+        return CaptureInfo(
+            id=cid,
+            created=doc["created"],
+            frame=frame_no,
+            source=doc.get("source"),
+            calibration_id=doc.get("calibration_id"),
+            files=tuple(sorted(stored, key=lambda f: f.name)),
+            bytes=sum(f.bytes for f in stored),
+            meta=json.loads(meta_bytes),  # as get() will read it: plain JSON types
+        )
+
+    def _check_space(self, need: int) -> None:
+        """Raise :class:`CaptureDiskFull` unless ``need`` bytes fit and :attr:`min_free_bytes` stay free.
+
+        Captures waiting in the trash for an undo give their space first.
+        """
         try:
             free = self._free_bytes()
         except OSError as exc:
@@ -509,7 +544,7 @@ class CaptureStore:
                 f"cannot check the free space in {self.root} ({exc.strerror or exc}); nothing was stored"
             ) from exc
         if free - need < self.min_free_bytes and self.purge_trash(0.0):
-            try:  # deleted captures waiting for an undo give their space first
+            try:
                 free = self._free_bytes()
             except OSError:
                 pass
@@ -519,6 +554,14 @@ class CaptureStore:
                 f"{_mb(need)} and {_mb(self.min_free_bytes)} are kept free; delete old captures to make room"
             )
 
+    def _write(self, now: datetime, frame_no: int, doc: Dict[str, Any],
+               files: List[Tuple[str, bytes]]) -> Tuple[str, bytes]:
+        """Write ``files`` and meta.json into a fresh ``.incoming-<id>``, then publish it as ``<id>``.
+
+        Sets ``doc["id"]``; returns the id and the meta.json written. On any
+        failure the temporary folder is removed: :class:`CaptureDiskFull` on
+        ENOSPC/EDQUOT, :class:`CaptureError` on any other ``OSError``.
+        """
         tmp: Optional[Path] = None
         step = "creating the capture folder"
         try:
@@ -555,19 +598,7 @@ class CaptureStore:
             _fsync_dir(self.root)  # durability of the rename; the capture is complete and listed either way
         except OSError:
             pass
-
-        stored = [CaptureFile(f["name"], f["bytes"], f["sha256"]) for f in doc["files"]]
-        stored.append(CaptureFile(META_FILE, len(meta_bytes)))
-        return CaptureInfo(
-            id=cid,
-            created=doc["created"],
-            frame=frame_no,
-            source=doc.get("source"),
-            calibration_id=doc.get("calibration_id"),
-            files=tuple(sorted(stored, key=lambda f: f.name)),
-            bytes=sum(f.bytes for f in stored),
-            meta=json.loads(meta_bytes),  # as get() will read it: plain JSON types
-        )
+        return cid, meta_bytes
 
     def _check_meta(self, meta: Mapping[str, Any]) -> Tuple[Dict[str, Any], int]:
         if not isinstance(meta, Mapping):
@@ -684,7 +715,7 @@ class CaptureStore:
                 elif sizes[name] != size:
                     problems.append(f"{name} is {sizes[name]} bytes, {META_FILE} says {size}")
         else:
-            for name in ("raw_left.png", "raw_right.png"):
+            for name in CAPTURE_FILES:
                 if name not in sizes:
                     problems.append(f"{name} is missing")
 
@@ -721,34 +752,35 @@ class CaptureStore:
         folder = self.path(capture_id)
         cid = folder.name
         out = []
-        for name in ("raw_left", "raw_right"):
+        for name in RAW_FRAMES:
+            file, y_file = capture_file(name), capture_file(name, y_plane=True)
             try:
-                data = _read_member(folder, f"{name}.png")
+                data = _read_member(folder, file)
             except FileNotFoundError:
-                raise CaptureDamaged(f"capture {cid} cannot be replayed: {name}.png is missing") from None
+                raise CaptureDamaged(f"capture {cid} cannot be replayed: {file} is missing") from None
             except OSError as exc:
                 raise CaptureDamaged(
-                    f"capture {cid} cannot be replayed: {name}.png cannot be read ({exc.strerror or exc})"
+                    f"capture {cid} cannot be replayed: {file} cannot be read ({exc.strerror or exc})"
                 ) from exc
             image = _decode_png(data)
             if image is None:
                 raise CaptureDamaged(
-                    f"capture {cid} cannot be replayed: {name}.png is not a valid 8-bit image"
+                    f"capture {cid} cannot be replayed: {file} is not a valid 8-bit image"
                 )
             frame = pixel.rgby(image)
             try:
-                y_data: Optional[bytes] = _read_member(folder, f"{name}_y.png")
+                y_data: Optional[bytes] = _read_member(folder, y_file)
             except FileNotFoundError:
                 y_data = None
             except OSError as exc:
                 raise CaptureDamaged(
-                    f"capture {cid} cannot be replayed: {name}_y.png cannot be read ({exc.strerror or exc})"
+                    f"capture {cid} cannot be replayed: {y_file} cannot be read ({exc.strerror or exc})"
                 ) from exc
             if y_data is not None:
                 y = _decode_png(y_data)
                 if y is None or y.shape != frame.shape[:2]:
                     raise CaptureDamaged(
-                        f"capture {cid} cannot be replayed: {name}_y.png is not a gray image of the "
+                        f"capture {cid} cannot be replayed: {y_file} is not a gray image of the "
                         f"frame's size"
                     )
                 frame[..., pixel.Y] = y
@@ -756,8 +788,8 @@ class CaptureStore:
         left, right = out
         if left.shape != right.shape:
             raise CaptureDamaged(
-                f"capture {cid} cannot be replayed: raw_left.png is {left.shape[1]}x{left.shape[0]} but "
-                f"raw_right.png is {right.shape[1]}x{right.shape[0]}"
+                f"capture {cid} cannot be replayed: {CAPTURE_FILES[0]} is {left.shape[1]}x{left.shape[0]} "
+                f"but {CAPTURE_FILES[1]} is {right.shape[1]}x{right.shape[0]}"
             )
         return left, right
 
@@ -798,7 +830,7 @@ class CaptureStore:
         folder = self.path(capture_id)
         cid = folder.name
         info = self._info(cid, folder)
-        order = {META_FILE: 0, **{f"{n}.png": i + 1 for i, n in enumerate(FRAME_NAMES)}}
+        order = {META_FILE: 0, **{capture_file(n): i + 1 for i, n in enumerate(FRAME_NAMES)}}
         names = sorted((f.name for f in info.files), key=lambda n: (order.get(n, len(order)), n))
         handles: List[Tuple[str, IO[bytes], int]] = []
         try:
@@ -966,7 +998,7 @@ class CaptureStore:
         folder = self.path(capture_id)
         cid = folder.name
         image = None
-        for name in ("rect_left.png", "raw_left.png"):
+        for name in map(capture_file, THUMB_FRAMES):
             try:
                 data = _read_member(folder, name, 64 << 20)
             except FileNotFoundError:
@@ -979,8 +1011,8 @@ class CaptureStore:
         if image is None:
             if not os.path.isdir(folder):
                 raise _not_found(cid)
-            raise CaptureDamaged(f"capture {cid} has no readable rect_left.png or raw_left.png for a "
-                                 f"thumbnail")
+            raise CaptureDamaged(f"capture {cid} has no readable "
+                                 f"{' or '.join(map(capture_file, THUMB_FRAMES))} for a thumbnail")
         h, w = image.shape[:2]
         tw = max(1, min(int(width), w))
         th = max(1, round(h * tw / w))

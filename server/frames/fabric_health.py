@@ -23,8 +23,7 @@ from typing import Any, Callable, Dict, List, Optional
 
 from prometheus_client.core import CounterMetricFamily, Metric
 
-from ...drivers.mmio import DriverError
-from ...overlays.spec.vdma import FATAL_ERRORS
+from ...overlays.interface import Channel, DriverError, Overlay
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +32,7 @@ __all__ = ["FabricHealth", "POLL_S", "RETRY_S", "CHANNELS"]
 POLL_S = 0.1  # status register reads: three per poll
 RETRY_S = 0.5  # at most one restart (or mux re-commit) per part per half second: each costs a reset
 RECOVER_TIMEOUT_S = 0.25  # how long one restart waits for a halt or a reset before trying again later
-CHANNELS = {
+CHANNELS: Dict[Channel, str] = {
     "vdma_raw.s2mm": "raw frames channel (vdma_raw S2MM)",
     "vdma_proc.s2mm": "processed frames channel (vdma_proc S2MM)",
     "vdma_proc.mm2s": "virtual camera channel (vdma_proc MM2S)",
@@ -58,21 +57,22 @@ class _Part:
 
 
 class FabricHealth:
-    """Watches ``fabric`` (a :class:`~..overlays.fabric.StereoFabric`) while it streams; see the module doc.
+    """Watches ``overlay`` while it streams; see the module doc.
 
     ``source()`` is the mux input the daemon wants (``"live"`` or
     ``"virtual"``), ``frame_age()`` the seconds since the last processed
     frame, ``period()`` the frame period (None before one is known).
     """
 
-    def __init__(self, fabric: Any, *, source: Callable[[], str], frame_age: Callable[[], Optional[float]],
-                 period: Callable[[], Optional[float]], no_signal_s: float) -> None:
-        self.fabric = fabric
+    def __init__(self, overlay: Overlay, *, source: Callable[[], str],
+                 frame_age: Callable[[], Optional[float]], period: Callable[[], Optional[float]],
+                 no_signal_s: float) -> None:
+        self.overlay = overlay
         self._source = source
         self._frame_age = frame_age
         self._period = period
         self.no_signal_s = no_signal_s
-        self.channels: Dict[str, _Part] = {name: _Part(name, label) for name, label in CHANNELS.items()}
+        self.channels: Dict[Channel, _Part] = {name: _Part(name, label) for name, label in CHANNELS.items()}
         self.mux = _Part("mux", "the mux (AXI4-Stream switch)")
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -94,7 +94,7 @@ class FabricHealth:
             thread.join(RECOVER_TIMEOUT_S * 4 + 1.0)
 
     # -- what others ask ----------------------------------------------------------------
-    def channel_ok(self, name: str) -> bool:
+    def channel_ok(self, name: Channel) -> bool:
         """False while ``name`` is faulted: its lock may be held by a restart, so leave it alone."""
         return self.channels[name].since is None
 
@@ -103,7 +103,7 @@ class FabricHealth:
         with self._lock:
             out = [p.to_json() for p in (*self.channels.values(), self.mux) if p.since is not None]
         age = self._frame_age()
-        if self._source() == "live" and self.fabric.streaming and not self._processed_faulted() \
+        if self._source() == "live" and self.overlay.streaming and not self._processed_faulted() \
                 and age is not None and age > self.no_signal_s:
             out.append({"what": "cameras", "text": f"no frame from the cameras for {age:.1f} s",
                         "since": time.time() - age})
@@ -161,7 +161,7 @@ class FabricHealth:
             async with lock:
                 wanted = self._source()
                 try:
-                    await loop.run_in_executor(executor, self.fabric.select, wanted, RECOVER_TIMEOUT_S)
+                    await loop.run_in_executor(executor, self.overlay.select, wanted, RECOVER_TIMEOUT_S)
                 except DriverError as exc:
                     self.mux_refused(wanted, exc)
                 except Exception as exc:  # a driver bug must not end the task
@@ -174,27 +174,22 @@ class FabricHealth:
         """How long a restarted channel must run without halting to count as recovered."""
         return max(0.2, 3 * (self._period() or 0.0))
 
-    def _driver(self, name: str) -> Any:
-        vdma, channel = name.split(".")
-        driver = self.fabric.raw_vdma if vdma == "vdma_raw" else self.fabric.proc_vdma
-        return getattr(driver, channel)
-
     def _run(self) -> None:
         while not self._stop.wait(POLL_S):
-            if not self.fabric.streaming:
+            if not self.overlay.streaming:
                 continue
             for name, part in self.channels.items():
                 try:
-                    self._check(part, self._driver(name))
+                    self._check(name, part)
                 except Exception as exc:  # a driver bug must not end the thread
                     log.warning("checking the %s: %s", part.label, exc)
 
-    def _check(self, part: _Part, channel: Any) -> None:
-        if channel.config is None:
+    def _check(self, name: Channel, part: _Part) -> None:
+        status = self.overlay.channel_status(name)
+        if not status.configured:
             return
-        errors = channel.errors()
-        fatal = [e for e in errors if e in FATAL_ERRORS]
-        halted = not channel.running
+        fatal = status.fatal
+        halted = not status.running
         now = time.monotonic()
         if fatal or halted:
             what = f"halted on {', '.join(fatal)}" if fatal else "stopped"
@@ -208,7 +203,7 @@ class FabricHealth:
                 return
             part.retried_at = now
             try:
-                channel.recover(RECOVER_TIMEOUT_S)
+                self.overlay.restart_channel(name, RECOVER_TIMEOUT_S)
                 part.restarts += 1
                 text = f"the {part.label} {what}; restarted it"
             except DriverError as exc:

@@ -15,7 +15,7 @@ copied as somebody needs (``copy_rate``: the CPU budget's fastest view, and
 every frame while a capture or a snapshot waits for one, or while a consumer
 such as a recording holds :meth:`Pipeline.every_frame`); the others are only
 seen: numbered, counted, and reported to ``alive`` so the feed knows the
-fabric delivers. Never twice: ``wait_frame``
+fabric delivers. Never twice: ``wait_processed``
 returns only after a new completion, and a store already published is not
 published again. Frames the fabric completed that the pipeline never
 published (it was late) are counted as drops from ``FRAME_COUNT``.
@@ -38,8 +38,15 @@ from typing import Any, Callable, Deque, Dict, Hashable, Iterator, Optional, Tup
 
 import numpy as np
 
-from ...drivers.mmio import RegisterTimeout
-from ...drivers.vdma import ChannelFault, ChannelNotStarted, NoFrameYet, VDMAError
+from ...overlays.interface import (
+    Channel,
+    ChannelFault,
+    ChannelNotStarted,
+    NoFrameYet,
+    Overlay,
+    RegisterTimeout,
+    VDMAError,
+)
 
 log = logging.getLogger(__name__)
 
@@ -174,9 +181,9 @@ class RateMeter:
 
 
 class Pipeline:
-    """The frame thread of one :class:`~..overlays.fabric.StereoFabric`; ``start``/``stop`` are idempotent.
+    """The frame thread of one :class:`~...overlays.interface.Overlay`; ``start``/``stop`` are idempotent.
 
-    Start it after the fabric streams and stop it before the fabric stops.
+    Start it after the overlay streams and stop it before the overlay stops.
     ``publish(frame_set)`` and ``heartbeat()`` are called on the pipeline
     thread and must not block. Counters and :meth:`stats` may be read from
     any thread.
@@ -184,7 +191,7 @@ class Pipeline:
 
     def __init__(
         self,
-        fabric: Any,
+        overlay: Overlay,
         *,
         publish: Callable[[FrameSet], None],
         heartbeat: Optional[Callable[[], None]] = None,
@@ -194,7 +201,7 @@ class Pipeline:
         alive: Optional[Callable[[], None]] = None,
         charge: Optional[Callable[[str, float], None]] = None,
     ) -> None:
-        self.fabric = fabric
+        self.overlay = overlay
         self._publish = publish
         self._heartbeat = heartbeat
         # Frames per second somebody needs copied (None: every frame); frames beyond it are only seen:
@@ -211,7 +218,7 @@ class Pipeline:
         self._raw_wanted = 0
         self._pairs_wanted = 0
         self._sinks: Tuple[Callable[[FrameSet], None], ...] = ()  # every_frame consumers
-        self.channel_ok: Callable[[str], bool] = lambda name: True  # FabricHealth.channel_ok, once set
+        self.channel_ok: Callable[[Channel], bool] = lambda name: True  # FabricHealth.channel_ok, once set
         self.source_state = SourceState()
         # Counters.
         self.frames = 0
@@ -328,7 +335,7 @@ class Pipeline:
 
     def frame_count(self) -> int:
         """The core's ``FRAME_COUNT`` register (blocks for one register read)."""
-        return int(self.fabric.rectify.regs.read("FRAME_COUNT"))
+        return self.overlay.frame_count()
 
     # -- stats --------------------------------------------------------------------------
     def last_frame_age(self) -> Optional[float]:
@@ -356,11 +363,11 @@ class Pipeline:
         log.warning("pipeline: %s: %s", what, exc)
 
     def _run(self) -> None:
-        s2mm = self.fabric.proc_vdma.s2mm
+        overlay = self.overlay
         while not self._stop.is_set():
             self._doze()
             try:
-                s2mm.wait_frame(timeout=self.wait_s)
+                overlay.wait_processed(self.wait_s)
             except RegisterTimeout:
                 self._beat()  # healthy, just no frame: the feed shows "no signal"
                 continue
@@ -422,7 +429,7 @@ class Pipeline:
     def see(self) -> None:
         """Count and number the frame that just completed without copying it (nobody needs it now)."""
         count = self.frame_count()
-        store, _ = self.fabric.proc_vdma.s2mm.latest_completed()
+        store = self.overlay.processed_store().store
         if store == self._last_store and self._last_count is not None and count == self._last_count:
             return
         self._advance(count, store)
@@ -457,13 +464,13 @@ class Pipeline:
         The thread calls it after each completed frame; with a stepped
         clock, tests call it directly. Not thread-safe: one caller at a time.
         """
-        proc = self.fabric.proc_vdma.s2mm
-        nstores = proc.num_fstores
+        overlay = self.overlay
         for _ in range(GRAB_ATTEMPTS):
             count = self.frame_count()
-            store, buf = proc.latest_completed()
+            stored = overlay.processed_store()
+            store, buf = stored.store, stored.pixels
             if (store == self._last_store and self._last_count is not None
-                    and (count - self._last_count) % COUNT_MOD < nstores):
+                    and (count - self._last_count) % COUNT_MOD < stored.stores):
                 return None  # the same store as last time, and the channel cannot have come round
             started = time.thread_time()
             processed = np.empty(buf.shape, dtype=np.uint8)
@@ -479,7 +486,8 @@ class Pipeline:
                 raw = state.virtual_input
             elif self._raw_wanted and self.channel_ok("vdma_raw.s2mm"):
                 try:
-                    rstore, rbuf = self.fabric.raw_vdma.s2mm.latest_completed()
+                    rstored = overlay.raw_store()
+                    rstore, rbuf = rstored.store, rstored.pixels
                     started = time.thread_time()
                     raw = np.empty(rbuf.shape, dtype=np.uint8)
                     np.copyto(raw, rbuf)
@@ -487,8 +495,7 @@ class Pipeline:
                         self._charge("raw_copy", time.thread_time() - started)
                     raw_store = rstore
                     if self._pairs_wanted:
-                        raw_s2mm = self.fabric.raw_vdma.s2mm
-                        before = raw_s2mm.buffers[(rstore - 1) % raw_s2mm.num_fstores]
+                        before = overlay.raw_store(rstore - 1).pixels
                         raw_previous = np.empty(before.shape, dtype=np.uint8)
                         np.copyto(raw_previous, before)
                 except NoFrameYet:

@@ -12,7 +12,7 @@ Pixels are stored as captures store them (:mod:`.captures`): an 8-bit gray PNG
 for a gray camera, RGB otherwise; Y goes to ``y_left_000000.png`` only where it
 is not :func:`..overlays.spec.pixel.gray_of` of RGB (never for live raw frames),
 so every frame comes back bit for bit. The pairs are named so any tool that
-pairs ``left*``/``right*`` files reads them; :class:`..overlays.emulated.cameras.ReplaySource`
+pairs ``left*``/``right*`` files reads them; the emulated cameras' replay
 (``stereocam serve --source FOLDER``) recognises ``recording.json`` and replays
 the frames in order at the recording's rate, and the virtual camera plays them
 through the core (``POST /api/virtual-camera {"recording": id}``).
@@ -89,6 +89,7 @@ from typing import (
 
 import numpy as np
 
+from ...overlays.spec import pixel
 from .captures import (
     _FULL_ERRNOS,
     DELETING_PREFIX,
@@ -547,7 +548,8 @@ class Recording:
         names = frame_names(index)
         files: List[Tuple[str, bytes]] = []
         entry: Dict[str, Any] = {}
-        for side, name, rgby in (("left", names[0], fs.raw[..., 0:4]), ("right", names[1], fs.raw[..., 4:8])):
+        for side, name, rgby in (("left", names[0], fs.raw[..., pixel.LEFT]),
+                                 ("right", names[1], fs.raw[..., pixel.RIGHT])):
             image, pngs = _encode_frame(name[:-4], rgby)
             y_name = None
             for file_name, data in pngs:
@@ -818,7 +820,7 @@ class Recorder:
 class RecordingPlayer:
     """Plays a recording's frames one after the other at its rate, looping, until :meth:`stop` (loop thread).
 
-    ``source`` is the recording's :class:`..overlays.emulated.cameras.ReplaySource` (its
+    ``source`` is the recording read back, a :class:`stereocam.overlays.interface.Replay` (its
     ``frame(k)``, ``slots``, ``fps``, ``duration_s``); ``read(k)`` decodes frame ``k`` off the
     loop; ``show(frame)`` puts one frame on the virtual camera and returns once the fabric
     took it. Frame 0 is already shown when :meth:`start` is called. Frame ``k`` is due

@@ -45,20 +45,20 @@ class ChannelStats:
     """Differences over one channel, one camera (4 channels) or the whole frame (8 channels).
 
     ``differing``: pixel positions where at least one of the channels
-    differs; ``share`` = differing / (width x height); ``max_difference``:
+    differs; ``share`` = differing / (width x height); ``max_diff``:
     largest absolute difference (0..255); ``psnr_db``: None when identical.
     """
 
     differing: int
     share: float
-    max_difference: int
+    max_diff: int
     psnr_db: Optional[float]
 
     def to_json(self) -> Dict[str, Any]:
         return {
             "differing": self.differing,
             "share": self.share,
-            "max_difference": self.max_difference,
+            "max_diff": self.max_diff,
             "psnr_db": self.psnr_db,
         }
 
@@ -90,9 +90,9 @@ class VerifyReport:
         """A JSON-ready dict (PSNR of identical data is ``null``)::
 
             {"identical": false, "width": 752, "height": 480,
-             "differing": 12, "share": 3.3e-05, "max_difference": 1, "psnr_db": 97.1,
+             "differing": 12, "share": 3.3e-05, "max_diff": 1, "psnr_db": 97.1,
              "cameras": {"left": {...}, "right": {...}},
-             "channels": {"L_R": {"differing", "share", "max_difference", "psnr_db"}, ...},
+             "channels": {"L_R": {"differing", "share", "max_diff", "psnr_db"}, ...},
              "first_difference": {"x": 5, "y": 0, "expected": [...], "actual": [...]},
              "regions": {"left": {"x0": 5, "y0": 0, "x1": 40, "y1": 9}, "right": None},
              "examples": [{"x": 5, "y": 0, "expected": [...], "actual": [...]}, ...]}
@@ -146,10 +146,10 @@ def _stats(diff: np.ndarray, hists: np.ndarray, pixels: int) -> ChannelStats:
     values = np.arange(256, dtype=np.int64)
     sum_sq = int((hists.sum(axis=0) * values * values).sum())
     nonzero = np.flatnonzero(hists.sum(axis=0))
-    max_difference = int(nonzero[-1]) if nonzero.size else 0
-    differing = int(np.count_nonzero(diff.max(axis=2))) if max_difference else 0
+    max_diff = int(nonzero[-1]) if nonzero.size else 0
+    differing = int(np.count_nonzero(diff.max(axis=2))) if max_diff else 0
     samples = pixels * diff.shape[2]
-    return ChannelStats(differing, differing / pixels, max_difference, _psnr(sum_sq, samples))
+    return ChannelStats(differing, differing / pixels, max_diff, _psnr(sum_sq, samples))
 
 
 def compare(expected: np.ndarray, actual: np.ndarray) -> VerifyReport:

@@ -29,6 +29,7 @@ from typing import Any, Callable, Optional, Protocol, Tuple
 import cv2
 import numpy as np
 
+from ...overlays.spec import pixel
 from .pipeline import FrameSet, RateMeter
 
 log = logging.getLogger(__name__)
@@ -45,8 +46,9 @@ RAW_VIEWS = frozenset({"raw_left", "raw_right"})
 # The paper's block-matching parameters.
 STEREO_BM = {"min_disparity": 0, "num_disparities": 128, "block_size": 19, "uniqueness_ratio": 15}
 
-_BGR = {"left": [2, 1, 0], "right": [6, 5, 4]}
-_Y = {"left": 3, "right": 7}
+_FIRST = {"left": pixel.LEFT.start, "right": pixel.RIGHT.start}  # each camera's first byte of a pixel
+_BGR = {side: [o + pixel.B, o + pixel.G, o + pixel.R] for side, o in _FIRST.items()}
+_Y = {side: o + pixel.Y for side, o in _FIRST.items()}
 
 
 class ViewUnavailable(LookupError):
@@ -214,7 +216,7 @@ class _Broadcast(Protocol):
 class DisparityWorker:
     """Publishes frame sets whose disparity view is ready, at most ``fps`` per second, while held.
 
-    ``source`` and ``output`` are :class:`~.encoders.Latest` broadcasts of
+    ``source`` and ``output`` are :class:`~.feed.Latest` broadcasts of
     feed items (frame sets and no-signal markers; markers pass straight
     through). The matching runs on a thread of its own, so it never delays
     the encoders. :meth:`acquire`/:meth:`release` count holders; the task

@@ -1,7 +1,7 @@
 """The daemon: :func:`create_app` wires the stages into an aiohttp application, :func:`run` serves it.
 
-``create_app(config, overlay)`` takes an opened overlay (``.fabric``,
-``start()``, ``stop()``) and returns a ``web.Application`` whose state is
+``create_app(config, overlay)`` takes an opened overlay (an
+:class:`~...overlays.interface.Overlay`) and returns a ``web.Application`` whose state is
 in the ``web.AppKey``s of :mod:`.state`. Starting the app starts the
 overlay's streams and the pipeline thread and the background tasks
 (no-signal watch, slow-client sweeper, systemd watchdog); cleaning it up
@@ -12,7 +12,7 @@ stops them in reverse order, with the mux back on live. The overlay itself
 default calibration, serve until SIGTERM/SIGINT, then stop the streams, the
 VDMA channels and the mux (live) and exit, all within 2 s.
 
-Extensions (issue 4: calibration, issue 5: sensors) are callables
+Extensions (calibration, sensors) are callables
 ``setup(app)`` passed in ``extensions``: they add routes and register
 providers in ``app[EXTENSIONS]`` (status sections, metrics lines, capture
 metadata); :func:`default_extensions` lists the ones ``run`` installs.
@@ -26,29 +26,30 @@ import logging
 import signal
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, AsyncIterator, Awaitable, Callable, List, Optional, Sequence
+from typing import Any, AsyncIterator, Callable, List, Optional, Sequence
 
 from aiohttp import web
-from aiohttp.http_exceptions import HttpProcessingError
-from aiohttp.web_protocol import RequestPayloadError
 
+from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
+from ...overlays.interface import Overlay
 from ..frames.captures import CaptureStore
 from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
-from ..frames.encoders import Encoders, FrameFeed
+from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
+from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
+from ..frames.virtual_camera import VirtualCamera
 from . import routes_faults
-from .config import Config
+from .errors import BAD_REQUEST_LINES, json_errors
 from .metrics import Metrics
 from .metrics import setup_routes as setup_ops_routes
-from .routes_api import VirtualCamera
 from .routes_api import setup_routes as setup_api_routes
 from .security import allowed_host_names, guard
+from .settings import Settings
 from .state import (
     BUDGET,
     CALIBRATION,
     CAPTURES,
-    CONFIG,
     ENCODERS,
     EXECUTORS,
     EXTENSIONS,
@@ -57,18 +58,16 @@ from .state import (
     METRICS,
     OVERLAY,
     PIPELINE,
+    SETTINGS,
     STREAMS,
     VIRTUAL,
     CalibrationState,
     Executors,
     Extensions,
 )
-from .streams import StreamClients, json_error
+from .streams import StreamClients
 from .streams import setup_routes as setup_stream_routes
 from .systemd import notify, watchdog_interval
-
-if TYPE_CHECKING:  # pragma: no cover
-    from aiohttp.typedefs import Middleware
 
 log = logging.getLogger(__name__)
 
@@ -76,11 +75,8 @@ __all__ = ["create_app", "run", "serve", "program_default_calibration", "default
            "STATIC_DIR"]
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-SOURCES = ("synthetic", "checkerboard")  # the emulated cameras' built-in scenes; anything else is a folder
 RTL_NO_SIGNAL_S = 5.0  # no_signal_s at least this with the RTL core (it runs a few frames per second)
-RTL_TIMEOUT_S = 30.0  # driver waits with the RTL core: a frame of simulation takes a large part of a second
 Setup = Callable[[web.Application], None]
-Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
 class ServeError(Exception):
@@ -88,75 +84,10 @@ class ServeError(Exception):
 
 
 def default_extensions() -> List[Setup]:
-    """The extensions ``run`` installs (issues 4 and 5 add theirs here)."""
+    """The extensions ``run`` installs: calibration and the camera sensors."""
     from . import routes_calibration, routes_calibration_panel, routes_cameras
 
     return [routes_calibration.setup, routes_calibration_panel.setup, routes_cameras.setup]
-
-
-# -- errors as JSON ---------------------------------------------------------------------------
-
-def _message(exc: web.HTTPException, request: web.Request) -> str:
-    text = exc.text or ""
-    default = f"{exc.status}: {exc.reason}"
-    if text and text != default:
-        return text
-    if exc.status == 404:
-        return f"no such resource: {request.path}"
-    if exc.status == 405:
-        allowed = exc.headers.get("Allow", "")
-        return f"{request.method} is not allowed on {request.path}" + (f"; use {allowed}" if allowed else "")
-    if exc.status == 413:
-        return (f"the request body is too large: the limit is {request.app[CONFIG].max_upload_bytes} bytes "
-                "(max_upload_bytes)")
-    return exc.reason
-
-
-class _BadRequestLines(logging.Filter):
-    """aiohttp logs a malformed request line or header with a traceback: make it one warning line."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        exc = record.exc_info[1] if record.exc_info else None
-        if isinstance(exc, RequestPayloadError) and isinstance(exc.__cause__, HttpProcessingError):
-            exc = exc.__cause__  # a body that does not decode, read again by aiohttp after our 400
-        if isinstance(exc, HttpProcessingError):
-            record.msg = "refused a malformed request (%s %s): %s"
-            record.args = (exc.code, type(exc).__name__, str(exc.message).splitlines()[0][:200])
-            record.exc_info = None
-            record.exc_text = None
-            record.levelno, record.levelname = logging.WARNING, "WARNING"
-        return True
-
-
-BAD_REQUEST_LINES = _BadRequestLines()
-
-
-def _json_errors(metrics: Metrics) -> "Middleware":
-    @web.middleware
-    async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
-        try:
-            response = await handler(request)
-        except web.HTTPException as exc:
-            if exc.status < 400:
-                raise
-            metrics.request(exc.status)
-            keep = {k: v for k, v in exc.headers.items() if k in ("WWW-Authenticate", "Allow", "Retry-After")}
-            return json_error(exc.status, _message(exc, request), **keep)
-        except (asyncio.CancelledError, ConnectionError):
-            raise
-        except HttpProcessingError as exc:  # a malformed body found while reading it (e.g. a part header)
-            status = exc.code if 400 <= exc.code < 500 else 400
-            metrics.request(status)
-            return json_error(status, f"malformed request: {str(exc.message).splitlines()[0][:200]}")
-        except Exception as exc:
-            log.exception("%s %s failed", request.method, request.path)
-            metrics.error(f"{request.method} {request.path}: {type(exc).__name__}: {exc}", "http")
-            metrics.request(500)
-            return json_error(500, f"internal error ({type(exc).__name__}: {exc}); see the daemon's log")
-        metrics.request(response.status)
-        return response
-
-    return middleware
 
 
 # -- the page ---------------------------------------------------------------------------------
@@ -164,8 +95,8 @@ def _json_errors(metrics: Metrics) -> "Middleware":
 async def _index(request: web.Request) -> web.StreamResponse:
     page = STATIC_DIR / "index.html"
     if not page.is_file():
-        raise web.HTTPNotFound(text="the web page is not installed (server/http/static/index.html is missing); "
-                                    "the API works: see /api/status")
+        raise web.HTTPNotFound(text="the web page is not installed (server/http/static/index.html is "
+                                    "missing); the API works: see /api/status")
     return web.FileResponse(page, headers={"Cache-Control": "no-cache"})
 
 
@@ -183,33 +114,32 @@ async def _static(request: web.Request) -> web.StreamResponse:
 # -- the app ----------------------------------------------------------------------------------
 
 def create_app(
-    config: Config,
-    overlay: Any,
+    config: Settings,
+    overlay: Overlay,
     *,
     calibration: Optional[CalibrationState] = None,
     captures: Optional[CaptureStore] = None,
     extensions: Sequence[Setup] = (),
 ) -> web.Application:
     """The daemon's application for ``overlay`` (see the module doc); nothing runs until it starts."""
-    if getattr(overlay, "core_kind", None) == "rtl" and config.no_signal_s < RTL_NO_SIGNAL_S:
+    if overlay.core_kind == "rtl" and config.no_signal_s < RTL_NO_SIGNAL_S:
         # A simulated core delivers a few frames per second: a frame 0.5 s old is not a lost signal.
         config = config.replace(no_signal_s=RTL_NO_SIGNAL_S)
     metrics = Metrics()
     app = web.Application(
-        middlewares=[_json_errors(metrics),
+        middlewares=[json_errors(metrics),
                      guard(access_token=config.access_token, max_body=config.max_upload_bytes,
                            allowed_hosts=allowed_host_names(config.host, config.allowed_hosts),
                            protect=config.protect)],
         client_max_size=config.max_upload_bytes,
     )
-    fabric = overlay.fabric
-    cores = config.cpu_budget if config.cpu_budget is not None else default_cores(fabric.backend)
-    emulation = tuple(getattr(overlay, "emulation_threads", ()))
+    cores = config.cpu_budget if config.cpu_budget is not None else default_cores(overlay.backend)
+    emulation = tuple(overlay.emulation_threads)
     budget = CpuBudget(cores, excluded_threads=lambda: emulation)
-    feed = FrameFeed(frame_size=tuple(fabric.frame_size), no_signal_s=config.no_signal_s)
-    pipeline = Pipeline(fabric, publish=feed.push, alive=feed.alive, charge=budget.charge)
+    feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
+    pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge)
     executors = Executors.create(config.encode_threads)
-    app[CONFIG] = config
+    app[SETTINGS] = config
     app[OVERLAY] = overlay
     app[METRICS] = metrics
     app[FEED] = feed
@@ -223,11 +153,11 @@ def create_app(
     app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
     app[CAPTURES] = captures if captures is not None else CaptureStore(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
-    rtl = getattr(overlay, "core_kind", None) == "rtl"
+    rtl = overlay.core_kind == "rtl"
     app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
-    app[CALIBRATION] = calibration or CalibrationState(lb_rows=fabric.rectify.lb_rows)
+    app[CALIBRATION] = calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows)
     app[EXTENSIONS] = Extensions()
-    health = FabricHealth(fabric, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
+    health = FabricHealth(overlay, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
                           period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
     app[FABRIC_HEALTH] = health
     pipeline.channel_ok = health.channel_ok
@@ -333,7 +263,7 @@ async def _give_back_memory() -> None:
 async def _plan_budget(app: web.Application) -> None:
     """Re-plan the views' frame rates within the CPU budget every :data:`PLAN_PERIOD_S` (cpu_budget.py)."""
     budget, encoders, pipeline = app[BUDGET], app[ENCODERS], app[PIPELINE]
-    size = tuple(app[OVERLAY].fabric.frame_size)
+    size = app[OVERLAY].frame_size
     frame_bytes = size[0] * size[1] * 8
     with single_threaded_opencv():
         while True:
@@ -360,7 +290,7 @@ def _calibration_id(prefix: str, left: Any, right: Any) -> str:
     return f"{prefix}-{digest}"
 
 
-def program_default_calibration(overlay: Any, config: Config) -> CalibrationState:
+def program_default_calibration(overlay: Overlay, config: Settings) -> CalibrationState:
     """Program the core before the streams start and say what it runs with (blocks).
 
     In order: ``config.calibration`` (a stereocam calibration.yaml or
@@ -372,15 +302,12 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
     known calibration (the same as :func:`stereocam.bench.rectify.bench_calibration`
     at 752x480); else nothing: the core passes frames through. Raises the
     calibration loader's and the core's errors (``CalibrationFileError``,
-    ``ConfigError``).
+    ``CoreParamsError``).
     """
-    from ...calibration.file import Calibration
-    from ...calibration.stereo import rectify as stereo_rectify
     from .routes_calibration import calibration_path, load_configured
 
-    fabric = overlay.fabric
-    w, h = fabric.frame_size
-    rectify = fabric.rectify
+    w, h = overlay.frame_size
+    rectify = overlay.rectify
     cal: Any = None
     if config.calibration:
         cal, state_id, description = load_configured(config.calibration, rectify, (w, h))
@@ -395,15 +322,12 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
                           "the file, or apply a new calibration from the page", saved, exc)
                 cal = None
     if cal is None:
-        source = getattr(getattr(overlay, "hw", None), "source", None)
-        rig_model = getattr(source, "model", None)
-        if rig_model is None:
+        cal = overlay.rig_calibration()
+        if cal is None:
             log.warning("no calibration given: the rectify core passes frames through (give --calibration)")
             return CalibrationState(lb_rows=rectify.lb_rows)
-        cal = Calibration.derive(rig_model, stereo_rectify(rig_model, alpha=0.0), alpha=0.0, units="m",
-                                 source="the synthetic rig's known calibration (emulated fabric)")
         state_id = _calibration_id("synthetic-rig", cal.left, cal.right)
-        description = "the synthetic rig's known calibration (emulated fabric)"
+        description = cal.source
     core_config, fit = rectify.program(cal.left, cal.right, w, h)
     state = CalibrationState(id=state_id, description=description, rows_needed=fit.rows,
                              lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay, calibration=cal)
@@ -414,74 +338,18 @@ def program_default_calibration(overlay: Any, config: Config) -> CalibrationStat
 
 # -- serving --------------------------------------------------------------------------------
 
-def _camera_source(config: Config) -> Any:
-    if config.source == "synthetic":
-        return None  # the emulated fabric's default SyntheticRig
-    if config.source == "checkerboard":
-        from ...overlays.emulated.targets import CheckerboardTarget
-
-        return CheckerboardTarget()  # the rig with a 9x6 board (25 mm squares) held in a new pose every 1.5 s
-    from ...overlays.emulated.cameras import ReplayError, ReplaySource
-
-    try:
-        return ReplaySource(Path(config.source).expanduser())
-    except ReplayError as exc:
-        import difflib
-
-        close = difflib.get_close_matches(config.source, SOURCES, n=1)
-        hint = f"did you mean {close[0]!r}? " if close else ""
-        raise ServeError(f"--source {config.source!r}: {hint}give {' or '.join(SOURCES)}, or a folder of "
-                         f"recorded pairs ({exc})") from None
-
-
-def open_rtl_core(build: Any, rtl_dir: Optional[str] = None) -> Any:
-    """The rectify core's RTL (or the copy in ``rtl_dir``) compiled for ``build``; ServeError if it cannot be."""
-    from ...overlays.rtl.core import RtlCore, RtlError, rtl_sources
-    from ...overlays.rtl.toolchain import ToolMissing
-
-    sources = None
-    if rtl_dir is not None:
-        folder = Path(rtl_dir).expanduser()
-        sources = sorted([*folder.glob("*.v"), *folder.glob("*.vh")])
-        if not (folder / "rectify_core.v").is_file():
-            raise ServeError(f"--rtl-dir {folder}: no rectify_core.v there; give a copy of overlays/rtl")
-    where = rtl_dir or str(rtl_sources()[0].parent)
-    log.info("rectify core: the RTL in %s under Verilator (%s build; the first build takes about a minute, "
-             "then it is cached)", where, build.name)
-    try:
-        return RtlCore(build, sources=sources)
-    except ToolMissing as exc:
-        raise ServeError(f"--core rtl: {exc}") from None
-    except RtlError as exc:
-        raise ServeError(f"--core rtl: the RTL in {where} did not build: {exc}") from None
-
-
-def open_configured_overlay(config: Config) -> Any:
-    from ...overlays.backend import open_overlay
-    from ...overlays.spec.rectify import BUILDS
-
+def open_configured_overlay(config: Settings) -> Overlay:
+    """The overlay ``config`` asks for (:func:`stereocam.overlays.backend.open_overlay`), or ServeError."""
     bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
-    build = BUILDS[config.core_build]
-    if config.core == "model":
-        return open_overlay(config.backend, bitstream=bitstream, source=_camera_source(config), fps=config.fps,
-                            clock="realtime", build=build)
-    if config.backend == "pynq":
-        raise ServeError("--core rtl simulates the core's RTL on the emulated fabric; the pynq backend runs "
-                         "the board's own core: use --backend emulated (or auto) with --core rtl")
-    from ...overlays.backend import Choice
-
-    core = open_rtl_core(build, config.rtl_dir)
     try:
-        overlay = open_overlay("emulated", source=_camera_source(config), fps=config.fps, clock="realtime",
-                               build=build, core=core, core_kind="rtl", timeout=RTL_TIMEOUT_S)
-    except BaseException:
-        core.close()
-        raise
-    overlay.choice = Choice("emulated", "--core rtl: the rectify core is its RTL under Verilator")
-    return overlay
+        return open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
+                            clock="realtime", build=config.core_build, core=config.core,
+                            rtl_dir=config.rtl_dir)
+    except BackendError as exc:
+        raise ServeError(str(exc)) from None
 
 
-async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.Event] = None,
+async def serve(app: web.Application, config: Settings, *, stop: Optional[asyncio.Event] = None,
                 on_ready: Optional[Callable[[str], None]] = None, handle_signals: bool = True) -> None:
     """Serve ``app`` until ``stop`` is set (or SIGTERM/SIGINT, with ``handle_signals``), then clean up.
 
@@ -506,7 +374,7 @@ async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.
         port = runner.addresses[0][1] if runner.addresses else config.port
         host = f"[{config.host}]" if ":" in config.host else config.host
         url = f"http://{host}:{port}/"
-        log.info("serving on %s (%s fabric)", url, app[OVERLAY].fabric.backend)
+        log.info("serving on %s (%s fabric)", url, app[OVERLAY].backend)
         installed = []
         for sig in (signal.SIGTERM, signal.SIGINT) if handle_signals else ():
             try:
@@ -530,12 +398,12 @@ async def serve(app: web.Application, config: Config, *, stop: Optional[asyncio.
         await runner.cleanup()
 
 
-def run(config: Config, *, extensions: Optional[Sequence[Setup]] = None) -> int:
+def run(config: Settings, *, extensions: Optional[Sequence[Setup]] = None) -> int:
     """``stereocam serve``: blocks until SIGTERM/SIGINT; returns the exit code."""
     overlay = open_configured_overlay(config)
     try:
-        reason = getattr(getattr(overlay, "choice", None), "reason", "")
-        log.info("fabric: %s (%s)", overlay.fabric.backend, reason)
+        reason = overlay.choice.reason if overlay.choice is not None else ""
+        log.info("fabric: %s (%s)", overlay.backend, reason)
         log.info("captures in %s; the page's calibration file and pairs in %s", config.captures_path,
                  config.state_path)
         calibration = program_default_calibration(overlay, config)

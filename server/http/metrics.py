@@ -34,7 +34,7 @@ from prometheus_client import CollectorRegistry, PlatformCollector, ProcessColle
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric, SummaryMetricFamily
 from prometheus_client.registry import Collector
 
-from .state import BUDGET, CONFIG, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, STREAMS
+from .state import BUDGET, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, SETTINGS, STREAMS
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..frames.cpu_budget import CpuBudget
@@ -247,7 +247,7 @@ def healthy(app: web.Application) -> Tuple[bool, str]:
 
     The text names every active fault, one per line, so a monitor's log says what is wrong.
     """
-    limit = max(1.0, app[CONFIG].no_signal_s)
+    limit = max(1.0, app[SETTINGS].no_signal_s)
     age = app[FEED].frame_age()
     problems = [f"{f['what']}: {f['text']}" for f in app[EXTENSIONS].active_faults()]
     if age is None:

@@ -1,4 +1,4 @@
-"""The calibration API (issue 4): ``GET /api/calibration`` and ``PUT /api/calibration``.
+"""The calibration API: ``GET /api/calibration`` and ``PUT /api/calibration``.
 
 ``setup(app)`` adds the routes (an extension, see :func:`.app.default_extensions`).
 
@@ -36,11 +36,12 @@ from aiohttp import web
 
 from ...calibration.file import MAX_FILE_CHARS, Calibration, _sniff, load_calibration, parse_yaml
 from ...calibration.formats import CalibrationFileError, atomic_write_text
-from ...drivers.mmio import DriverError
-from ...overlays.model.config import ConfigError
+from ...overlays.interface import DriverError
+from ...overlays.model.core_params import CoreParamsError
 from ...overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH, CoreConfig
-from ..frames.errors import parse_json
-from .state import CALIBRATION, CONFIG, EXECUTORS, OVERLAY
+from ..frames.errors import ApiError
+from .bodies import JSON, read_json
+from .state import CALIBRATION, EXECUTORS, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
 
@@ -163,26 +164,21 @@ async def get_calibration(request: web.Request) -> web.Response:
 
 async def _body_text(request: web.Request) -> str:
     ctype = request.content_type.lower()
-    raw = await request.read()
-    if ctype == "application/json":
-        try:
-            doc = parse_json(raw.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError) as exc:
-            raise web.HTTPBadRequest(text=f"the body is not valid JSON ({exc})") from None
+    if ctype == JSON:
+        doc = await read_json(request, example='{"yaml": "<the calibration file text>"}')
         if not isinstance(doc, dict) or not isinstance(doc.get("yaml"), str) or set(doc) != {"yaml"}:
-            raise web.HTTPBadRequest(text='a JSON body must be {"yaml": "<the calibration file text>"}')
+            raise ApiError('a JSON body must be {"yaml": "<the calibration file text>"}', status=400)
         text = doc["yaml"]
     elif ctype in YAML_TYPES:
         try:
-            text = raw.decode("utf-8")
+            text = (await request.read()).decode("utf-8")
         except UnicodeDecodeError:
-            raise web.HTTPBadRequest(text="the calibration file is not UTF-8 text") from None
+            raise ApiError("the calibration file is not UTF-8 text", status=400) from None
     else:
-        raise web.HTTPUnsupportedMediaType(
-            text=f"PUT /api/calibration takes the calibration file as application/yaml or text/plain, "
-                 f'or JSON {{"yaml": "..."}}; got {ctype}')
+        raise ApiError("PUT /api/calibration takes the calibration file as application/yaml or text/plain, "
+                       f'or JSON {{"yaml": "..."}}; got {ctype}', status=415)
     if not text.strip():
-        raise web.HTTPBadRequest(text="the body is empty: send the text of a stereocam calibration.yaml")
+        raise ApiError("the body is empty: send the text of a stereocam calibration.yaml", status=400)
     return text
 
 
@@ -196,7 +192,7 @@ def check_runnable(cal: Calibration, rectify: Any, frame_size: Tuple[int, int]) 
                                      f"{w}x{h}: calibrate these cameras at this size")
         cal.check_fits(rectify.lb_rows)
         rectify.plan(cal.left, cal.right, w, h)
-    except ConfigError as exc:
+    except CoreParamsError as exc:
         raise CalibrationRefused(str(exc)) from None
     return cal
 
@@ -223,7 +219,7 @@ def _prepare(check: Callable[[], Calibration], rectify: Any) -> Prepared:
     w, h = cal.image_size
     try:
         config, _ = rectify.plan(cal.left, cal.right, w, h)
-    except ConfigError as exc:
+    except CoreParamsError as exc:
         raise CalibrationRefused(str(exc)) from None
     text = cal.to_yaml()
     if len(text) > MAX_FILE_CHARS:
@@ -263,7 +259,7 @@ def _apply(rectify: Any, prepared: Prepared, path: Path) -> CoreConfig:
 
 def _refuse_if_stopping(active: ActiveCalibration) -> None:
     if active.stopping.is_set():
-        raise web.HTTPServiceUnavailable(text=STOPPING)
+        raise ApiError(STOPPING, status=503)
 
 
 async def _unless_stopping(active: ActiveCalibration, job: "asyncio.Future[Prepared]") -> Prepared:
@@ -278,7 +274,7 @@ async def _unless_stopping(active: ActiveCalibration, job: "asyncio.Future[Prepa
         stopping.cancel()
     if job not in done or job.cancelled():  # cancelled: Executors.abandon(), the daemon is stopping
         job.cancel()
-        raise web.HTTPServiceUnavailable(text=STOPPING)
+        raise ApiError(STOPPING, status=503)
     return job.result()
 
 
@@ -287,14 +283,14 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
 
     ``check`` blocks and runs on a thread shutdown may abandon: it must change
     nothing (parse, validate, plan). ``how`` says where the calibration came
-    from (the log and ``/api/status`` show it). Raises ``HTTPException``: 400
+    from (the log and ``/api/status`` show it). Raises :class:`ApiError`: 400
     for a file that does not parse, 422 for one this core cannot run, 500 when
     the core or the file cannot take it, 503 when the daemon starts stopping
     before the change begins; in every case the previous calibration,
     registers and file stay. Returns the reply's body.
     """
-    fabric = app[OVERLAY].fabric
-    rectify = fabric.rectify
+    overlay = app[OVERLAY]
+    rectify = overlay.rectify
     active = app[ACTIVE]
     executors = app[EXECUTORS]
     async with active.lock:
@@ -304,21 +300,20 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
             job = asyncio.ensure_future(executors.run_abandonable(_prepare, check, rectify))
             prepared = await _unless_stopping(active, job)
         except CalibrationRefused as exc:
-            raise web.HTTPUnprocessableEntity(text=f"refused, the previous calibration stays active: {exc}") \
-                from None
+            raise ApiError(f"refused, the previous calibration stays active: {exc}", status=422) from None
         except ValueError as exc:
-            raise web.HTTPBadRequest(text=f"refused, the previous calibration stays active: {exc}") from None
+            raise ApiError(f"refused, the previous calibration stays active: {exc}", status=400) from None
         _refuse_if_stopping(active)
         cal = prepared.calibration
         state = app[CALIBRATION]
         previous = state.to_json()
-        before = await executors.run(rectify.regs.read, "FRAME_COUNT")
+        before = await executors.run(overlay.frame_count)
         state.changing, state.changing_from = True, int(before)  # later frames may carry either set
         try:
             core_config = await executors.run(_apply, rectify, prepared, active.path)
-            latched = await executors.run(rectify.regs.read, "FRAME_COUNT")
-        except (OSError, ConfigError, DriverError) as exc:
-            raise web.HTTPInternalServerError(text=str(exc)) from None
+            latched = await executors.run(overlay.frame_count)
+        except (OSError, CoreParamsError, DriverError) as exc:
+            raise ApiError(str(exc), status=500) from None
         finally:
             state.changing = False
         state.changed(int(before), (int(latched) + 2) % (1 << 32), previous)
@@ -338,8 +333,8 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
 async def put_calibration(request: web.Request) -> web.Response:
     app = request.app
     text = await _body_text(request)
-    fabric = app[OVERLAY].fabric
-    rectify, frame_size = fabric.rectify, tuple(fabric.frame_size)
+    overlay = app[OVERLAY]
+    rectify, frame_size = overlay.rectify, overlay.frame_size
     body = await activate(app, lambda: _check(text, rectify, frame_size), "PUT /api/calibration")
     return web.json_response(body)
 
@@ -358,7 +353,7 @@ async def _stop_changes(app: web.Application) -> None:
 
 
 def setup(app: web.Application) -> None:
-    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[CONFIG]),
+    app[ACTIVE] = ActiveCalibration(path=calibration_path(app[SETTINGS]),
                                     calibration=app[CALIBRATION].calibration)
     app.on_shutdown.append(_stop_changes)
     app.router.add_get("/api/calibration", get_calibration)

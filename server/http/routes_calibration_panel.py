@@ -1,4 +1,4 @@
-"""The page's calibration panel over HTTP (issue 4): live corners, pairs, coverage, compute, apply.
+"""The page's calibration panel over HTTP: live corners, pairs, coverage, compute, apply.
 
 - ``GET/PUT /api/calibration/session``: the board (``pattern`` "9x6",
   ``square_mm``), ``alpha``, the stored pairs with their corners, coverage
@@ -50,13 +50,13 @@ from ..frames.calibration_pairs import (
 )
 from ..frames.captures import CaptureError, CaptureStore
 from ..frames.encoders import encode_image
-from ..frames.errors import ApiError, parse_json
+from ..frames.errors import ApiError
 from ..frames.pipeline import FrameSet
 from ..frames.views import render
+from .bodies import read_json
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
-from .state import CONFIG, EXECUTORS, FEED, METRICS, OVERLAY
-from .streams import error_response, json_error
+from .state import EXECUTORS, FEED, METRICS, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
 
@@ -115,20 +115,8 @@ def pairs_folder(config: Any) -> Path:
     return config.state_path / PAIRS_FOLDER
 
 
-async def _json(request: web.Request, *, empty_ok: bool = False) -> Any:
-    raw = await request.read()
-    if not raw.strip():
-        if empty_ok:
-            return {}
-        raise PanelError("send a JSON object as the body", status=400)
-    try:
-        return parse_json(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise PanelError(f"the body is not valid JSON ({exc})", status=400) from None
-
-
 def _frame_size(app: web.Application) -> Any:
-    w, h = app[OVERLAY].fabric.frame_size
+    w, h = app[OVERLAY].frame_size
     return int(w), int(h)
 
 
@@ -153,17 +141,15 @@ async def get_session(request: web.Request) -> web.Response:
 async def put_session(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
+    doc = await read_json(request, example='{"pattern": "9x6", "square_mm": 25}', typed=False)
     try:
-        doc = await _json(request)
         async with panel.settings_lock:  # read, change, save, set: concurrent PUTs lose nothing
             settings = panel.settings.updated(doc)
             await app[EXECUTORS].run(save_settings, panel.folder, settings)
             panel.settings = settings
-    except PanelError as exc:
-        return error_response(exc)
     except OSError as exc:
-        return json_error(500, f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}; "
-                               "the previous settings stay")
+        raise ApiError(f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}; "
+                       "the previous settings stay", status=500) from None
     panel.live, panel.live_at = None, 0.0
     return web.json_response(await _session_body(app))
 
@@ -175,15 +161,12 @@ async def get_corners(request: web.Request) -> web.Response:
     asked = time.monotonic()
     feed = app[FEED]
     since = feed.last_frame_at if feed.last_frame_at is not None else feed.started_at
-    if asked - since > max(1.0, 2 * app[CONFIG].no_signal_s):
+    if asked - since > app[SETTINGS].frame_wait_s:
         # No frame for longer than a capture would wait: answer now, pollers must not queue up.
-        return json_error(503, f"no signal: no frame has come for {asked - since:.1f} s")
+        raise ApiError(f"no signal: no frame has come for {asked - since:.1f} s", status=503)
     async with panel.live_lock:
         if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
-            try:
-                fs = await fresh_raw_frame(app)
-            except ApiError as exc:
-                return error_response(exc)
+            fs = await fresh_raw_frame(app)
             settings = panel.settings
             raw = fs.raw
             assert raw is not None
@@ -205,13 +188,13 @@ async def get_corners_frame(request: web.Request) -> web.Response:
         frame = int(request.match_info["frame"])
         scale = float(request.query.get("scale", "1"))
     except ValueError:
-        return json_error(400, "give the frame as a number and scale as 1, 0.5 or 0.25")
+        raise ApiError("give the frame as a number and scale as 1, 0.5 or 0.25", status=400) from None
     if side not in ("left", "right") or scale not in (1.0, 0.5, 0.25):
-        return json_error(400, "side is left or right, scale 1, 0.5 or 0.25")
+        raise ApiError("side is left or right, scale 1, 0.5 or 0.25", status=400)
     fs = next((f for f in app[PANEL].live_frames if f.frame == frame), None)
     if fs is None:
-        return json_error(404, f"frame {frame} is not one of the last corner detections: "
-                               "ask GET /api/calibration/corners again")
+        raise ApiError(f"frame {frame} is not one of the last corner detections: "
+                       "ask GET /api/calibration/corners again", status=404)
     jpeg = await app[EXECUTORS].run(lambda: encode_image(render(fs, "raw_" + side, False, scale), ".jpg", 85))
     return web.Response(body=jpeg, content_type="image/jpeg",
                         headers={"X-Frame-Number": str(fs.frame), "Cache-Control": "private, max-age=60"})
@@ -222,23 +205,20 @@ async def post_pair(request: web.Request) -> web.Response:
     panel = app[PANEL]
     async with panel.pairs_lock:
         settings = panel.settings
-        try:
-            fs = await fresh_raw_frame(app)
-        except ApiError as exc:
-            return error_response(exc)
+        fs = await fresh_raw_frame(app)
         raw = fs.raw
         assert raw is not None
         found = await app[EXECUTORS].run(lambda: detect_frame(raw, settings.pattern, thorough=True))
         where = missing_in(found)
         if where is not None:
-            return json_error(422, f"the {settings.pattern} pattern was not found in {where} (frame {fs.frame}): "
-                                   "hold the whole board in view of both cameras, still and well lit; "
-                                   "nothing was stored")
+            raise ApiError(f"the {settings.pattern} pattern was not found in {where} (frame {fs.frame}): "
+                           "hold the whole board in view of both cameras, still and well lit; "
+                           "nothing was stored", status=422)
         entries = await app[EXECUTORS].run(pair_entries, panel.store)
         twin = same_view(found, entries)
         if twin is not None:
-            return json_error(409, f"the board is where it was in pair {twin}: move or tilt it before the next "
-                                   "pair (the same view adds nothing); nothing was stored")
+            raise ApiError(f"the board is where it was in pair {twin}: move or tilt it before the next pair "
+                           "(the same view adds nothing); nothing was stored", status=409)
         extra = {"purpose": PURPOSE, "pattern": str(settings.pattern),
                  "square_mm": settings.pattern.square * 1000.0,
                  "corners": {"left": found["left"], "right": found["right"]}}
@@ -246,7 +226,7 @@ async def post_pair(request: web.Request) -> web.Response:
             info = await store_capture(app, panel.store, fs, extra)
         except CaptureError as exc:
             app[METRICS].error(exc.message, "calibration")
-            return error_response(exc)
+            raise
     body = await _session_body(app)
     pair = next((p for p in body["pairs"] if p["id"] == info.id), None)
     log.info("calibration pair %s stored (frame %d, %d pairs)", info.id, fs.frame, body["count"])
@@ -258,12 +238,10 @@ async def delete_pair(request: web.Request) -> web.Response:
     panel = app[PANEL]
     pid = request.match_info["id"]
     if panel.computing is not None and pid in panel.computing:
-        return json_error(409, f"pair {pid} is in the calibration being computed: delete it when that is done")
-    try:
-        async with panel.pairs_lock:
-            await app[EXECUTORS].run(panel.store.delete, pid)
-    except CaptureError as exc:
-        return error_response(exc)
+        raise ApiError(f"pair {pid} is in the calibration being computed: delete it when that is done",
+                       status=409)
+    async with panel.pairs_lock:
+        await app[EXECUTORS].run(panel.store.delete, pid)
     return web.Response(status=204)
 
 
@@ -271,13 +249,11 @@ async def delete_pairs(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
     if panel.computing is not None:
-        return json_error(409, "a calibration is being computed from the pairs: delete them when that is done")
+        raise ApiError("a calibration is being computed from the pairs: delete them when that is done",
+                       status=409)
     async with panel.pairs_lock:
         for info in await app[EXECUTORS].run(panel.store.list):
-            try:
-                await app[EXECUTORS].run(panel.store.delete, info.id)
-            except CaptureError as exc:
-                return error_response(exc)
+            await app[EXECUTORS].run(panel.store.delete, info.id)
     return web.Response(status=204)
 
 
@@ -288,34 +264,34 @@ async def get_compute(request: web.Request) -> web.Response:
 async def post_compute(request: web.Request) -> web.Response:
     app = request.app
     panel = app[PANEL]
-    try:
-        doc = await _json(request, empty_ok=True)
-        if not isinstance(doc, dict):
-            raise PanelError('send no body, or a JSON object of settings to use, e.g. {"alpha": 0.5}', status=400)
-        settings = panel.settings.updated(doc)
-    except PanelError as exc:
-        return error_response(exc)
+    doc = await read_json(request, example='{"alpha": 0.5}', optional=True, typed=False)
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise PanelError('send no body, or a JSON object of settings to use, e.g. {"alpha": 0.5}', status=400)
+    settings = panel.settings.updated(doc)
     if panel.computing is not None:  # checked and set with no await between: one at a time
-        return json_error(409, "a calibration is already being computed: wait for it "
-                               "(GET /api/calibration/compute shows its progress)")
+        raise ApiError("a calibration is already being computed: wait for it "
+                       "(GET /api/calibration/compute shows its progress)", status=409)
     panel.computing = set()
     started = time.time()
     panel.progress = {"state": "running", "stage": "detect", "done": 0, "total": 0, "started": started}
 
     def progress(stage: str, done: int, total: int) -> None:  # worker thread: replace, never mutate
-        panel.progress = {"state": "running", "stage": stage, "done": done, "total": total, "started": started}
+        panel.progress = {"state": "running", "stage": stage, "done": done, "total": total,
+                          "started": started}
 
-    rectify = app[OVERLAY].fabric.rectify
+    rectify = app[OVERLAY].rectify
     try:
         async with panel.pairs_lock:  # a snapshot: pairs captured meanwhile wait for the next compute
             ids = await app[EXECUTORS].run(pair_ids, panel.store)
         panel.computing = set(ids)
-        report = await app[EXECUTORS].run(lambda: compute(panel.store, ids, settings, rectify, progress=progress))
+        report = await app[EXECUTORS].run(
+            lambda: compute(panel.store, ids, settings, rectify, progress=progress))
     except PanelError as exc:
         panel.progress = {"state": "failed", "error": exc.message, "started": started}
-        return error_response(exc)
-    except Exception as exc:
-        log.exception("calibration compute failed")
+        raise
+    except Exception as exc:  # logged, with its traceback, by the error middleware
         panel.progress = {"state": "failed", "error": f"{type(exc).__name__}: {exc}", "started": started}
         raise
     finally:
@@ -333,64 +309,51 @@ async def post_compute(request: web.Request) -> web.Response:
 def _candidate(app: web.Application) -> Candidate:
     cand = app[PANEL].candidate
     if cand is None:
-        raise PanelError("no calibration has been computed yet: capture pairs, then POST /api/calibration/compute",
-                         status=404)
+        raise PanelError("no calibration has been computed yet: capture pairs, then "
+                         "POST /api/calibration/compute", status=404)
     return cand
 
 
 async def get_candidate(request: web.Request) -> web.Response:
-    try:
-        return web.json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
-    except PanelError as exc:
-        return error_response(exc)
+    return web.json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
 
 
 async def candidate_yaml(request: web.Request) -> web.Response:
-    try:
-        cand = _candidate(request.app)
-    except PanelError as exc:
-        return error_response(exc)
+    cand = _candidate(request.app)
     return web.Response(text=cand.report.calibration.to_yaml(), content_type="application/yaml",
                         headers={"Content-Disposition": 'attachment; filename="calibration.yaml"'})
 
 
 async def candidate_rectified(request: web.Request) -> web.Response:
     app = request.app
-    try:
-        cand = _candidate(app)
-        pair = request.query.get("pair") or next(
-            (pid for p, pid in zip(cand.report.pairs, cand.pair_ids, strict=True) if p.used), None)
-        if pair not in cand.pair_ids:
-            raise PanelError(f"pair {str(pair)[:40]!r} is not one the candidate was computed from", status=404)
-        png = await app[EXECUTORS].run(rectified_figure, app[PANEL].store, pair, cand.report,
-                          app[OVERLAY].fabric.rectify.lb_rows)
-    except (ApiError, CaptureError) as exc:
-        return error_response(exc)
+    cand = _candidate(app)
+    pair = request.query.get("pair") or next(
+        (pid for p, pid in zip(cand.report.pairs, cand.pair_ids, strict=True) if p.used), None)
+    if pair not in cand.pair_ids:
+        raise PanelError(f"pair {str(pair)[:40]!r} is not one the candidate was computed from", status=404)
+    png = await app[EXECUTORS].run(rectified_figure, app[PANEL].store, pair, cand.report,
+                                   app[OVERLAY].rectify.lb_rows)
     return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "no-store"})
 
 
 async def post_apply(request: web.Request) -> web.Response:
     app = request.app
-    try:
-        doc = await _json(request)
-        if not isinstance(doc, dict) or set(doc) != {"id"} or not isinstance(doc["id"], str):
-            raise PanelError('send {"id": "<the candidate\'s id>"} (GET /api/calibration/candidate gives it)',
-                             status=400)
-        cand = _candidate(app)
-        if doc["id"] != cand.id:
-            raise PanelError(f"the candidate is now {cand.id}, not {doc['id'][:40]}: review it, then apply it",
-                             status=409)
-    except PanelError as exc:
-        return error_response(exc)
-    fabric = app[OVERLAY].fabric
-    cal, rectify, size = cand.report.calibration, fabric.rectify, _frame_size(app)
+    doc = await read_json(request, example='{"id": "<the candidate\'s id>"}', typed=False)
+    if not isinstance(doc, dict) or set(doc) != {"id"} or not isinstance(doc["id"], str):
+        raise PanelError('send {"id": "<the candidate\'s id>"} (GET /api/calibration/candidate gives it)',
+                         status=400)
+    cand = _candidate(app)
+    if doc["id"] != cand.id:
+        raise PanelError(f"the candidate is now {cand.id}, not {doc['id'][:40]}: review it, then apply it",
+                         status=409)
+    cal, rectify, size = cand.report.calibration, app[OVERLAY].rectify, _frame_size(app)
     body = await activate(app, lambda: check_runnable(cal, rectify, size), "calibration panel")
     return web.json_response(body)
 
 
 def setup(app: web.Application) -> None:
-    folder = pairs_folder(app[CONFIG])
-    store = CaptureStore(folder, min_free_bytes=int(app[CONFIG].min_free_mb * 1e6))
+    folder = pairs_folder(app[SETTINGS])
+    store = CaptureStore(folder, min_free_bytes=int(app[SETTINGS].min_free_mb * 1e6))
     app[PANEL] = Panel(folder=folder, store=store, settings=load_settings(folder))
     r = app.router
     r.add_get("/api/calibration/session", get_session)

@@ -1,14 +1,15 @@
-"""The camera sensors over HTTP (issue 5): ``GET/PUT /api/cameras``; status, metrics, faults, capture data.
+"""The camera sensors over HTTP: ``GET/PUT /api/cameras``; status, metrics, faults, capture data.
 
 At startup (before the fabric's streams start) the extension brings up the
-board's two MT9V034s through :class:`stereocam.drivers.mt9v034.StereoSensors`:
-on the emulated backend over an :class:`EmulatedSensorPair` attached to the
-overlay's fabric (it drives the camera source's exposure, gain, flips and
-test patterns), on the pynq backend over ``/dev/i2c-<n>`` of the board
-profile. Bring-up never stops the daemon: a sensor that does not answer or
-is not an MT9V034 is logged and reported (``/api/status`` ``sensors``,
-``/metrics`` ``stereocam_sensor_ok``, and a fault ``sensor.left``/``sensor.right``
-in ``app[EXTENSIONS].faults``) and the streams keep running.
+board's two MT9V034s through :class:`stereocam.overlays.interface.StereoSensors` (the MT9V034 driver)
+on the bus :func:`stereocam.overlays.backend.sensor_bus` gives for the
+overlay: on the emulated backend an emulated pair attached to the fabric (it
+drives the camera source's exposure, gain, flips and test patterns), on the
+pynq backend ``/dev/i2c-<n>`` of the board profile. Bring-up never stops the
+daemon: a sensor that does not answer or is not an MT9V034 is logged and
+reported (``/api/status`` ``sensors``, ``/metrics`` ``stereocam_sensor_ok``,
+and a fault ``sensor.left``/``sensor.right`` in ``app[EXTENSIONS].faults``)
+and the streams keep running.
 
 Every :data:`REFRESH_S` seconds a check (:meth:`StereoSensors.check`)
 notices a sensor that stopped answering and sets one that answers again up
@@ -29,17 +30,19 @@ from typing import Any, AsyncIterator, Callable, Dict, List, Optional
 from aiohttp import web
 from prometheus_client.core import GaugeMetricFamily, Metric
 
-from ...drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
-from ..frames.errors import parse_json
-from .state import CONFIG, EXECUTORS, EXTENSIONS, OVERLAY
-from .streams import json_error
+from ...board.profile import BoardProfile, load_profile
+from ...overlays.backend import sensor_bus
+from ...overlays.interface import CAMERAS, I2CBus, Overlay, SensorPair, SensorUnavailable, StereoSensors
+from ..frames.errors import ApiError
+from .bodies import read_json
+from .state import EXECUTORS, EXTENSIONS, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
 
 __all__ = ["setup", "extension", "CameraService", "CAMERA_SERVICE", "REFRESH_S", "VALUES_EVERY"]
 
 # A sensor that stops answering must show within 1 s and one that answers again be back within
-# 2 s of it (issue 10). A check is two register reads (~0.2 ms of bus on the board), so checking
+# 2 s of it. A check is two register reads (~0.2 ms of bus on the board), so checking
 # four times a second bounds both at about a quarter of a second plus one work-thread hop; the
 # values in use (14 reads, the AEC's exposure moving) are read once a second.
 REFRESH_S = 0.25
@@ -52,8 +55,8 @@ class CameraService:
     """The sensors the daemon controls (None when they could not be set up: ``error`` says why)."""
 
     sensors: Optional[StereoSensors] = None
-    pair: Any = None  # the EmulatedSensorPair on the emulated backend
-    bus: Any = None
+    pair: Optional[SensorPair] = None  # the emulated backend's sensors (the overlay's ``sensors``)
+    bus: Optional[I2CBus] = None
     error: Optional[str] = "not started"
     health: Dict[str, Any] = field(default_factory=dict)
     values: Dict[str, Optional[Dict[str, Any]]] = field(default_factory=dict)
@@ -117,7 +120,7 @@ class CameraService:
                 "values": {c: snap[c] for c in CAMERAS}}
 
     def faults(self) -> List[Dict[str, Any]]:
-        """The sensors unavailable now (:data:`stereocam.server.http.state.FaultProvider`), from the snapshot."""
+        """The sensors unavailable now (a :data:`.state.FaultProvider`), from the snapshot."""
         with self._lock:
             return [dict(f) for f in self.active]
 
@@ -162,34 +165,21 @@ CAMERA_SERVICE: "web.AppKey[CameraService]" = web.AppKey("stereocam.cameras", Ca
 
 # -- bring-up ------------------------------------------------------------------------------------
 
-def _open_sensors(service: CameraService, overlay: Any, profile: Any, pair_options: Dict[str, Any],
-                  board: Optional[str] = None) -> None:
-    """Build the bus and the pair for the overlay's backend and start them (blocks; never raises).
+def _open_sensors(service: CameraService, overlay: Overlay, profile: Optional[BoardProfile],
+                  pair_options: Dict[str, Any], board: Optional[str] = None) -> None:
+    """Bring up the overlay's sensor bus (:func:`~stereocam.overlays.backend.sensor_bus`) and the
+    sensors on it (blocks; never raises).
 
     ``profile`` None: the file ``board`` names (the config's ``board``, which ``stereocam serve``
     resolved and checked at start), else the packaged default.
     """
     try:
         if profile is None:
-            from ...board.profile import load_profile
-
             profile = load_profile(board)
         log.info("board profile %s: %s", profile.name, profile.source)
-        backend = getattr(overlay.fabric, "backend", None)
-        hw = getattr(overlay, "hw", None)
-        if backend == "emulated" and hw is not None:
-            from ...overlays.emulated.sensors import EmulatedSensorPair
-
-            pair = EmulatedSensorPair.for_profile(profile, hw.source, **pair_options)
-            hw.sensors = pair
-            service.pair, service.bus = pair, pair.bus
-        elif backend == "pynq":
-            from ...drivers.i2c import LinuxI2CBus
-
-            service.bus = LinuxI2CBus(profile.i2c_bus, timeout=profile.i2c_timeout)
-        else:
-            raise RuntimeError(f"no camera sensors on the {backend!r} backend")
-        service.sensors = StereoSensors.from_profile(profile, service.bus)
+        service.bus = sensor_bus(overlay, profile, **pair_options)
+        service.pair = overlay.sensors
+        service.sensors = profile.stereo_sensors(service.bus)
         service.error = None
         health = service.sensors.start()
         service.refresh()
@@ -218,12 +208,12 @@ async def _refresh_loop(app: web.Application, service: CameraService) -> None:
             failing = str(exc)
 
 
-def _sensors_ctx(profile: Any, pair_options: Dict[str, Any]
+def _sensors_ctx(profile: Optional[BoardProfile], pair_options: Dict[str, Any]
                  ) -> Callable[[web.Application], AsyncIterator[None]]:
     async def ctx(app: web.Application) -> AsyncIterator[None]:
         service = app[CAMERA_SERVICE]
         loop = asyncio.get_running_loop()
-        board = app[CONFIG].board
+        board = app[SETTINGS].board
         await app[EXECUTORS].run(_open_sensors, service, app[OVERLAY], profile, pair_options, board)
         task = loop.create_task(_refresh_loop(app, service), name="stereocam-sensors")
         try:
@@ -243,8 +233,8 @@ def _sensors_ctx(profile: Any, pair_options: Dict[str, Any]
 
 # -- routes ----------------------------------------------------------------------------------------
 
-def _unavailable(service: CameraService) -> web.Response:
-    return json_error(503, f"the camera sensors cannot be controlled: {service.error}")
+def _unavailable(service: CameraService) -> ApiError:
+    return ApiError(f"the camera sensors cannot be controlled: {service.error}", status=503)
 
 
 async def get_cameras(request: web.Request) -> web.Response:
@@ -255,31 +245,25 @@ async def get_cameras(request: web.Request) -> web.Response:
 
 async def put_cameras(request: web.Request) -> web.Response:
     service = request.app[CAMERA_SERVICE]
-    if request.content_type != "application/json":
-        given = request.content_type or "nothing"
-        return json_error(415, f"send JSON (Content-Type: application/json), not {given}")
-    try:
-        body = parse_json(await request.read())
-    except (ValueError, UnicodeDecodeError):
-        return json_error(400, "the body is not valid JSON: send an object such as "
-                               '{"exposure_us": 5000, "gain": 2.0, "camera": "both"}')
+    body = await read_json(request, example='{"exposure_us": 5000, "gain": 2.0, "camera": "both"}')
     if not isinstance(body, dict):
-        return json_error(400, "send a JSON object of camera settings, not " + type(body).__name__)
+        raise ApiError("send a JSON object of camera settings, not " + type(body).__name__, status=400)
     camera = body.pop("camera", "both")
     if camera not in TARGETS:
-        return json_error(400, f"camera {camera!r} is not one of: both, left, right")
+        raise ApiError(f"camera {camera!r} is not one of: both, left, right", status=400)
     if service.sensors is None:
-        return _unavailable(service)
+        raise _unavailable(service)
     try:
         answer = await request.app[EXECUTORS].run(service.apply, body, camera)
     except SensorUnavailable as exc:
-        return json_error(503, str(exc))
+        raise ApiError(str(exc), status=503) from None
     except ValueError as exc:
-        return json_error(400, str(exc))
+        raise ApiError(str(exc), status=400) from None
     return web.json_response(answer)
 
 
-def extension(*, profile: Any = None, **pair_options: Any) -> Callable[[web.Application], None]:
+def extension(*, profile: Optional[BoardProfile] = None,
+              **pair_options: Any) -> Callable[[web.Application], None]:
     """A ``setup`` with another board profile (default: the config's ``board``, else the packaged one)
     or emulated-pair options."""
 

@@ -1,9 +1,9 @@
 """Fault injection over HTTP (``/api/faults``): only with ``serve --allow-fault-injection``, emulated fabric.
 
 For tests and demonstrations of the daemon's recovery: inject a fault of a
-kind :mod:`..overlays.emulated.faults` knows, watch ``/healthz``,
-``/api/status`` ``faults`` and ``/metrics`` report it, end it, watch the
-part recover. Without the flag none of these routes exists (404). Faults
+kind the overlay's ``fault_injection`` knows (:class:`~stereocam.overlays.interface.FaultInjection`),
+watch ``/healthz``, ``/api/status`` ``faults`` and ``/metrics`` report it,
+end it, watch the part recover. Without the flag none of these routes exists (404). Faults
 still active when the daemon stops are ended first, so the fabric stops cleanly.
 """
 from __future__ import annotations
@@ -13,46 +13,41 @@ from typing import Any, AsyncIterator
 
 from aiohttp import web
 
-from ...overlays.emulated.faults import KINDS, FaultError, FaultInjector
-from ..frames.errors import parse_json
+from ...overlays.interface import FaultError, FaultInjection
+from ..frames.errors import ApiError
+from .bodies import read_json
 from .state import OVERLAY
-from .streams import json_error
 
 log = logging.getLogger(__name__)
 
 __all__ = ["setup", "INJECTOR", "FaultInjectionUnavailable"]
 
-INJECTOR: "web.AppKey[FaultInjector]" = web.AppKey("stereocam.fault_injector", FaultInjector)
+INJECTOR: "web.AppKey[FaultInjection]" = web.AppKey("stereocam.fault_injector")
 
 
 class FaultInjectionUnavailable(Exception):
-    """The overlay is not the emulated fabric: a board's faults cannot be made on request."""
+    """The overlay makes no faults on request (a board's cannot be made)."""
 
 
 async def list_faults(request: web.Request) -> web.Response:
     injector = request.app[INJECTOR]
-    return web.json_response({"kinds": {k: list(v) if v else None for k, v in KINDS.items()},
+    return web.json_response({"kinds": {k: list(v) if v else None for k, v in injector.kinds.items()},
                               "injected": [f.to_json() for f in injector.active()]},
                              headers={"Cache-Control": "no-store"})
 
 
 async def inject_fault(request: web.Request) -> web.Response:
-    if request.content_type != "application/json":
-        return json_error(415, 'send JSON such as {"kind": "dma_slave", "target": "vdma_raw.s2mm"}')
-    try:
-        body: Any = parse_json(await request.read())
-    except (ValueError, UnicodeDecodeError):
-        return json_error(400, 'the body is not valid JSON: send {"kind": ..., "target": ...}')
+    body: Any = await read_json(request, example='{"kind": "dma_slave", "target": "vdma_raw.s2mm"}')
     if not isinstance(body, dict) or set(body) - {"kind", "target"} or "kind" not in body:
-        return json_error(400, 'send an object with "kind" and, for kinds on a part, "target" '
-                               "(GET /api/faults lists them)")
+        raise ApiError('send an object with "kind" and, for kinds on a part, "target" '
+                       "(GET /api/faults lists them)", status=400)
     kind, target = body["kind"], body.get("target")
     if not isinstance(kind, str) or not (target is None or isinstance(target, str)):
-        return json_error(400, "kind and target are strings (GET /api/faults lists them)")
+        raise ApiError("kind and target are strings (GET /api/faults lists them)", status=400)
     try:
         fault = request.app[INJECTOR].inject(kind, target)
     except FaultError as exc:
-        return json_error(409 if "already has" in str(exc) else 400, str(exc))
+        raise ApiError(str(exc), status=409 if "already has" in str(exc) else 400) from None
     log.warning("fault injected on request: %s%s (id %d)", kind, f" on {target}" if target else "", fault.id)
     return web.json_response(fault.to_json(), status=201)
 
@@ -60,11 +55,12 @@ async def inject_fault(request: web.Request) -> web.Response:
 async def end_fault(request: web.Request) -> web.Response:
     text = request.match_info["id"]
     if not text.isdigit() or len(text) > 12:
-        return json_error(404, f"no injected fault {text!r}: GET /api/faults lists them")
+        raise ApiError(f"no injected fault {text!r}: GET /api/faults lists them", status=404)
     try:
         fault = request.app[INJECTOR].end(int(text))
     except KeyError:
-        return json_error(404, f"no injected fault {text}: it ended already, or GET /api/faults lists them")
+        raise ApiError(f"no injected fault {text}: it ended already, or GET /api/faults lists them",
+                       status=404) from None
     log.warning("fault ended on request: %s (id %d)", fault.kind, fault.id)
     return web.json_response(fault.to_json())
 
@@ -82,16 +78,15 @@ async def _end_at_stop(app: web.Application) -> AsyncIterator[None]:
 
 
 def setup(app: web.Application) -> None:
-    """Add the routes; raises :class:`FaultInjectionUnavailable` off the emulated fabric.
+    """Add the routes; raises :class:`FaultInjectionUnavailable` for an overlay without fault injection.
 
     Call it after the fabric's cleanup context is appended: faults end before the fabric stops.
     """
-    overlay = app[OVERLAY]
-    hw = getattr(overlay, "hw", None)
-    if getattr(overlay.fabric, "backend", None) != "emulated" or hw is None:
+    injector = app[OVERLAY].fault_injection
+    if injector is None:
         raise FaultInjectionUnavailable("--allow-fault-injection works on the emulated fabric only "
                                         "(--backend emulated): a board's faults cannot be made on request")
-    app[INJECTOR] = FaultInjector(hw)
+    app[INJECTOR] = injector
     app.cleanup_ctx.append(_end_at_stop)
     app.router.add_get("/api/faults", list_faults)
     app.router.add_post("/api/faults", inject_fault)

@@ -14,10 +14,12 @@ from typing import Any, AsyncIterator, Dict, Optional
 
 from aiohttp import web
 
-from ..frames.errors import ApiError, parse_json
-from ..frames.recordings import MAX_SECONDS, Recorder, RecordingError, RecordingStore
-from .state import CALIBRATION, CONFIG, EXECUTORS, FEED, OVERLAY, PIPELINE, VIRTUAL
-from .streams import error_response, json_error
+from ...overlays import backend
+from ...overlays.interface import Replay
+from ..frames.errors import ApiError
+from ..frames.recordings import MAX_SECONDS, Recorder, RecordingStore
+from .bodies import read_json
+from .state import CALIBRATION, EXECUTORS, FEED, OVERLAY, PIPELINE, SETTINGS, VIRTUAL
 
 __all__ = ["RECORDINGS", "RECORDER", "setup", "open_replay"]
 
@@ -28,13 +30,13 @@ STOP_WAIT_S = 120.0  # a stop waits for the queued frames to be written and the 
 
 def setup(app: web.Application) -> None:
     """The recordings store, the recorder and their routes (``create_app`` calls it via routes_api)."""
-    config = app[CONFIG]
+    config = app[SETTINGS]
     store = RecordingStore(Path(config.state_path) / "recordings",
                            min_free_bytes=int(config.min_free_mb * 1e6))
     app[RECORDINGS] = store
     app[RECORDER] = Recorder(store, app[PIPELINE],
                              calibration_for=lambda count: app[CALIBRATION].for_frame(count),
-                             raw_stores=int(app[OVERLAY].fabric.raw_vdma.s2mm.num_fstores))
+                             raw_stores=app[OVERLAY].raw_stores)
     r = app.router
     r.add_get("/api/recordings", list_recordings)
     r.add_post("/api/recordings", start_recording)
@@ -76,30 +78,16 @@ def _seconds(doc: Any) -> Optional[float]:
 
 async def start_recording(request: web.Request) -> web.Response:
     app = request.app
-    try:
-        doc: Any = None
-        data = await request.read()
-        if data.strip():
-            if request.content_type != "application/json":
-                raise ApiError(f"send JSON (Content-Type: application/json), not {request.content_type}",
-                               status=415)
-            try:
-                doc = parse_json(data)
-            except ValueError:
-                raise ApiError("the body is not valid JSON", status=400) from None
-        seconds = _seconds(doc)
-        if not app[FEED].signal:
-            raise ApiError("no signal: no frame is coming from the fabric, so there is nothing to record; "
-                           "check the cameras (GET /api/status)", status=503)
-        pipeline, overlay = app[PIPELINE], app[OVERLAY]
-        fps = pipeline.fabric_fps() or (1.0 / pipeline.period if pipeline.period else None)
-        meta: Dict[str, Any] = {"backend": getattr(overlay, "backend", overlay.fabric.backend),
-                                "core_impl": getattr(overlay, "core_kind", "hardware")}
-        rec = await app[EXECUTORS].run(lambda: app[RECORDER].start(
-            seconds=seconds, frame_size=tuple(overlay.fabric.frame_size), fps=fps,
-            frame_no=pipeline.last_frame_number or 0, meta=meta))
-    except ApiError as exc:
-        return error_response(exc)
+    seconds = _seconds(await read_json(request, example='{"seconds": 10}', optional=True))
+    if not app[FEED].signal:
+        raise ApiError("no signal: no frame is coming from the fabric, so there is nothing to record; "
+                       "check the cameras (GET /api/status)", status=503)
+    pipeline, overlay = app[PIPELINE], app[OVERLAY]
+    fps = pipeline.fabric_fps() or (1.0 / pipeline.period if pipeline.period else None)
+    meta: Dict[str, Any] = {"backend": overlay.backend, "core_impl": overlay.core_kind}
+    rec = await app[EXECUTORS].run(lambda: app[RECORDER].start(
+        seconds=seconds, frame_size=overlay.frame_size, fps=fps,
+        frame_no=pipeline.last_frame_number or 0, meta=meta))
     return web.json_response(rec.to_json(), status=201, headers={"Location": f"/api/recordings/{rec.id}"})
 
 
@@ -122,10 +110,7 @@ async def get_recording(request: web.Request) -> web.Response:
     running = app[RECORDER].get(rid)
     if running is not None:
         return web.json_response(running.to_json(), headers={"Cache-Control": "no-store"})
-    try:
-        info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
-    except RecordingError as exc:
-        return error_response(exc)
+    info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
     return web.json_response(info.to_json(meta=True))
 
 
@@ -133,31 +118,26 @@ async def stop_recording(request: web.Request) -> web.Response:
     app, rid = request.app, request.match_info["id"]
     rec = app[RECORDER].get(rid)
     if rec is None:  # finished already (or never was): answer what there is
-        try:
-            info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
-        except RecordingError as exc:
-            return error_response(exc)
+        info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
         return web.json_response(info.to_json())
     rec.stop("stopped")
     kept = await asyncio.get_running_loop().run_in_executor(None, rec.join, STOP_WAIT_S)
     if kept is None:
         if rec.running:
-            return json_error(504, f"recording {rid} is still being written; list the recordings in a moment")
+            raise ApiError(f"recording {rid} is still being written; list the recordings in a moment",
+                           status=504)
         status = 507 if rec.end == "disk_full" else 503 if rec.frames == 0 else 500
-        return json_error(status, rec.error or "nothing was recorded")
+        raise ApiError(rec.error or "nothing was recorded", status=status)
     return web.json_response(kept.to_json())
 
 
 async def recording_zip(request: web.Request) -> web.StreamResponse:
     app, rid = request.app, request.match_info["id"]
     if app[RECORDER].get(rid) is not None:
-        return json_error(409, f"recording {rid} is still running: stop it or wait for it to end, "
-                               "then download it")
+        raise ApiError(f"recording {rid} is still running: stop it or wait for it to end, then download it",
+                       status=409)
     store = app[RECORDINGS]
-    try:
-        chunks = await app[EXECUTORS].run(store.zip_stream, rid)
-    except RecordingError as exc:
-        return error_response(exc)
+    chunks = await app[EXECUTORS].run(store.zip_stream, rid)
     resp = web.StreamResponse(headers={"Content-Type": "application/zip",
                                        "Content-Disposition": f'attachment; filename="{rid}.zip"'})
     try:
@@ -176,40 +156,36 @@ async def recording_zip(request: web.Request) -> web.StreamResponse:
 async def delete_recording(request: web.Request) -> web.Response:
     app, rid = request.app, request.match_info["id"]
     if app[RECORDER].get(rid) is not None:
-        return json_error(409, f"recording {rid} is running: stop it first (POST /api/recordings/{rid}/stop)")
+        raise ApiError(f"recording {rid} is running: stop it first (POST /api/recordings/{rid}/stop)",
+                       status=409)
     player = app[VIRTUAL].player
     if player is not None and player.running and player.id == rid:
-        return json_error(409, f"recording {rid} is playing through the virtual camera: choose another input "
-                               "or the live source first")
-    try:
-        await app[EXECUTORS].run(app[RECORDINGS].delete, rid)
-    except RecordingError as exc:
-        return error_response(exc)
+        raise ApiError(f"recording {rid} is playing through the virtual camera: choose another input or the "
+                       "live source first", status=409)
+    await app[EXECUTORS].run(app[RECORDINGS].delete, rid)
     return web.Response(status=204)
 
 
 # -- the virtual camera's side -----------------------------------------------------------------------
 
-async def open_replay(app: web.Application, rid: str) -> Any:
-    """The finished recording ``rid`` as a looping ReplaySource for the virtual camera.
+async def open_replay(app: web.Application, rid: str) -> Replay:
+    """The finished recording ``rid`` read back, looping, for the virtual camera.
 
     ApiError 400 malformed id, 404 unknown (or still recording), 422 damaged or of
     another frame size than the fabric's.
     """
-    from ...overlays.emulated.cameras import ReplayError, ReplaySource
-
     store = app[RECORDINGS]
 
-    def open_it() -> Any:
+    def open_it() -> Replay:
         folder = store.path(rid)
         try:
-            source = ReplaySource(folder, loop=True)
-        except ReplayError as exc:
+            source = backend.open_replay(folder, loop=True)
+        except backend.SourceError as exc:
             raise ApiError(f"recording {rid} cannot be replayed: {exc}", status=422) from None
         if not source.is_recording:
             source.close()
             raise ApiError(f"recording {rid} cannot be replayed: it has no recording.json", status=422)
-        w, h = app[OVERLAY].fabric.frame_size
+        w, h = app[OVERLAY].frame_size
         if source.frame_size != (w, h):
             rw, rh = source.frame_size
             source.close()

@@ -1,4 +1,4 @@
-"""What the page's capture viewer and live-view readouts need (issue 13, items 3 and 5).
+"""What the page's capture viewer and live-view readouts need.
 
 - ``GET /api/captures/{id}/thumb.jpg``: a small JPEG of a capture (its rectified left frame),
   made on first use and kept in memory (:class:`ThumbnailCache`).
@@ -27,13 +27,13 @@ import cv2
 import numpy as np
 from aiohttp import web
 
-from ..frames.captures import CaptureError, CaptureStore
-from ..frames.encoders import BroadcastClosed
+from ...overlays.spec import pixel
+from ..frames.captures import THUMB_FRAMES, CaptureStore, capture_file
 from ..frames.errors import ApiError
+from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
-from .state import CALIBRATION, CAPTURES, CONFIG, ENCODERS, EXECUTORS, FEED
-from .streams import error_response, json_error
+from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
 __all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_scale"]
 
@@ -55,7 +55,7 @@ class ThumbnailCache:
         """The JPEG (blocking: may decode a PNG). Errors as :meth:`CaptureStore.thumbnail`."""
         folder = store.path(capture_id)
         key: Tuple[Any, ...] = (str(store.root), folder.name)
-        for name in ("rect_left.png", "raw_left.png"):
+        for name in map(capture_file, THUMB_FRAMES):
             try:
                 st = os.lstat(folder / name)
                 key += (name, st.st_size, st.st_mtime_ns, st.st_ino)
@@ -78,10 +78,7 @@ THUMBS: "web.AppKey[ThumbnailCache]" = web.AppKey("stereocam.thumbnails")
 
 async def capture_thumb(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
-    try:
-        body = await request.app[EXECUTORS].run(request.app[THUMBS].get, store, request.match_info["id"])
-    except CaptureError as exc:
-        return error_response(exc)
+    body = await request.app[EXECUTORS].run(request.app[THUMBS].get, store, request.match_info["id"])
     # A capture never changes (a restored one is the same files): the browser may keep it.
     return web.Response(body=body, content_type="image/jpeg",
                         headers={"Cache-Control": "private, max-age=86400"})
@@ -89,10 +86,7 @@ async def capture_thumb(request: web.Request) -> web.Response:
 
 async def restore_capture(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
-    try:
-        info = await request.app[EXECUTORS].run(store.restore, request.match_info["id"])
-    except CaptureError as exc:
-        return error_response(exc)
+    info = await request.app[EXECUTORS].run(store.restore, request.match_info["id"])
     return web.json_response(info.to_json(), headers={"Location": f"/api/captures/{info.id}"})
 
 
@@ -122,8 +116,8 @@ def point_at(fs: FrameSet, x: int, y: int, scale: Optional[Dict[str, Any]]) -> D
     out: Dict[str, Any] = {
         "x": x, "y": y, "frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
         "width": int(p.shape[1]), "height": int(p.shape[0]),
-        "rect_left": dict(zip("rgby", (int(v) for v in p[y, x, 0:4]), strict=True)),
-        "rect_right": dict(zip("rgby", (int(v) for v in p[y, x, 4:8]), strict=True)),
+        "rect_left": dict(zip("rgby", (int(v) for v in p[y, x, pixel.LEFT]), strict=True)),
+        "rect_right": dict(zip("rgby", (int(v) for v in p[y, x, pixel.RIGHT]), strict=True)),
     }
     d16 = int(disparity_raw(fs)[y, x])
     valid = d16 >= 16 * STEREO_BM["min_disparity"]
@@ -175,25 +169,22 @@ def _newest(app: web.Application, frame: Optional[int]) -> Optional[FrameSet]:
 
 async def get_point(request: web.Request) -> web.Response:
     app = request.app
-    try:
-        unknown = sorted(set(request.query) - set(POINT_QUERY))
-        if unknown:
-            raise ApiError(f"unknown query parameter {unknown[0][:20]!r}: give x, y and optionally frame",
-                           status=400)
-        w, h = app[FEED].frame_size
-        x, y = _int_param(request, "x", w), _int_param(request, "y", h)
-        frame = _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
-    except ApiError as exc:
-        return error_response(exc)
+    unknown = sorted(set(request.query) - set(POINT_QUERY))
+    if unknown:
+        raise ApiError(f"unknown query parameter {unknown[0][:20]!r}: give x, y and optionally frame",
+                       status=400)
+    w, h = app[FEED].frame_size
+    x, y = _int_param(request, "x", w), _int_param(request, "y", h)
+    frame = _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
     fs = _newest(app, frame)
     if fs is None:
-        timeout = max(1.0, 2 * app[CONFIG].no_signal_s)
+        timeout = app[SETTINGS].frame_wait_s
         try:
             fs = await app[FEED].next_frame(timeout=timeout)
         except asyncio.TimeoutError:
-            return json_error(503, f"no signal: no frame came within {timeout:g} s")
+            raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
         except BroadcastClosed:
-            return json_error(503, "the daemon is shutting down")
+            raise ApiError("the daemon is shutting down", status=503) from None
     state = app[CALIBRATION]
     ran = state.for_frame(fs.fabric_count)
     same = ran is not None and ran.get("id") == state.id

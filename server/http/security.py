@@ -39,6 +39,9 @@ from urllib.parse import urlsplit
 from aiohttp import web
 from aiohttp.web_protocol import RequestPayloadError
 
+from ..frames.errors import ApiError
+from .errors import too_large
+
 if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
 
@@ -51,6 +54,7 @@ OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico"})  # no c
 OPEN_PREFIXES = ("/static/",)
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
 WILDCARDS = frozenset({"0.0.0.0", "::", ""})
+CHALLENGE = {"WWW-Authenticate": 'Bearer realm="stereocam"'}
 
 
 def allowed_host_names(host: str, extra: Iterable[str] = ()) -> FrozenSet[str]:
@@ -131,7 +135,7 @@ def _host_allowed(request: web.Request, names: FrozenSet[str]) -> bool:
 
 def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional[FrozenSet[str]] = None,
           protect: str = "all") -> "Middleware":
-    """The safety middleware for a daemon with these settings (errors are raised as HTTP exceptions).
+    """The safety middleware for a daemon with these settings (refusals are raised as ApiError).
 
     ``allowed_hosts``: the names :func:`allowed_host_names` gives (None: loopback names only).
     """
@@ -144,49 +148,44 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
     async def middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
         if not _host_allowed(request, names):
             host = _shown(request.headers.get("Host", ""))
-            raise web.HTTPMisdirectedRequest(
-                text=f"refused: Host '{host}' is not a name of this daemon "
-                     "(a page that renamed this address, or a new name: add it to allowed_hosts)")
+            raise ApiError(f"refused: Host '{host}' is not a name of this daemon "
+                           "(a page that renamed this address, or a new name: add it to allowed_hosts)",
+                           status=421)
         changing = request.method in STATE_CHANGING
         upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
         if (expected is not None and protect == "all" and not changing and request.path not in OPEN_PATHS
                 and not request.path.startswith(OPEN_PREFIXES)):
             given = _token_of(request, reads=True)
             if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
-                raise web.HTTPUnauthorized(
-                    headers={"WWW-Authenticate": 'Bearer realm="stereocam"'},
-                    text=f"{request.path} needs the access token: open the page as /?token=<token>, or send "
-                         "'Authorization: Bearer <token>' or add ?token=<token> to the URL"
-                         + (" (the token sent is wrong)" if given is not None else ""))
+                raise ApiError(f"{request.path} needs the access token: open the page as /?token=<token>, or "
+                               "send 'Authorization: Bearer <token>' or add ?token=<token> to the URL"
+                               + (" (the token sent is wrong)" if given is not None else ""),
+                               status=401, headers=CHALLENGE)
         if (changing or upgrade) and not same_origin(request):
             origin = _shown(request.headers.get("Origin", "a cross-site page"))
-            raise web.HTTPForbidden(reason="cross-origin request refused",
-                                    text=f"refused: {request.method} {request.path} from another origin "
-                                         f"({origin}); use the daemon's own page or a script without "
-                                         "an Origin header")
+            raise ApiError(f"refused: {request.method} {request.path} from another origin ({origin}); use "
+                           "the daemon's own page or a script without an Origin header", status=403)
         if changing and expected is not None:
             given = _token_of(request)
             # Header bytes that are not UTF-8 arrive as surrogates: compare them as the bytes sent.
             if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
-                raise web.HTTPUnauthorized(
-                    headers={"WWW-Authenticate": 'Bearer realm="stereocam"'},
-                    text=f"{request.method} {request.path} needs the access token: send "
-                         "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>'"
-                         + (" (the token sent is wrong)" if given is not None else ""))
+                raise ApiError(f"{request.method} {request.path} needs the access token: send "
+                               "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>'"
+                               + (" (the token sent is wrong)" if given is not None else ""),
+                               status=401, headers=CHALLENGE)
         if changing and request.content_length is not None and request.content_length > max_body:
-            raise web.HTTPRequestEntityTooLarge(max_size=max_body, actual_size=request.content_length,
-                                                text=_too_large(max_body, request.content_length))
+            raise ApiError(too_large(max_body, request.content_length), status=413)
         try:
             return await handler(request)
         except RequestPayloadError as exc:  # the body cannot be read as sent (a corrupt gzip body, ...)
-            raise web.HTTPBadRequest(text=_unreadable_body(exc)) from None
+            raise ApiError(_unreadable_body(exc), status=400) from None
         except ConnectionResetError:
             transport = request.transport
             if transport is not None and not transport.is_closing():
                 raise
             # The client went away in the middle of its request (a body cut short): nobody reads the
             # answer, and aiohttp would log a handler's ConnectionResetError as a failure with a traceback.
-            raise web.HTTPBadRequest(text="the client closed the connection before its request was read") \
+            raise ApiError("the client closed the connection before its request was read", status=400) \
                 from None
 
     return middleware
@@ -208,8 +207,3 @@ def _unreadable_body(exc: RequestPayloadError) -> str:
     detail = lines[0][:200] if lines else type(cause).__name__
     return (f"malformed request: the body cannot be read ({detail}); send it uncompressed, or encoded as "
             "its Content-Encoding says")
-
-
-def _too_large(limit: int, size: Optional[int] = None) -> str:
-    got = f" ({size} bytes)" if size is not None else ""
-    return f"the request body is too large{got}: the limit is {limit} bytes (max_upload_bytes)"

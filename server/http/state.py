@@ -2,7 +2,7 @@
 
 ``create_app`` (:mod:`.app`) fills every key before the app starts; route
 modules read them (``request.app[PIPELINE]``). Extensions (calibration,
-issue 4; sensors, issue 5) add their routes in their ``setup(app)`` and
+sensors) add their routes in their ``setup(app)`` and
 register providers in ``app[EXTENSIONS]``: what they add to ``/api/status``,
 ``/metrics`` and capture metadata.
 """
@@ -19,21 +19,23 @@ from aiohttp import web
 if TYPE_CHECKING:  # pragma: no cover
     from prometheus_client.metrics_core import Metric
 
+    from ...overlays.interface import Overlay
     from ..frames.captures import CaptureStore
     from ..frames.cpu_budget import CpuBudget
-    from ..frames.encoders import Encoders, FrameFeed
+    from ..frames.encoders import Encoders
     from ..frames.fabric_health import FabricHealth
+    from ..frames.feed import FrameFeed
     from ..frames.pipeline import Pipeline
-    from .config import Config
+    from ..frames.virtual_camera import VirtualCamera
     from .metrics import Metrics
-    from .routes_api import VirtualCamera
+    from .settings import Settings
     from .streams import StreamClients
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 __all__ = [
-    "CONFIG", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "STREAMS", "METRICS", "CAPTURES",
+    "SETTINGS", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "STREAMS", "METRICS", "CAPTURES",
     "VIRTUAL",
     "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState", "Extensions",
 ]
@@ -164,7 +166,7 @@ class CalibrationState:
     """The calibration the core runs with, as status and captures report it.
 
     ``id`` names it (captures record it), ``description`` says where it came
-    from, ``rows_needed``/``lb_rows`` are the line-buffer fit. Issue 4's
+    from, ``rows_needed``/``lb_rows`` are the line-buffer fit. The
     calibration routes replace these fields when they program a new one.
     """
 
@@ -282,8 +284,8 @@ class Extensions:
         return self._chain(self.metrics, "metrics")
 
 
-CONFIG: "web.AppKey[Config]" = web.AppKey("stereocam.config")
-OVERLAY: "web.AppKey[Any]" = web.AppKey("stereocam.overlay")
+SETTINGS: "web.AppKey[Settings]" = web.AppKey("stereocam.settings")
+OVERLAY: "web.AppKey[Overlay]" = web.AppKey("stereocam.overlay")
 PIPELINE: "web.AppKey[Pipeline]" = web.AppKey("stereocam.pipeline")
 FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed")
 BUDGET: "web.AppKey[CpuBudget]" = web.AppKey("stereocam.cpu_budget")

@@ -24,30 +24,23 @@ import struct
 import termios
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterator, Optional, Tuple
+from typing import Any, Awaitable, Callable, Dict, Iterator, Optional, Tuple
 
 from aiohttp import WSCloseCode, WSMsgType, web
 
-from ..frames.encoders import BOUNDARY, BroadcastClosed, Encoded, EncoderKey, Pacer, encoded_for, png_for
-from ..frames.errors import parse_json
+from ..frames.encoders import BOUNDARY, Encoded, EncoderKey, Pacer, encoded_for, png_for
+from ..frames.errors import ApiError, parse_json
+from ..frames.feed import BroadcastClosed, Latest
 from ..frames.pipeline import FrameSet
 from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS
-from .config import MAX_FPS
-from .state import CONFIG, ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, STREAMS
+from .settings import MAX_FPS
+from .state import ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, SETTINGS, STREAMS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StreamClients", "StreamClient", "StreamParams", "parse_params", "setup_routes", "json_error"]
+__all__ = ["StreamClients", "StreamClient", "StreamParams", "parse_params", "send_newest", "setup_routes"]
 
-
-def json_error(status: int, message: str, **headers: str) -> web.Response:
-    """The daemon's error answer: ``{"error": message}`` with ``status``."""
-    return web.json_response({"error": " ".join(message.split())}, status=status, headers=headers or None)
-
-
-def error_response(exc: Exception) -> web.Response:
-    """:func:`json_error` for a refusal carrying ``status`` and ``message`` (an :class:`.errors.ApiError`)."""
-    return json_error(int(getattr(exc, "status", 500)), getattr(exc, "message", None) or str(exc))
+SHUTTING_DOWN = "the daemon is shutting down"
 
 
 # -- clients -------------------------------------------------------------------------------
@@ -69,7 +62,7 @@ class StreamClient:
     def sending(self, encoded: Encoded, newest: Optional[FrameSet]) -> None:
         """Note that ``encoded`` is about to be written; ``newest`` is the newest frame set the pipeline
         has delivered (the feed's ``last_frame``). A frame that lags it is one a client gets late:
-        a slow reader must still get the newest frame when it can take one (issue 10, item 7)."""
+        a slow reader must still get the newest frame when it can take one."""
         self.writing_since = time.monotonic()
         if not encoded.signal:
             return
@@ -102,10 +95,15 @@ class StreamClients:
     def full(self) -> bool:
         return len(self.clients) >= self.max_streams
 
-    def refuse(self) -> web.Response:
-        self.refused += 1
-        return json_error(503, f"too many streams: {self.max_streams} clients are watching already "
-                               "(max_streams); close one or try again later", **{"Retry-After": "5"})
+    def admit(self) -> None:
+        """Raise the 503 for a new client while the daemon stops or ``max_streams`` clients watch."""
+        if self.closing:
+            raise ApiError(SHUTTING_DOWN, status=503)
+        if self.full():
+            self.refused += 1
+            raise ApiError(f"too many streams: {self.max_streams} clients are watching already "
+                           "(max_streams); close one or try again later", status=503,
+                           headers={"Retry-After": "5"})
 
     @contextlib.contextmanager
     def client(self, request: web.Request, kind: str, view: str) -> Iterator[StreamClient]:
@@ -175,11 +173,11 @@ class StreamParams:
 SCALES = (0.25, 0.5, 1.0)  # a few sizes, so that clients share encoders: thumbnails and the full view
 
 
-class BadParams(Exception):
+class BadParams(ApiError):
+    """A stream's view or parameters refused: answered as JSON, or sent on the page's socket."""
+
     def __init__(self, status: int, message: str) -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
+        super().__init__(message, status=status)
 
 
 def _flag(name: str, value: Optional[str]) -> bool:
@@ -230,7 +228,7 @@ def parse_params(view: str, query: Any, *, default_fps: float, default_quality: 
 
 
 def _params(request: web.Request, view: str) -> StreamParams:
-    config = request.app[CONFIG]
+    config = request.app[SETTINGS]
     return parse_params(view, request.query, default_fps=config.default_fps,
                         default_quality=config.default_quality)
 
@@ -266,7 +264,7 @@ async def until_taken(client: "StreamClient", limit: int) -> None:
         await asyncio.sleep(QUEUE_POLL_S)
 
 
-async def _next(encoder_output: Any, seq: int, pacer: Pacer) -> Tuple[int, Encoded]:
+async def _next(encoder_output: "Latest[Encoded]", seq: int, pacer: Pacer) -> Tuple[int, Encoded]:
     seq, encoded = await encoder_output.wait_newer(seq)
     loop = asyncio.get_running_loop()
     delay = pacer.wait(loop.time())
@@ -276,54 +274,65 @@ async def _next(encoder_output: Any, seq: int, pacer: Pacer) -> Tuple[int, Encod
     return seq, encoded
 
 
+async def send_newest(request: web.Request, client: StreamClient, params: StreamParams,
+                      write: Callable[[Encoded], Awaitable[int]], *,
+                      running: Callable[[], bool] = lambda: True) -> None:
+    """Send ``client`` the newest encoded frame of ``params``, paced to its ``fps``, while ``running()``.
+
+    ``write`` sends one frame (the MJPEG part or the WebSocket message) and returns its size:
+    the next frame is chosen once that frame has left the daemon's buffers (:func:`until_taken`).
+    Returns when the broadcast closes (shutdown) or the connection breaks.
+    """
+    loop = asyncio.get_running_loop()
+    feed = request.app[FEED]
+    with request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
+        pacer = Pacer(params.fps)
+        seq = 0
+        try:
+            while running():
+                seq, encoded = await _next(encoder.output, seq, pacer)
+                client.sending(encoded, feed.last_frame)
+                size = await write(encoded)
+                await until_taken(client, size)  # the frame before has reached the client
+                client.writing_since = None
+                client.frames += 1
+                pacer.sent(loop.time())
+        except (BroadcastClosed, ConnectionError):
+            pass  # shutdown, the client went away, or the sweeper aborted the transport
+
+
 # -- handlers ---------------------------------------------------------------------------------
 
 async def stream_handler(request: web.Request) -> web.StreamResponse:
-    try:
-        params = _params(request, request.match_info["view"])
-    except BadParams as exc:
-        return json_error(exc.status, exc.message)
+    params = _params(request, request.match_info["view"])
     streams = request.app[STREAMS]
-    if streams.closing:
-        return json_error(503, "the daemon is shutting down")
-    if streams.full():
-        return streams.refuse()
+    streams.admit()
     resp = web.StreamResponse(headers={
         "Content-Type": f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         "Cache-Control": "no-cache, no-store, must-revalidate",
         "Pragma": "no-cache",
         "X-Content-Type-Options": "nosniff",
     })
-    loop = asyncio.get_running_loop()
-    feed = request.app[FEED]
-    with streams.client(request, "mjpeg", params.view) as client, \
-            request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
+
+    async def write(encoded: Encoded) -> int:
+        await resp.write(encoded.part)
+        return len(encoded.part)
+
+    with streams.client(request, "mjpeg", params.view) as client:
         try:
             await resp.prepare(request)
-            pacer = Pacer(params.fps)
-            seq = 0
-            while True:
-                seq, encoded = await _next(encoder.output, seq, pacer)
-                client.sending(encoded, feed.last_frame)
-                await resp.write(encoded.part)
-                await until_taken(client, len(encoded.part))  # the frame before has reached the client
-                client.writing_since = None
-                client.frames += 1
-                pacer.sent(loop.time())
-        except (BroadcastClosed, ConnectionError):
-            pass  # shutdown, the client went away, or the sweeper aborted the transport
+        except ConnectionError:
+            return resp  # the client went away
+        await send_newest(request, client, params, write)
     return resp
 
 
 async def snapshot_handler(request: web.Request) -> web.StreamResponse:
     fmt = request.match_info["fmt"]
-    try:
-        params = _params(request, request.match_info["view"])
-    except BadParams as exc:
-        return json_error(exc.status, exc.message)
+    params = _params(request, request.match_info["view"])
     app = request.app
-    feed, config = app[FEED], app[CONFIG]
-    timeout = max(1.0, 2 * config.no_signal_s)
+    feed, config = app[FEED], app[SETTINGS]
+    timeout = config.frame_wait_s
     need_raw = params.view in RAW_VIEWS
     pipeline = app[PIPELINE]
     asked = time.time()
@@ -335,10 +344,10 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
         with pipeline.raw_wanted() if need_raw else contextlib.nullcontext():
             frame_set = await feed.next_frame(timeout=timeout, accept=wanted)
     except asyncio.TimeoutError:
-        return json_error(503, f"no signal: the fabric sent no frame within {timeout:g} s; "
-                               "check the cameras (GET /api/status)")
+        raise ApiError(f"no signal: the fabric sent no frame within {timeout:g} s; "
+                       "check the cameras (GET /api/status)", status=503) from None
     except BroadcastClosed:
-        return json_error(503, "the daemon is shutting down")
+        raise ApiError(SHUTTING_DOWN, status=503) from None
     loop = asyncio.get_running_loop()
     executor = app[EXECUTORS].encode
     if fmt == "jpg":
@@ -358,16 +367,14 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
 async def ws_handler(request: web.Request) -> web.StreamResponse:
     """The page's socket: ``{"views": [...], "fps": N, "quality": Q, "gray": bool}`` in, frames out."""
     streams = request.app[STREAMS]
-    if streams.closing:
-        return json_error(503, "the daemon is shutting down")
-    if streams.full():
-        return streams.refuse()
+    streams.admit()
     # No permessage-deflate: JPEG does not compress, and deflating every frame per client costs CPU.
     ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=64 * 1024, compress=False)
     try:
         await ws.prepare(request)  # a bad handshake is an HTTPBadRequest, answered as JSON by the app
     except ValueError:  # aiohttp decodes Sec-WebSocket-Key before checking it: a key that is not ASCII
-        return json_error(400, "WebSocket handshake error: Sec-WebSocket-Key must be 16 bytes in base64")
+        raise ApiError("WebSocket handshake error: Sec-WebSocket-Key must be 16 bytes in base64",
+                       status=400) from None
     senders: Dict[str, "asyncio.Task[None]"] = {}
 
     def stop_senders() -> None:
@@ -424,28 +431,17 @@ def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
 
 
 def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> StreamParams:
-    config = request.app[CONFIG]
+    config = request.app[SETTINGS]
     return parse_params(view, query, default_fps=config.default_fps, default_quality=config.default_quality)
 
 
 async def _ws_sender(request: web.Request, ws: web.WebSocketResponse, client: StreamClient,
                      params: StreamParams) -> None:
-    loop = asyncio.get_running_loop()
-    feed = request.app[FEED]
-    with request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
-        pacer = Pacer(params.fps)
-        seq = 0
-        try:
-            while not ws.closed:
-                seq, encoded = await _next(encoder.output, seq, pacer)
-                client.sending(encoded, feed.last_frame)
-                await ws.send_bytes(encoded.ws)
-                await until_taken(client, len(encoded.ws))
-                client.writing_since = None
-                client.frames += 1
-                pacer.sent(loop.time())
-        except (BroadcastClosed, ConnectionError):
-            pass
+    async def write(encoded: Encoded) -> int:
+        await ws.send_bytes(encoded.ws)
+        return len(encoded.ws)
+
+    await send_newest(request, client, params, write, running=lambda: not ws.closed)
 
 
 def setup_routes(app: web.Application) -> None:

@@ -199,7 +199,7 @@ WantedBy=multi-user.target
 def default_config_text(*, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
                         captures: str = DEFAULT_CAPTURES) -> str:
     return f"""\
-# stereocam serve settings (keys: see `stereocam serve --help` and server/http/config.py).
+# stereocam serve settings (keys: see `stereocam serve --help` and server/http/settings.py).
 host: {host}
 port: {port}
 backend: auto

@@ -15,7 +15,7 @@ Two phases, each after ``warmup`` seconds for the plan to settle:
 - ``one``: ``rect_left`` alone for ``one_seconds``: its ``delivered_fps``
   against ``camera_fps``, the fabric's rate (``/api/status``).
 
-Floors (issue 12): within ``cores + 0.05`` cores over the window, every view
+Floors: within ``cores + 0.05`` cores over the window, every view
 at least 2 fps; one view at (at least 90 % of) the fabric's rate.
 """
 from __future__ import annotations

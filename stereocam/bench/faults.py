@@ -1,6 +1,6 @@
 """The ``faults`` benchmark: how fast the daemon reports and recovers from each kind of fault.
 
-Issue 10's floor: every injected fault of every kind reported within 1 s and
+The floor: every injected fault of every kind reported within 1 s and
 recovered within 2 s of its end, 100 times in a row, with no other stream
 stalling. ``tests/test_faults.py`` checks the behaviour (each reported, each
 recovered, frames going on) by waiting for conditions, so a busy machine makes

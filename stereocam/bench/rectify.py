@@ -96,7 +96,7 @@ Maps = List[Tuple[np.ndarray, np.ndarray]]
 def bench_calibration() -> "Tuple[StereoModel, Rectification, CameraParams, CameraParams]":
     """The synthetic rig's known calibration, rectified with alpha 0: (model, rect, left, right)."""
     from ..calibration.stereo import core_cameras, rectify
-    from ..overlays.emulated.cameras import SyntheticRig
+    from ..overlays.emulated.render import SyntheticRig
 
     rig = SyntheticRig(size=(WIDTH, HEIGHT))
     try:
@@ -110,7 +110,7 @@ def bench_calibration() -> "Tuple[StereoModel, Rectification, CameraParams, Came
 
 def bench_frames(n: int = 4) -> List[np.ndarray]:
     """A few rendered frames of the synthetic rig (real image content, not noise)."""
-    from ..overlays.emulated.cameras import SyntheticRig
+    from ..overlays.emulated.render import SyntheticRig
 
     rig = SyntheticRig(size=(WIDTH, HEIGHT))
     try:

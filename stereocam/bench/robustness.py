@@ -1,6 +1,6 @@
 """``stereocam bench robustness``: the daemon under hostile and slow clients, each figure against its floor.
 
-Issue 10's floors, measured on ``stereocam serve`` run as a subprocess on the
+The floors, measured on ``stereocam serve`` run as a subprocess on the
 emulated fabric (its log and its resident memory are its own):
 
 ``barrage``
@@ -1242,7 +1242,7 @@ def measure_robustness(*, requests: int = 2000, fps: float = 60.0, concurrency: 
 
 
 def meets(result: Dict[str, Any]) -> Dict[str, bool]:
-    """Each floor of issue 10 against its figure in ``result``."""
+    """Each floor against its figure in ``result``."""
     barrage, bomb, reader = result["barrage"], result["alias_bomb"], result["slow_reader"]
     return {
         "stream_max_gap_s": barrage["stream_max_gap_s"] <= FLOOR_STREAM_GAP_S,

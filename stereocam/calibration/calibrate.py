@@ -13,7 +13,7 @@ The steps, as pure functions a daemon can call in a worker thread:
    reprojection error is far above the others dropped (once); stereo
    rectification (each camera rotated half way, zero disparity at
    infinity, the user's alpha); everything folded into the core's register
-   values (:class:`~.calibration_file.Calibration`); and the figures of the
+   values (:class:`~.file.Calibration`); and the figures of the
    :class:`CalibrationReport`.
 
 The rectified row error is measured through the core's own mapping, not
@@ -29,6 +29,7 @@ corresponding corners: 0 for a perfect calibration and detector.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
@@ -48,14 +49,13 @@ from ..overlays.spec.rectify import (
     CameraParams,
 )
 from .file import Calibration
+from .image_files import CAPTURE_FILES, is_image_file, natural_key
 from .stereo import StereoModel, rectify
 
 MIN_PAIRS = 5
 # A pair is dropped when its RMS error exceeds both of these: corners misdetected, or the board moved.
 OUTLIER_PX = 2.0
 OUTLIER_FACTOR = 4.0
-CAPTURE_FILES = ("raw_left.png", "raw_right.png")
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
 Progress = Callable[[str, int, int], None]
 """``progress(stage, done, total)``: stage is "detect", "calibrate" or "check"."""
@@ -197,10 +197,6 @@ def _gray(image: ImageLike, what: str) -> np.ndarray:
     return gray
 
 
-def _natural_key(text: str) -> Tuple[Any, ...]:
-    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", text.lower()))
-
-
 def _is_capture(folder: Path) -> bool:
     return all((folder / f).is_file() for f in CAPTURE_FILES)
 
@@ -209,13 +205,13 @@ def _image_pairs_in(folder: Path) -> List[ImagePair]:
     """``left<suffix>.<ext>`` / ``right<suffix>.<ext>`` files of one folder, matched by suffix."""
     sides: Dict[str, Dict[str, Path]] = {"left": {}, "right": {}}
     for p in folder.iterdir():
-        if not p.is_file() or p.name.startswith(".") or p.suffix.lower() not in IMAGE_EXTS:
+        if not is_image_file(p):
             continue
         stem = p.stem.lower()
         for side in sides:
             if stem.startswith(side):
                 sides[side][stem[len(side) :]] = p
-    lonely = sorted(set(sides["left"]) ^ set(sides["right"]), key=_natural_key)
+    lonely = sorted(set(sides["left"]) ^ set(sides["right"]), key=natural_key)
     if lonely:
         k = lonely[0]
         have = sides["left"].get(k) or sides["right"][k]
@@ -223,7 +219,7 @@ def _image_pairs_in(folder: Path) -> List[ImagePair]:
         raise CalibrationInputError(f"{have} has no {other}{k}.* beside it: give both images of every pair")
     return [
         ImagePair(sides["left"][k].name, sides["left"][k], sides["right"][k])
-        for k in sorted(sides["left"], key=_natural_key)
+        for k in sorted(sides["left"], key=natural_key)
     ]
 
 
@@ -256,7 +252,7 @@ def find_pairs(inputs: Sequence[Union[str, Path]]) -> List[ImagePair]:
         # Hidden folders are the capture store's unfinished or deleted captures.
         subs = sorted(
             (d for d in path.iterdir() if d.is_dir() and not d.name.startswith(".")),
-            key=lambda d: _natural_key(d.name),
+            key=lambda d: natural_key(d.name),
         )
         found = [d for d in subs if _is_capture(d)]
         for d in subs:
@@ -651,7 +647,7 @@ def calibrate_pairs(
     missing or unreadable image or pairs of different sizes;
     :class:`NotEnoughPairs` when fewer than ``min_pairs`` pairs show the
     whole pattern in both cameras; :class:`CalibrationError` when the
-    calibration fails; ``ConfigError`` subclasses when the result does not
+    calibration fails; ``CoreParamsError`` subclasses when the result does not
     fit the core's registers or a ``max_width`` x ``max_height`` frame. A
     calibration that needs more than ``lb_rows`` line-buffer rows is
     returned (see :attr:`CalibrationReport.fits` and
@@ -662,6 +658,32 @@ def calibrate_pairs(
     if not 0.0 <= alpha <= 1.0:
         raise CalibrationError(f"alpha must be between 0 (only valid pixels) and 1 (all pixels), not {alpha}")
     report = progress or (lambda stage, done, total: None)
+    views, results, size = _detect_views(pairs, pattern, report)
+    _require(views, results, min_pairs, len(pairs))
+    views, model, rms, per_view = _calibrate_views(views, pairs, results, pattern, size, min_pairs, report)
+    report("calibrate", 2, 3)
+    rect = rectify(model, alpha=alpha)
+    cal = Calibration.derive(
+        model, rect, alpha=float(alpha), units="m", source=source, max_width=max_width, max_height=max_height
+    )
+    report("calibrate", 3, 3)
+    rows = _check_through_core(cal, views, pairs, per_view, results, report)
+    ordered = tuple(results[i] for i in range(len(pairs)))
+    mean, worst = float(rows.mean()), float(rows.max())
+    cal = dataclasses.replace(cal, quality=_quality(pattern, ordered, rms, mean, worst))
+    return CalibrationReport(cal, pattern, ordered, rms, mean, worst, lb_rows)
+
+
+def _detect_views(
+    pairs: Sequence[ImagePair], pattern: Pattern, report: Progress
+) -> Tuple[_Views, Dict[int, PairResult], Tuple[int, int]]:
+    """The corners of every pair showing the whole pattern in both images, the rejected pairs' results,
+    and the image size.
+
+    Reads one pair at a time and keeps only its corners. Raises
+    :class:`CalibrationInputError` for pairs of another size than the
+    first, :class:`NotEnoughPairs` when no pair shows the pattern.
+    """
     total = len(pairs)
     results: Dict[int, PairResult] = {}
     views = _Views([], [], [])
@@ -697,54 +719,73 @@ def calibrate_pairs(
     if not views.index:
         raise NotEnoughPairs(
             f"the {pattern} pattern was found in none of the {total} pairs: check the pattern "
-            "(--pattern, the page's inner corners: per row x per column, e.g. a board of 10x7 squares has 9x6) "
-            "and that the whole board is in both images"
+            "(--pattern, the page's inner corners: per row x per column, e.g. a board of 10x7 squares "
+            "has 9x6) and that the whole board is in both images"
         )
-    _require(views, results, min_pairs, total)
+    return views, results, size
 
+
+def _calibrate_views(
+    views: _Views,
+    pairs: Sequence[ImagePair],
+    results: Dict[int, PairResult],
+    pattern: Pattern,
+    size: Tuple[int, int],
+    min_pairs: int,
+    report: Progress,
+) -> Tuple[_Views, StereoModel, float, np.ndarray]:
+    """The stereo calibration of ``views``, once more without its outliers if enough pairs remain.
+
+    A pair whose RMS error exceeds both :data:`OUTLIER_PX` and
+    :data:`OUTLIER_FACTOR` times the median is dropped (its result goes to
+    ``results``). Returns the views kept, the model, its RMS and the
+    per-view RMS ``(N, 2)``.
+    """
     report("calibrate", 0, 3)
     model, rms, per_view = _stereo_calibrate(views, pattern, size)
     pair_rms = np.sqrt((per_view**2).mean(axis=1))
     median = float(np.median(pair_rms))
     limit = max(OUTLIER_PX, OUTLIER_FACTOR * median)
     bad = [k for k in range(len(views.index)) if pair_rms[k] > limit]
-    if bad and len(views.index) - len(bad) >= min_pairs:
-        for k in bad:
-            i = views.index[k]
-            results[i] = PairResult(
-                pairs[i].name,
-                False,
-                f"reprojection error {pair_rms[k]:.2f} px is more than {OUTLIER_FACTOR:g}x the median "
-                f"{median:.2f} px (corners misdetected, blur, or the board moved)",
-            )
-        keep = [k for k in range(len(views.index)) if k not in bad]
-        views = _Views(
-            [views.index[k] for k in keep], [views.left[k] for k in keep], [views.right[k] for k in keep]
+    if not bad or len(views.index) - len(bad) < min_pairs:
+        return views, model, rms, per_view
+    for k in bad:
+        i = views.index[k]
+        results[i] = PairResult(
+            pairs[i].name,
+            False,
+            f"reprojection error {pair_rms[k]:.2f} px is more than {OUTLIER_FACTOR:g}x the median "
+            f"{median:.2f} px (corners misdetected, blur, or the board moved)",
         )
-        report("calibrate", 1, 3)
-        model, rms, per_view = _stereo_calibrate(views, pattern, size)
-        pair_rms = np.sqrt((per_view**2).mean(axis=1))
-    report("calibrate", 2, 3)
-    rect = rectify(model, alpha=alpha)
-    units = "m"
-    cal = Calibration.derive(
-        model,
-        rect,
-        alpha=float(alpha),
-        units=units,
-        source=source,
-        max_width=max_width,
-        max_height=max_height,
+    keep = [k for k in range(len(views.index)) if k not in bad]
+    views = _Views(
+        [views.index[k] for k in keep], [views.left[k] for k in keep], [views.right[k] for k in keep]
     )
-    report("calibrate", 3, 3)
+    report("calibrate", 1, 3)
+    model, rms, per_view = _stereo_calibrate(views, pattern, size)
+    return views, model, rms, per_view
 
+
+def _check_through_core(
+    cal: Calibration,
+    views: _Views,
+    pairs: Sequence[ImagePair],
+    per_view: np.ndarray,
+    results: Dict[int, PairResult],
+    report: Progress,
+) -> np.ndarray:
+    """The rectified row error ``|y_left - y_right|`` of every used corner, through the core's mapping.
+
+    Fills ``results`` with each used pair's figures.
+    """
+    model, rect, size = cal.model, cal.rect, cal.image_size
+    pair_rms = np.sqrt((per_view**2).mean(axis=1))
     report("check", 0, len(views.index))
     all_rows: List[np.ndarray] = []
     for k, i in enumerate(views.index):
-        size = cal.image_size
-        yl = core_rectified_points(cal.left, views.left[k], model.K1, model.D1, rect.R1, rect.P1, size=size)[:, 1]
-        yr = core_rectified_points(cal.right, views.right[k], model.K2, model.D2, rect.R2, rect.P2, size=size)[:, 1]
-        rows = np.abs(yl - yr)
+        yl = core_rectified_points(cal.left, views.left[k], model.K1, model.D1, rect.R1, rect.P1, size=size)
+        yr = core_rectified_points(cal.right, views.right[k], model.K2, model.D2, rect.R2, rect.P2, size=size)
+        rows = np.abs(yl[:, 1] - yr[:, 1])
         all_rows.append(rows)
         results[i] = PairResult(
             pairs[i].name,
@@ -757,22 +798,7 @@ def calibrate_pairs(
             float(rows.max()),
         )
         report("check", k + 1, len(views.index))
-    rows_all = np.concatenate(all_rows)
-    ordered = tuple(results[i] for i in range(total))
-    mean, worst = float(rows_all.mean()), float(rows_all.max())
-    cal = Calibration(
-        cal.model,
-        cal.rect,
-        cal.left,
-        cal.right,
-        cal.fit,
-        cal.id,
-        alpha=cal.alpha,
-        units=cal.units,
-        source=cal.source,
-        quality=_quality(pattern, ordered, rms, mean, worst),
-    )
-    return CalibrationReport(cal, pattern, ordered, rms, mean, worst, lb_rows)
+    return np.concatenate(all_rows)
 
 
 def _require(views: _Views, results: Dict[int, PairResult], min_pairs: int, total: int) -> None:

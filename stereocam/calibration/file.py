@@ -57,7 +57,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..overlays.model.config import LineBufferTooSmall, check_frame_size, check_params
+from ..overlays.model.core_params import LineBufferTooSmall, check_frame_size, check_params
 from ..overlays.model.linebuffer import LineBufferFit, rows_needed
 from ..overlays.spec.rectify import (
     CAMERA_BASE,
@@ -261,7 +261,7 @@ class Calibration:
     ) -> "Calibration":
         """Core parameters, line-buffer figures and id of ``model`` and ``rect``.
 
-        Refuses (``CalibrationFileError`` or a ``ConfigError`` subclass,
+        Refuses (``CalibrationFileError`` or a ``CoreParamsError`` subclass,
         both ``ValueError``): skewed intrinsics, a frame larger than
         ``max_width`` x ``max_height``, a singular rectification, values
         that do not fit the registers. ``where`` prefixes the messages
@@ -710,7 +710,7 @@ def load_calibration(
     ``derive_missing`` accepts a stereocam file without ``core``/``id``.
 
     Blocking (file reads and tens of milliseconds of numpy). Raises
-    ``CalibrationFileError`` or a ``ConfigError`` subclass (both
+    ``CalibrationFileError`` or a ``CoreParamsError`` subclass (both
     ``ValueError``) with a message naming the file and field.
     """
     paths = _split_source(source)

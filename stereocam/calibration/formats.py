@@ -81,7 +81,8 @@ def _shaped(path: Path, name: str, value: np.ndarray) -> np.ndarray:
             raise CalibrationFileError(f"{path}: {name} must have 3 values, has {value.size}")
         return value.reshape(3)
     if value.shape != want:
-        raise CalibrationFileError(f"{path}: {name} must be {want[0]}x{want[1]}, is {'x'.join(map(str, value.shape))}")
+        shape = "x".join(map(str, value.shape))
+        raise CalibrationFileError(f"{path}: {name} must be {want[0]}x{want[1]}, is {shape}")
     return value
 
 
@@ -90,7 +91,9 @@ def _distortion(path: Path, name: str, value: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(d)):
         raise CalibrationFileError(f"{path}: {name} has values that are not finite numbers")
     if d.size not in (4, 5, 8, 12, 14):
-        raise CalibrationFileError(f"{path}: {name} has {d.size} coefficients; expected k1, k2, p1, p2[, k3...]")
+        raise CalibrationFileError(
+            f"{path}: {name} has {d.size} coefficients; expected k1, k2, p1, p2[, k3...]"
+        )
     extra = [(DISTORTION_NAMES[i], float(v)) for i, v in enumerate(d) if i >= 4 and v != 0]
     if extra:
         terms = ", ".join(f"{n} = {v:g}" for n, v in extra)

@@ -26,7 +26,8 @@ class StereoModel:
     image_size: Tuple[int, int]  # (width, height)
 
     def __post_init__(self) -> None:
-        for name, shape in (("K1", (3, 3)), ("K2", (3, 3)), ("R", (3, 3)), ("D1", (4,)), ("D2", (4,)), ("T", (3,))):
+        shapes = (("K1", (3, 3)), ("K2", (3, 3)), ("R", (3, 3)), ("D1", (4,)), ("D2", (4,)), ("T", (3,)))
+        for name, shape in shapes:
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if name in ("D1", "D2", "T"):
                 value = value.reshape(-1)

@@ -180,10 +180,12 @@ class Positions:
     def words(self) -> List[Tuple[int, int, int, int, int, int]]:
         m = (1 << 21) - 1
         cols = [
-            (self.iu[0] & m).ravel().tolist(), (self.iv[0] & m).ravel().tolist(), self.ok[0].ravel().astype(int).tolist(),
-            (self.iu[1] & m).ravel().tolist(), (self.iv[1] & m).ravel().tolist(), self.ok[1].ravel().astype(int).tolist(),
+            (self.iu[0] & m).ravel().tolist(), (self.iv[0] & m).ravel().tolist(),
+            self.ok[0].ravel().astype(int).tolist(),
+            (self.iu[1] & m).ravel().tolist(), (self.iv[1] & m).ravel().tolist(),
+            self.ok[1].ravel().astype(int).tolist(),
         ]
-        return list(zip(*cols))
+        return list(zip(*cols, strict=True))
 
 
 def gray_of(rgb: np.ndarray) -> np.ndarray:
@@ -210,7 +212,7 @@ def interpolate(planes: np.ndarray, iu: np.ndarray, iv: np.ndarray, ok: np.ndarr
     use_pixel = ok & rect_rows[:, None]
     acc = np.zeros(planes.shape, np.int64)
     overflow = False
-    for (dx, dy), wt in zip(((0, 0), (1, 0), (0, 1), (1, 1)), weights):
+    for (dx, dy), wt in zip(((0, 0), (1, 0), (0, 1), (1, 1)), weights, strict=True):
         xs, ys = x0 + dx, y0 + dy
         inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
         window = (ys >= first) & (ys <= last)
@@ -221,7 +223,9 @@ def interpolate(planes: np.ndarray, iu: np.ndarray, iv: np.ndarray, ok: np.ndarr
     return ((acc + 512) >> 10).astype(np.uint8), overflow
 
 
-def model_frame(inp: InputFrame, build: BuildParams, pos: Optional[Positions]) -> Tuple[Optional[np.ndarray], bool]:
+def model_frame(
+    inp: InputFrame, build: BuildParams, pos: Optional[Positions]
+) -> Tuple[Optional[np.ndarray], bool]:
     """One input frame -> (output frame or None when dropped, LB_OVERFLOW raised)."""
     o = inp.options
     e = e_of(o)
@@ -272,7 +276,8 @@ def random_positions(rng: np.random.Generator, options: FrameOptions, lb_rows: i
         u = np.where(kind == 2, rng.choice([-(1 << 20) + 1, (1 << 20) - 1], (h, w)), u)
         # on a pixel exactly, and the window's own rows exactly
         u = np.where(kind == 3, (u >> 5) << 5, u)
-        v = np.where(kind == 4, (e - rng.integers(0, lb_rows + 1, (h, w))) * 32 + rng.integers(0, 32, (h, w)), v)
+        window_rows = (e - rng.integers(0, lb_rows + 1, (h, w))) * 32 + rng.integers(0, 32, (h, w))
+        v = np.where(kind == 4, window_rows, v)
         good = rng.random((h, w)) > 0.1
         iu.append(np.where(good, u, 0).astype(np.int64))
         iv.append(np.where(good, v, 0).astype(np.int64))
@@ -286,7 +291,8 @@ def fixed_positions(regs: Sequence[Any], width: int, height: int) -> Positions:
 
     y, x = np.mgrid[0:height, 0:width]
     out = [fixed.positions(r, x, y) for r in regs]
-    return Positions(tuple(o[0] for o in out), tuple(o[1] for o in out), tuple(o[2].astype(bool) for o in out))
+    return Positions(tuple(o[0] for o in out), tuple(o[1] for o in out),
+                     tuple(o[2].astype(bool) for o in out))
 
 
 # ---- bus side -----------------------------------------------------------------------------------
@@ -362,7 +368,9 @@ class StreamBench:
         for packet in beat_packets(beats):
             await self.source.send(packet)
 
-    async def receive_frame(self, height: int, timeout_us: float) -> Tuple[np.ndarray, List[List[int]], List[int]]:
+    async def receive_frame(
+        self, height: int, timeout_us: float
+    ) -> Tuple[np.ndarray, List[List[int]], List[int]]:
         """``height`` lines: (words (H, W), per-line TUSER lists, line lengths)."""
         lines, users = [], []
         for _ in range(height):
@@ -396,13 +404,16 @@ class PulseCounter:
             await FallingEdge(self.signal)
 
 
-def compare_frame(label: str, words: np.ndarray, users: List[List[int]], lengths: List[int], want: np.ndarray) -> List[str]:
+def compare_frame(
+    label: str, words: np.ndarray, users: List[List[int]], lengths: List[int], want: np.ndarray
+) -> List[str]:
     """Differences between a received frame and the expected one, as messages (empty: equal)."""
     problems = []
     h, w = want.shape[:2]
     bad_len = [y for y, n in enumerate(lengths) if n != w]
     if bad_len:
-        problems.append(f"{label}: lines {bad_len[:5]} have {[lengths[y] for y in bad_len[:5]]} beats, want {w}")
+        got = [lengths[y] for y in bad_len[:5]]
+        problems.append(f"{label}: lines {bad_len[:5]} have {got} beats, want {w}")
         return problems
     want_users = [[int(x == 0 and y == 0) for x in range(w)] for y in range(h)]
     if users != want_users:
@@ -495,8 +506,8 @@ async def run_stream(tb: DatapathTB, beats: Sequence[Beat], frames_in: List[Inpu
                      positions: List[Optional[Positions]], expect_errors: int, label: str) -> None:
     """Send ``beats``; compare every output frame, every pulse and the idle state at the end."""
     build = tb.build
-    expected = [model_frame(f, build, p) for f, p in zip(frames_in, positions)]
-    for f, p, (out, _) in zip(frames_in, positions, expected):
+    expected = [model_frame(f, build, p) for f, p in zip(frames_in, positions, strict=True)]
+    for f, p, (out, _) in zip(frames_in, positions, expected, strict=True):
         if out is not None and not f.options.bypass:
             tb.positions.append(p)
     ovf_before, size_before, done_before = tb.overflow.count, tb.size_error.count, tb.frame_done.count
@@ -520,13 +531,18 @@ async def run_stream(tb: DatapathTB, beats: Sequence[Beat], frames_in: List[Inpu
     want_ovf = any(o for _, o in expected)
     got_ovf = tb.overflow.count > ovf_before
     if got_ovf != want_ovf:
-        problems.append(f"{label}: LB_OVERFLOW pulsed {tb.overflow.count - ovf_before} times, want {'some' if want_ovf else 'none'}")
+        problems.append(f"{label}: LB_OVERFLOW pulsed {tb.overflow.count - ovf_before} times, "
+                        f"want {'some' if want_ovf else 'none'}")
     if tb.size_error.count - size_before != expect_errors:
-        problems.append(f"{label}: SIZE_ERROR pulsed {tb.size_error.count - size_before} times, want {expect_errors}")
+        problems.append(f"{label}: SIZE_ERROR pulsed {tb.size_error.count - size_before} times, "
+                        f"want {expect_errors}")
     frames_out = sum(o is not None for o, _ in expected)
     if tb.frame_done.count - done_before != frames_out:
-        problems.append(f"{label}: frame_done pulsed {tb.frame_done.count - done_before} times, want {frames_out}")
-    if tb.coord_starts - starts_before != sum(o is not None and not f.options.bypass for f, (o, _) in zip(frames_in, expected)):
+        problems.append(f"{label}: frame_done pulsed {tb.frame_done.count - done_before} times, "
+                        f"want {frames_out}")
+    coord_frames = sum(o is not None and not f.options.bypass
+                       for f, (o, _) in zip(frames_in, expected, strict=True))
+    if tb.coord_starts - starts_before != coord_frames:
         problems.append(f"{label}: coord_start pulsed {tb.coord_starts - starts_before} times")
     if not tb.sink.empty():
         problems.append(f"{label}: {tb.sink.count()} more output lines than expected")
@@ -551,7 +567,9 @@ def seeds(ci: int, full: int) -> List[int]:
     return list(range(full if FULL else ci))
 
 
-async def start(dut: SimHandleBase, seed: int, p_in: float = 0.3, p_out: float = 0.3, p_pos: float = 0.2) -> Tuple[DatapathTB, np.random.Generator]:
+async def start(
+    dut: SimHandleBase, seed: int, p_in: float = 0.3, p_out: float = 0.3, p_pos: float = 0.2
+) -> Tuple[DatapathTB, np.random.Generator]:
     tb = DatapathTB(dut)
     await tb.reset()
     rnd = random.Random(seed)
@@ -577,8 +595,8 @@ async def random_taps(dut: SimHandleBase, seed: int) -> None:
     frames = [random_frame(rng, w, h) for _ in range(2)]
     beats = [b for f in frames for b in frame_beats(f)]
     inputs, errors = split_stream(beats, lambda k: opts, tb.checker)
-    await run_stream(tb, beats, inputs, [random_positions(rng, opts, tb.build.lb_rows) for _ in inputs], errors,
-                     f"seed {seed} {opts}")
+    positions = [random_positions(rng, opts, tb.build.lb_rows) for _ in inputs]
+    await run_stream(tb, beats, inputs, positions, errors, f"seed {seed} {opts}")
 
 
 @cocotb.test()
@@ -617,7 +635,7 @@ async def bypass_and_debug_line(dut: SimHandleBase, gray: bool) -> None:
         opts = FrameOptions(w, h, lb_delay=3, bypass=True, gray=gray, debug_row=debug)
         tb.set_options(opts, applied=applied)
         beats = frame_beats(frames[k])
-        inputs, errors = split_stream(beats, lambda _: opts, tb.checker)
+        inputs, errors = split_stream(beats, lambda _, opts=opts: opts, tb.checker)
         await run_stream(tb, beats, inputs, [None], errors, f"bypass applied={applied} debug={debug}")
 
 
@@ -656,9 +674,10 @@ async def malformed_input(dut: SimHandleBase, lb_delay: int) -> None:
         for bypass in (False, True):
             opts = FrameOptions(w, h, lb_delay=lb_delay, bypass=bypass, debug_row=h - 2)
             tb.set_options(opts)
-            inputs, errors = split_stream(beats, lambda k: opts, tb.checker)
+            inputs, errors = split_stream(beats, lambda k, opts=opts: opts, tb.checker)
             positions = [random_positions(rng, opts, tb.build.lb_rows) for _ in inputs]
-            await run_stream(tb, beats, inputs, positions, errors, f"{label} (bypass {bypass}, delay {lb_delay})")
+            await run_stream(tb, beats, inputs, positions, errors,
+                             f"{label} (bypass {bypass}, delay {lb_delay})")
 
 
 @cocotb.test()
@@ -695,7 +714,7 @@ async def rate_and_latency(dut: SimHandleBase) -> None:
         tb.set_options(opts)
         frame = random_frame(rng, w, h)
         beats = frame_beats(frame)
-        inputs, _ = split_stream(beats, lambda k: opts, tb.checker)
+        inputs, _ = split_stream(beats, lambda k, opts=opts: opts, tb.checker)
         pos = random_positions(rng, opts, tb.build.lb_rows)
         want, _ = model_frame(inputs[0], tb.build, pos)
         if not bypass:
@@ -712,7 +731,8 @@ async def rate_and_latency(dut: SimHandleBase) -> None:
         row_e0 = (delay + 1) * w - 1  # the last beat of row e(0)
         steady = (outs[-1] - outs[w]) / (len(outs) - 1 - w)
         dut._log.info(
-            f"{'bypass' if bypass else f'LB_DELAY {delay}'}: start of frame -> first beat {outs[0] - ins[0]} clocks, "
+            f"{'bypass' if bypass else f'LB_DELAY {delay}'}: "
+            f"start of frame -> first beat {outs[0] - ins[0]} clocks, "
             f"last beat of row e(0) -> first beat {outs[0] - ins[row_e0]} clocks, "
             f"{steady:.3f} clocks per beat, last input beat -> last output beat {outs[-1] - ins[-1]} clocks"
         )

@@ -76,7 +76,8 @@ class BuildParams:
             "COLOUR": int(DEFAULT_BUILD.colour),
         }
         params = {**default, **json.loads(os.environ.get("RC_REGS_BUILD", "{}"))}
-        return cls(int(params["MAX_WIDTH"]), int(params["MAX_HEIGHT"]), int(params["LB_ROWS"]), int(params["COLOUR"]))
+        return cls(int(params["MAX_WIDTH"]), int(params["MAX_HEIGHT"]), int(params["LB_ROWS"]),
+                   int(params["COLOUR"]))
 
 
 def byte_mask(strb: int) -> int:
@@ -401,7 +402,7 @@ class TB:
     async def write_set(self, s: ActiveSet) -> None:
         for (cam, name), value in s.params.items():
             await self.write_param(cam, name, value)
-        for reg_name, value in zip(SHADOW_SIZES, (s.width, s.height, s.lb_delay)):
+        for reg_name, value in zip(SHADOW_SIZES, (s.width, s.height, s.lb_delay), strict=True):
             await self.write(REG[reg_name].offset, REG[reg_name].encode(VALUE=value))
 
     def random_set(self) -> ActiveSet:
@@ -606,11 +607,11 @@ async def channel_order_and_backpressure(dut: SimHandleBase) -> None:
     wif, rif = tb.axil.write_if, tb.axil.read_if
     offsets = writable_offsets()
     offsets.remove(CONTROL.offset)
-    for lead, late in ((wif.aw_channel, wif.w_channel), (wif.w_channel, wif.aw_channel)):
+    for _lead, late in ((wif.aw_channel, wif.w_channel), (wif.w_channel, wif.aw_channel)):
         for delay in range(7):
-            late.set_pause_generator(itertools.chain(itertools.repeat(True, delay), itertools.repeat(False)))
-            wif.b_channel.set_pause_generator(itertools.chain(itertools.repeat(True, delay), itertools.repeat(False)))
-            rif.r_channel.set_pause_generator(itertools.chain(itertools.repeat(True, delay), itertools.repeat(False)))
+            for channel in (late, wif.b_channel, rif.r_channel):
+                held = itertools.chain(itertools.repeat(True, delay), itertools.repeat(False))
+                channel.set_pause_generator(held)
             offset = random.choice(offsets)
             await tb.write(offset, random.getrandbits(32))
             await tb.check_register(offset, f"{delay} clocks between AW and W: ")
@@ -624,16 +625,17 @@ async def channel_order_and_backpressure(dut: SimHandleBase) -> None:
     for writes, reads in ((offsets[:half], offsets[half:]), (offsets[half:], offsets[:half])):
         expected = {off: tb.model.read(off) for off in reads}
 
-        async def writer() -> None:
+        async def writer(writes: list[int]) -> None:
             for off in writes:
                 await tb.write(off, random.getrandbits(32))
 
-        async def reader() -> None:
+        async def reader(reads: list[int], expected: dict[int, int]) -> None:
             for off in reads:
                 got = await tb.read(off)
-                assert got == expected[off], f"{off:#x} read {got:#x} during writes elsewhere, want {expected[off]:#x}"
+                assert got == expected[off], (
+                    f"{off:#x} read {got:#x} during writes elsewhere, want {expected[off]:#x}")
 
-        tasks = [cocotb.start_soon(writer()), cocotb.start_soon(reader())]
+        tasks = [cocotb.start_soon(writer(writes)), cocotb.start_soon(reader(reads, expected))]
         for task in tasks:
             await task
     # Many overlapped operations through the master's queues (it keeps one write and one read in flight).
@@ -707,7 +709,8 @@ async def flag_raise_wins_over_a_clear(dut: SimHandleBase) -> None:
     tb = await start(dut)
     for name, signal in FLAG_INPUTS.items():
         for delta in (-2, -1, 0, 1, 2):
-            await tb.pulse(getattr(dut, signal), tb.edge + 2)  # set, so the first write has something to clear
+            # Set, so the first write has something to clear.
+            await tb.pulse(getattr(dut, signal), tb.edge + 2)
 
             async def drive(edge: int, signal: str = signal) -> None:
                 await tb.pulse(getattr(dut, signal), edge)
@@ -804,12 +807,13 @@ async def apply_when_idle_latches_on_the_next_clock(dut: SimHandleBase) -> None:
                                  DEBUG_LINE=other >> 3 & 1, APPLY=1)
         seen: list[tuple[int, int, tuple[int, int]]] = []
 
-        async def watch() -> None:
+        async def watch(seen: list[tuple[int, int, tuple[int, int]]]) -> None:
             while True:
                 await FallingEdge(dut.clk)
-                seen.append((tb.edge, int(dut.apply_pending.value), (int(dut.act_l.value), int(dut.act_r.value))))
+                act = (int(dut.act_l.value), int(dut.act_r.value))
+                seen.append((tb.edge, int(dut.apply_pending.value), act))
 
-        watcher = cocotb.start_soon(watch())
+        watcher = cocotb.start_soon(watch(seen))
         await tb.write(CONTROL.offset, control)
         edge = tb.write_edges[-1]
         await ClockCycles(dut.clk, 3)
@@ -876,7 +880,8 @@ async def _try(tb: TB, what: str) -> None:
 
 @cocotb.test()
 async def validation_of_each_parameter(dut: SimHandleBase) -> None:
-    """Every parameter at lo-1, lo, hi, hi+1 of PARAM_RANGE (and far outside): refused outside, kept inside."""
+    """Every parameter at lo-1, lo, hi, hi+1 of PARAM_RANGE (and far outside): refused outside, kept
+    inside."""
     tb = await start(dut)
     await tb.write_set(tb.random_set())
     assert await tb.apply()
@@ -937,20 +942,22 @@ async def apply_while_the_shadow_is_being_written(dut: SimHandleBase) -> None:
         first_edge = len(tb.write_edges)
         pauses = random.choice([None, 0.3])
         set_pauses((wif.aw_channel, wif.w_channel),
-                   None if pauses is None else lambda: (random.random() < pauses for _ in itertools.count()))
-        stop = False
+                   None if pauses is None
+                   else lambda p=pauses: (random.random() < p for _ in itertools.count()))
+        stop = Event()
 
         def random_write() -> tuple[int, int]:
             if random.random() < 0.2:
-                return REG["WIDTH"].offset, REG["WIDTH"].encode(VALUE=random.choice([0, 1, tb.build.max_width]))
+                width = random.choice([0, 1, tb.build.max_width])
+                return REG["WIDTH"].offset, REG["WIDTH"].encode(VALUE=width)
             cam, name = random.choice(targets)
             lo, hi = PARAM_RANGE[name]
             value = random.choice([lo, hi, lo - 1, hi + 1, random.randint(lo, hi)])
             half = random.randrange(2)
             return param_offset(cam, name) + 4 * half, i64_to_words(value)[half]
 
-        async def writer() -> None:
-            while not stop:
+        async def writer(stop: Event, writes: list[tuple[int, int]]) -> None:
+            while not stop.is_set():
                 # 1 to 4 writes in flight at once: commits as close as every other clock
                 batch = [random_write() for _ in range(random.randint(1, 4))]
                 writes.extend(batch)
@@ -958,24 +965,24 @@ async def apply_while_the_shadow_is_being_written(dut: SimHandleBase) -> None:
                 for t in tasks:
                     await t
 
-        task = cocotb.start_soon(writer())
+        task = cocotb.start_soon(writer(stop, writes))
         await ClockCycles(dut.clk, random.randint(0, 30))
         await FallingEdge(dut.clk)
         dut.idle.value = 1
         await tb.wait_for(lambda: not int(dut.apply_pending.value), "the APPLY latch")
         await ClockCycles(dut.clk, random.randint(0, 12))
-        stop = True
+        stop.set()
         await task
         latch = tb.apply_falls[-1]
         # the shadow at the latch: the writes done on edges before it
         edges = tb.write_edges[first_edge:]
         assert len(edges) == len(writes)
         tb.model.values = base
-        for (offset, word), edge in zip(writes, edges):
+        for (offset, word), edge in zip(writes, edges, strict=True):
             if edge < latch:
                 tb.model.write(offset, word)
         at_latch = tb.model.shadow()
-        for (offset, word), edge in zip(writes, edges):
+        for (offset, word), edge in zip(writes, edges, strict=True):
             if edge >= latch:
                 tb.model.write(offset, word)
         accepted = tb.model.latch(at_latch)

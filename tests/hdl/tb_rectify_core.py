@@ -63,7 +63,8 @@ class CoreTB(StreamBench):
     def __init__(self, dut: SimHandleBase) -> None:
         super().__init__(dut, dut.aclk, dut.aresetn, reset_active_level=False,
                          watch=os.environ.get("STEREOCAM_CORE_WATCH", "1") == "1")
-        self.axil = AxiLiteMaster(AxiLiteBus.from_prefix(dut, "s_axil"), dut.aclk, dut.aresetn, reset_active_level=False)
+        self.axil = AxiLiteMaster(AxiLiteBus.from_prefix(dut, "s_axil"), dut.aclk, dut.aresetn,
+                                  reset_active_level=False)
         self.axil.write_if.log.setLevel(logging.WARNING)
         self.axil.read_if.log.setLevel(logging.WARNING)
         self.max_width, self.max_height, self.lb_rows, self.colour = build_from_env()
@@ -155,7 +156,8 @@ class CoreTB(StreamBench):
             applies |= offset == REG["CONTROL"] and bool(value & 0x10)
         status = await self.read(REG["STATUS"])
         if applies and status != 0b11:
-            self.problems.append(f"{label}: STATUS {status:#x} after APPLY during a frame, want BUSY and APPLY_PENDING")
+            self.problems.append(
+                f"{label}: STATUS {status:#x} after APPLY during a frame, want BUSY and APPLY_PENDING")
         self.sink.pause = False
         self.sink.set_pause_generator(pause_gen(self.p_out, self.rng))
         await sender
@@ -222,7 +224,8 @@ async def run_scenario(tb: CoreTB, sc: Dict[str, Any], frames: Any) -> Dict[str,
         elif op == "frame":
             await tb.frame(f"{label} ({step['frame']})", frames[step["frame"]])
         elif op == "frame_apply":
-            await tb.frame_apply(f"{label} ({step['frame']})", frames[step["frame"]], [tuple(w) for w in step["writes"]])
+            writes = [tuple(w) for w in step["writes"]]
+            await tb.frame_apply(f"{label} ({step['frame']})", frames[step["frame"]], writes)
         elif op == "check":
             await tb.check(label)
         else:

@@ -37,7 +37,8 @@ def camera_sources() -> list[Path]:
 
 
 def test_sources_are_the_whole_folder() -> None:
-    """The folder holds camera_in's sources and the frame gate's, nothing else (both IPs are packaged from it)."""
+    """The folder holds camera_in's sources and the frame gate's, nothing else (both IPs are packaged
+    from it)."""
     from stereocam.overlays.spec import frame_gate
 
     listed = {p.name for p in camera_sources()} | set(frame_gate.SOURCES)

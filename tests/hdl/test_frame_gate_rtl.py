@@ -94,8 +94,8 @@ def test_frame_gate_rtl_default_depth(sim: str, cocotb_dir: Path) -> None:
 
 @pytest.mark.timeout(600)
 def test_frame_gate_resources() -> None:
-    """yosys synth_xilinx (stereocam.overlays.rtl.synth) of the default build: the FIFO in block RAM, the output
-    FIFO in distributed RAM, no DSP, little logic."""
+    """yosys synth_xilinx (stereocam.overlays.rtl.synth) of the default build: the FIFO in block RAM,
+    the output FIFO in distributed RAM, no DSP, little logic."""
     result = hw_synth.synthesize(camera_dir(), top=spec.TOP, parameters=spec.PARAMETERS)
     counts = result.counts
     ram_bits = spec.ram_words(spec.PARAMETERS["DEPTH"]) * (spec.STREAM_BITS + 2)

@@ -124,9 +124,11 @@ def test_the_cache_is_shared_by_every_clone_on_the_machine(
 
 
 def test_rtl_dir_is_the_overlays_package_folder() -> None:
+    """Through stereocam/'s link or the editable install's map, the same folder of the checkout."""
     overlays = importlib.import_module("stereocam.overlays")
-    assert hdl.rtl_dir() == Path(str(overlays.__file__)).parent / "rtl"
-    assert hdl.rtl_dir() == REPO_ROOT / "overlays" / "rtl"  # an editable install
+    assert hdl.rtl_dir() == (Path(str(overlays.__file__)).parent / "rtl").resolve()
+    assert hdl.rtl_dir() == (REPO_ROOT / "overlays" / "rtl").resolve()
+    assert (hdl.rtl_dir() / "rectify_core.v").is_file()
 
 
 def test_a_failing_cocotb_test_is_named_with_its_message(tmp_path: Path) -> None:

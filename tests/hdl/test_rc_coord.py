@@ -345,7 +345,8 @@ UNIT_SIMS = ["icarus", "verilator"] if FULL else ["icarus"]
 
 def run_unit(sim: str, toplevel: str, source: str, test: str, params: Dict[str, int], out_dir: Path) -> None:
     run_cocotb(toplevel, [RTL / source], "tb_rc_coord", sim=sim, parameters=params, test_dir=out_dir,
-               extra_env={"RC_COORD_UNIT": json.dumps(params), "COCOTB_TEST_FILTER": rf"tb_rc_coord\.{test}$"})
+               extra_env={"RC_COORD_UNIT": json.dumps(params),
+                          "COCOTB_TEST_FILTER": rf"tb_rc_coord\.{test}$"})
 
 
 DIV_PARAMS = [

@@ -33,11 +33,13 @@ BUILDS = {
 
 
 # Icarus is about ten times slower than Verilator: in CI it runs one build and a subset of the tests.
-ICARUS_CI_TESTS = r"random_taps/seed=0|bypass_and_debug_line/gray=False|enable_and_apply_pending|rate_and_latency"
+ICARUS_CI_TESTS = (r"random_taps/seed=0|bypass_and_debug_line/gray=False|enable_and_apply_pending"
+                   r"|rate_and_latency")
 
 
 # ... and Verilator runs every test on the first build, these on the others.
-VERILATOR_CI_OTHER = r"random_taps/seed=[01]|calibrations/seed=0|bypass_and_debug_line/gray=True|malformed_input/lb_delay=3"
+VERILATOR_CI_OTHER = (r"random_taps/seed=[01]|calibrations/seed=0|bypass_and_debug_line/gray=True"
+                      r"|malformed_input/lb_delay=3")
 
 
 @pytest.mark.timeout(2400)  # the full set under Icarus
@@ -60,18 +62,20 @@ def test_rc_datapath(sim: str, build: str, cocotb_dir: Path) -> None:
         parameters={"MAX_WIDTH": mw, "MAX_HEIGHT": mh, "LB_ROWS": lb, "COLOUR": colour},
         includes=[hdl.rtl_dir()], extra_env=env, test_dir=cocotb_dir,
     )
-    print(f"{sim} {build}: build {run.build_seconds:.1f} s, run {run.run_seconds:.1f} s, {len(run.passed)} tests")
+    print(f"{sim} {build}: build {run.build_seconds:.1f} s, run {run.run_seconds:.1f} s, "
+          f"{len(run.passed)} tests")
 
 
 def test_rc_datapath_lints_clean() -> None:
-    """Verilator -Wall on rc_datapath and its helpers, both builds (initial values on registers are the style)."""
+    """Verilator -Wall on rc_datapath and its helpers, both builds (initial values on registers are
+    the style)."""
     import subprocess
 
     exe = hdl.verilator_bin()
     for colour in (0, 1):
         out = subprocess.run(
-            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}", "--top-module", "rc_datapath",
-             f"-GCOLOUR={colour}", *map(str, datapath_sources())],
+            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}",
+             "--top-module", "rc_datapath", f"-GCOLOUR={colour}", *map(str, datapath_sources())],
             capture_output=True, text=True, timeout=120, check=False,
         )
         assert out.returncode == 0, out.stderr[-3000:]
@@ -89,7 +93,8 @@ def yosys_stat(top: str, files: list[Path], chparams: dict[str, int]) -> dict[st
         stat = Path(tmp) / "stat.txt"
         script = (f"read_verilog -sv -I {hdl.rtl_dir()} {' '.join(map(str, files))}; {sets}"
                   f"synth_xilinx -family xc7 -top {top}; tee -q -o {stat} stat")
-        subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=1500, check=True)
+        subprocess.run(["yosys", "-q", "-p", script],
+                       capture_output=True, text=True, timeout=1500, check=True)
         out = stat.read_text()
     # the whole design's counts follow the hierarchy (a flat design has only its own block)
     block = out[out.rindex("=== design hierarchy ==="):] if "=== design hierarchy ===" in out else out

@@ -93,8 +93,8 @@ def test_rc_regs_lints_clean_with_verilator(build: str) -> None:
     chosen = BUILD_CASES[build]
     overrides = [f"-G{name}={value}" for name, value in (_parameters(chosen) if chosen else {}).items()]
     result = subprocess.run(
-        [str(hdl.verilator_bin()), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}", *overrides,
-         str(SOURCE)],
+        [str(hdl.verilator_bin()), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}",
+         *overrides, str(SOURCE)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -123,7 +123,8 @@ def test_rc_regs_synthesizes_small_with_yosys(tmp_path: Path) -> None:
         f"check -assert; tee -q -o {stat_file} stat"
     )
     result = subprocess.run(
-        [str(yosys), "-q", "-p", script], capture_output=True, text=True, timeout=1500, check=False, cwd=tmp_path
+        [str(yosys), "-q", "-p", script],
+        capture_output=True, text=True, timeout=1500, check=False, cwd=tmp_path,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     stat = stat_file.read_text()
@@ -136,7 +137,8 @@ def test_rc_regs_synthesizes_small_with_yosys(tmp_path: Path) -> None:
     assert not any(name.startswith("RAMB") for name in cells), "the read-back copy must not take a block RAM"
     shadow = 2 * len(PARAM_NAMES) * 64
     active = 2 * sum(PARAM_FORMAT[name].bits for name in PARAM_NAMES)
-    assert ffs >= shadow + active, f"{ffs} flip-flops cannot hold the shadow ({shadow}) and active ({active}) sets"
+    assert ffs >= shadow + active, (
+        f"{ffs} flip-flops cannot hold the shadow ({shadow}) and active ({active}) sets")
     assert ffs <= shadow + active + 600, f"{ffs} flip-flops: more than the sets and some control"
     assert luts <= 900, f"{luts} logic LUTs"
     assert lutram <= 128, f"{lutram} LUTs of distributed RAM for 2 x 34 words"

@@ -67,8 +67,10 @@ def random_rig(seed: int, width: int, height: int, alpha: float) -> Tuple[Camera
     def intrinsics() -> Tuple[np.ndarray, np.ndarray]:
         fx = rng.uniform(300, 1200)
         K = np.array([[fx * sx, 0, (NOMINAL[0] / 2 + rng.uniform(-20, 20)) * sx],
-                      [0, fx * rng.uniform(0.98, 1.02) * sy, (NOMINAL[1] / 2 + rng.uniform(-15, 15)) * sy], [0, 0, 1.0]])
-        D = np.array([rng.uniform(-0.45, -0.05), rng.uniform(-0.05, 0.25), rng.normal(0, 0.002), rng.normal(0, 0.002)])
+                      [0, fx * rng.uniform(0.98, 1.02) * sy, (NOMINAL[1] / 2 + rng.uniform(-15, 15)) * sy],
+                      [0, 0, 1.0]])
+        D = np.array([rng.uniform(-0.45, -0.05), rng.uniform(-0.05, 0.25),
+                      rng.normal(0, 0.002), rng.normal(0, 0.002)])
         return K, D
 
     K1, D1 = intrinsics()
@@ -116,15 +118,17 @@ def stress_rigs(w: int, h: int) -> Dict[str, Tuple[CameraParams, CameraParams]]:
     persp_r = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, -0.2 / 40, -1 / 24, 1.0)
     return {
         "perspective": (lens(w, h, 40.0, -0.2, 0.03, hinv=persp_l), lens(w, h, 30.0, 0.1, hinv=persp_r)),
-        "distortion": (lens(w, h, w / 2.0, 0.9, 0.4, 0.02, -0.03), lens(w, h, w / 1.5, -0.6, 0.2, -0.01, 0.02)),
-        "roll-overflow": (lens(w, h, float(w), hinv=roll(25.0, w, h)), lens(w, h, float(w), -0.3, hinv=roll(-18.0, w, h))),
+        "distortion": (lens(w, h, w / 2.0, 0.9, 0.4, 0.02, -0.03),
+                       lens(w, h, w / 1.5, -0.6, 0.2, -0.01, 0.02)),
+        "roll-overflow": (lens(w, h, float(w), hinv=roll(25.0, w, h)),
+                          lens(w, h, float(w), -0.3, hinv=roll(-18.0, w, h))),
     }
 
 
 # ---- register writes -----------------------------------------------------------------------------
 def param_writes(left: CameraRegs, right: CameraRegs) -> List[Tuple[int, int]]:
     out = []
-    for cam, regs in zip(CAMERAS, (left, right)):
+    for cam, regs in zip(CAMERAS, (left, right), strict=True):
         values = regs.values()
         for name in PARAM_NAMES:
             lo, hi = i64_to_words(values[name])
@@ -135,7 +139,8 @@ def param_writes(left: CameraRegs, right: CameraRegs) -> List[Tuple[int, int]]:
 
 def config(left: Any, right: Any, w: int, h: int, lb_delay: Optional[int] = None, max_delay: int = 1023
            ) -> Tuple[List[Tuple[int, int]], int]:
-    """Writes for a calibration (CameraParams converted for w x h, or CameraRegs as they are) and its LB_DELAY."""
+    """Writes for a calibration (CameraParams converted for w x h, or CameraRegs as they are) and its
+    LB_DELAY."""
     regs = [p if isinstance(p, CameraRegs) else camera_registers(p, w, h) for p in (left, right)]
     if lb_delay is None:
         lb_delay = min(rows_needed(regs, w, h).delay, max_delay)
@@ -167,8 +172,10 @@ class Cases:
         self.frames[key] = f
         return key
 
-    def add(self, name: str, steps: List[Dict[str, Any]], pauses: Tuple[float, float] = (0.3, 0.3), **extra: Any) -> None:
-        self.scenarios.append({"name": name, "seed": len(self.scenarios), "pauses": list(pauses), "steps": steps, **extra})
+    def add(self, name: str, steps: List[Dict[str, Any]], pauses: Tuple[float, float] = (0.3, 0.3),
+            **extra: Any) -> None:
+        self.scenarios.append({"name": name, "seed": len(self.scenarios), "pauses": list(pauses),
+                               "steps": steps, **extra})
 
     def write(self, path: Path) -> Path:
         path.write_text(json.dumps({"scenarios": self.scenarios}))
@@ -188,7 +195,8 @@ CHECK = {"op": "check"}
 
 
 def calibration_scenario(c: Cases, name: str, left: Any, right: Any, *, n: int = 2, camera: bool = False,
-                         extra_bits: int = 0, debug_row: Optional[int] = None, lb_delay: Optional[int] = None) -> None:
+                         extra_bits: int = 0, debug_row: Optional[int] = None,
+                         lb_delay: Optional[int] = None) -> None:
     ws, _ = config(left, right, W, H, lb_delay)
     steps = writes(ws)
     if debug_row is not None:
@@ -287,7 +295,8 @@ def malformed_scenario(c: Cases, lb_delay: int) -> None:
 
 
 def latency_scenarios(c: Cases) -> None:
-    for name, delay, bits in (("latency-delay0", 0, 0), ("latency-delay4", 4, 0), ("latency-bypass", 0, BYPASS)):
+    cases = (("latency-delay0", 0, 0), ("latency-delay4", 4, 0), ("latency-bypass", 0, BYPASS))
+    for name, delay, bits in cases:
         ws, _ = config(*random_rig(40, W, H, 0.0), W, H, lb_delay=delay)
         steps = writes(ws) + writes([control(ENABLE, APPLY, bits)]) + frames(c, 1)
         c.add(name, steps, pauses=(0.0, 0.0), e0=0 if bits else delay)
@@ -301,7 +310,8 @@ def dry_run(cases: Cases, build: Tuple[int, int, int, int]) -> Dict[str, Dict[st
 
     out = {}
     for sc in cases.scenarios:
-        emu = EmulatedRectifyCore(max_width=build[0], max_height=build[1], lb_rows=build[2], colour=bool(build[3]))
+        emu = EmulatedRectifyCore(max_width=build[0], max_height=build[1], lb_rows=build[2],
+                                  colour=bool(build[3]))
         flags, emitted, dropped = 0, 0, 0
         for step in sc["steps"]:
             if step["op"] == "write":
@@ -334,7 +344,8 @@ def simulate(sim: str, build: Tuple[int, int, int, int], cases: Cases, out_dir: 
         "rectify_core", sources(), "tb_rectify_core", sim=sim, includes=[RTL], test_dir=out_dir,
         parameters={"MAX_WIDTH": mw, "MAX_HEIGHT": mh, "LB_ROWS": lb, "COLOUR": colour},
         extra_env={"STEREOCAM_CORE_CASES": str(path), "STEREOCAM_CORE_REPORT": str(report),
-                   "STEREOCAM_CORE_BUILD": f"{mw},{mh},{lb},{colour}", "STEREOCAM_CORE_WATCH": str(int(watch)),
+                   "STEREOCAM_CORE_BUILD": f"{mw},{mh},{lb},{colour}",
+                   "STEREOCAM_CORE_WATCH": str(int(watch)),
                    "COCOTB_TEST_FILTER": rf"tb_rectify_core\.({tests})$", **MAKE_ENV},
     )
     data = json.loads(report.read_text()) if report.is_file() else {}

@@ -22,7 +22,7 @@ from stereocam.overlays.spec import pixel
 from stereocam.overlays.spec.rectify import DEFAULT_BUILD
 from stereocam.server.frames.views import VIEWS
 from stereocam.server.http.app import RTL_TIMEOUT_S, ServeError, open_configured_overlay
-from stereocam.server.http.config import Config
+from stereocam.server.http.settings import Settings
 
 from ..sample import SampleCalibration, calibrate_sample, pair_paths, write_opencv_files
 from ..server_fixtures import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture, wait_for_frames  # noqa: F401
@@ -39,7 +39,8 @@ def rectify_both(tmp_path: Path, cal: str, left: Path, right: Path) -> Tuple[Pat
     """``stereocam rectify`` with the model and with the RTL: the two output folders."""
     outs = tmp_path / "model", tmp_path / "rtl"
     for core, out in zip(("model", "rtl"), outs, strict=True):
-        assert main(["rectify", "--core", core, "--calibration", cal, "-o", str(out), str(left), str(right)]) == 0
+        args = ["rectify", "--core", core, "--calibration", cal, "-o", str(out), str(left), str(right)]
+        assert main(args) == 0
     return outs
 
 
@@ -64,7 +65,8 @@ def random_rig(rng: np.random.Generator, size: Tuple[int, int]) -> SampleCalibra
 
     def camera() -> Tuple[np.ndarray, np.ndarray]:
         f = rng.uniform(0.7, 1.3) * w
-        K = np.array([[f, 0, w / 2 + rng.uniform(-15, 15)], [0, f * rng.uniform(0.98, 1.02), h / 2 + rng.uniform(-15, 15)],
+        K = np.array([[f, 0, w / 2 + rng.uniform(-15, 15)],
+                      [0, f * rng.uniform(0.98, 1.02), h / 2 + rng.uniform(-15, 15)],
                       [0, 0, 1]])
         return K, rng.normal(0, [0.1, 0.03, 0.001, 0.001])
 
@@ -78,7 +80,8 @@ def random_rig(rng: np.random.Generator, size: Tuple[int, int]) -> SampleCalibra
 
 
 def test_rectify_core_rtl_equals_the_model_with_random_calibrations(tmp_path, capsys) -> None:
-    """Colour pairs at 752x480 through random rigs; a rig needing more rows than the core has is refused by both."""
+    """Colour pairs at 752x480 through random rigs; a rig needing more rows than the core has is
+    refused by both."""
     rng = np.random.default_rng(20261122)
     compared = refused = 0
     while compared < 4:
@@ -91,7 +94,8 @@ def test_rectify_core_rtl_equals_the_model_with_random_calibrations(tmp_path, ca
             paths.append(case / f"{side}.png")
             cv2.imwrite(str(paths[-1]), cv2.resize(coarse, (752, 480), interpolation=cv2.INTER_CUBIC))
         argv = ["--calibration", f"{intr},{extr}", *map(str, paths)]
-        codes = [main(["rectify", "--core", core, "-o", str(case / core), *argv]) for core in ("model", "rtl")]
+        codes = [main(["rectify", "--core", core, "-o", str(case / core), *argv])
+                 for core in ("model", "rtl")]
         if codes == [2, 2]:  # needs more line-buffer rows: both say so
             refused += 1
             assert capsys.readouterr().err.count("line-buffer rows but the core buffers 80") == 2
@@ -193,29 +197,29 @@ async def test_verify_reports_a_fault_planted_in_the_rtl(start_daemon, tmp_path)
 
 
 def test_serve_core_rtl_opens_the_rtl_behind_the_emulated_fabric(tmp_path) -> None:
-    overlay = open_configured_overlay(Config(core="rtl", backend="auto", captures=str(tmp_path / "c")))
+    overlay = open_configured_overlay(Settings(core="rtl", backend="auto", captures=str(tmp_path / "c")))
     try:
-        assert overlay.core_kind == "rtl" and isinstance(overlay.hw.core, RtlCore)
+        assert overlay.core_kind == "rtl" and isinstance(overlay.emulation.core, RtlCore)
         assert "RTL" in overlay.choice.reason and overlay.fabric.rectify.colour is True
     finally:
         overlay.close()
-    assert overlay.hw.core._proc.poll() is not None  # the harness process ended with the overlay
+    assert overlay.emulation.core._proc.poll() is not None  # the harness process ended with the overlay
 
 
 def test_serve_core_rtl_refuses_what_cannot_work(tmp_path, capsys) -> None:
     with pytest.raises(ServeError, match="--core rtl .*emulated fabric.*--backend emulated"):
-        open_configured_overlay(Config(core="rtl", backend="pynq"))
+        open_configured_overlay(Settings(core="rtl", backend="pynq"))
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(ServeError, match="no rectify_core.v there"):
-        open_configured_overlay(Config(core="rtl", rtl_dir=str(empty)))
+        open_configured_overlay(Settings(core="rtl", rtl_dir=str(empty)))
     broken = tmp_path / "broken"
     broken.mkdir()
     for src in rtl_sources():
         shutil.copy(src, broken / src.name)
     (broken / "rc_interp.v").write_text("module rc_interp(\n")  # a syntax error
     with pytest.raises(ServeError, match="(?s)did not build.*rc_interp.v:1"):
-        open_configured_overlay(Config(core="rtl", rtl_dir=str(broken)))
+        open_configured_overlay(Settings(core="rtl", rtl_dir=str(broken)))
     assert main(["serve", "--core", "rtl", "--backend", "pynq", "--port", "0",
                  "--captures", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err

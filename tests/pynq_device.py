@@ -1,9 +1,10 @@
 """A ``pynq.Device`` over the emulated fabric, so pynq's own drivers run on our emulated IP.
 
-This proves the emulation against independent code: ``pynq.lib.video.dma.AxiVDMA``
-(with its inline magic numbers and busy-waits) starts, feeds and reads our
-:class:`~stereocam.overlays.emulated.vdma.EmulatedVDMA` exactly as it would
-the real IP on the board.
+A test double for the board path: it joins pynq and the emulator, which the
+package keeps apart. It also proves the emulation against independent code:
+``pynq.lib.video.dma.AxiVDMA`` (with its inline magic numbers and busy-waits)
+starts, feeds and reads our :class:`~stereocam.overlays.emulated.vdma.EmulatedVDMA`
+exactly as it would the real IP on the board.
 
 * Register access: the device has pynq's ``REGISTER_RW`` capability, so a
   ``pynq.MMIO`` on it calls :meth:`read_registers`/:meth:`write_registers`,
@@ -26,29 +27,28 @@ the real IP on the board.
   (on the board it would hang the AXI bus), and :attr:`bus_accesses` counts
   every attempt, so tests can show that nothing touched the bus.
 
-pynq is imported lazily, here only: importing this module needs no pynq;
-using :class:`EmulatedPynqDevice` or :func:`pynq_axi_vdma` does. pynq's
-import-time warnings off the board (``pkg_resources`` deprecation, "does
-not support the CPU Architecture") are silenced for that import only.
+pynq is imported lazily, by :func:`stereocam.overlays.pynq.import_pynq`:
+importing this module needs no pynq; using :class:`EmulatedPynqDevice` or
+:func:`pynq_axi_vdma` does.
 """
 
 from __future__ import annotations
 
 import datetime
 import json
-import warnings
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ..spec.overlay import INSTANCES
-from ..spec.vdma import VLNV as VDMA_VLNV
-from .ddr import EmulatedDDR
-from .regblock import EmulationError, RegisterBlock
-from .vdma import EmulatedVDMA
+from stereocam.overlays.emulated.ddr import EmulatedDDR
+from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
+from stereocam.overlays.emulated.vdma import EmulatedVDMA
+from stereocam.overlays.pynq import import_pynq
+from stereocam.overlays.spec.overlay import INSTANCES
+from stereocam.overlays.spec.vdma import VLNV as VDMA_VLNV
 
-__all__ = ["BusHang", "EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma", "import_pynq"]
+__all__ = ["BusHang", "EmulatedInterrupt", "InterruptTimeout", "loopback_tick", "pynq_axi_vdma"]
 # ``EmulatedPynqDevice`` is also public; it is made on first access (module ``__getattr__``).
 
 
@@ -61,19 +61,6 @@ class BusHang(EmulationError):
 
 
 STATE_FILE = "global_pl_state_.json"  # pynq's PL state file for device tag "" (pynq.pl_server.global_state)
-
-
-def import_pynq() -> Any:
-    """Import and return the ``pynq`` package (raises ImportError where it is not installed)."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="pkg_resources is deprecated", category=DeprecationWarning)
-        warnings.filterwarnings(
-            "ignore", message="Pynq does not support the CPU Architecture", category=ResourceWarning
-        )
-        import pynq
-        import pynq.lib.video.dma  # noqa: F401  (the driver under test)
-        import pynq.pl_server.device  # noqa: F401
-    return pynq
 
 
 class EmulatedInterrupt:
@@ -291,7 +278,7 @@ def _device_class() -> type:
             return parser
 
         def download(self, bitstream: Any, parser: Any = None) -> None:
-            """Program the emulated PL with ``bitstream``, as ``EmbeddedDevice.download`` programs the board's.
+            """Program the emulated PL with ``bitstream`` as ``EmbeddedDevice.download`` programs the board's.
 
             Clears a PL state left from before a power cycle (FPGA manager
             state ``unknown``), records the bitstream in pynq's PL state

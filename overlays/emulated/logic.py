@@ -1,4 +1,4 @@
-"""The emulated programmable logic: the overlay's IP wired as in SYSTEM.md.
+"""The emulated programmable logic: the overlay's IP wired as the board's block design wires it.
 
 ```
  cameras ──┬──────────────────────────► vdma_raw  S2MM ──► DDR
@@ -23,11 +23,12 @@ import numpy as np
 from ..spec.axis_switch import LIVE, VIRTUAL
 from ..spec.overlay import NUM_FSTORES
 from ..spec.rectify import DEFAULT_BUILD, Build
-from .cameras import CameraSource, SyntheticRig
+from .cameras import CameraSource
 from .clock import FrameClock
 from .ddr import EmulatedDDR
 from .rectify import EmulatedRectifyCore
 from .regblock import RegisterBlock
+from .render import SyntheticRig
 from .switch import EmulatedAxisSwitch
 from .vdma import EmulatedVDMA
 
@@ -61,7 +62,7 @@ class StreamCore(Protocol):
     ``process`` returns the output frame, or None when the core emits none.
     """
 
-    def read(self, offset: int, length: int = 4) -> int: ...
+    def read(self, offset: int) -> int: ...
 
     def write(self, offset: int, value: int) -> None: ...
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from stereocam.server.http.config import Config, ConfigError
+from stereocam.server.http.settings import Settings, SettingsError
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:
@@ -16,7 +16,7 @@ def write(tmp_path: Path, name: str, text: str) -> Path:
 
 
 def test_defaults() -> None:
-    c = Config()
+    c = Settings()
     assert (c.host, c.port, c.backend) == ("127.0.0.1", 8080, "auto")
     assert c.calibration is None and c.access_token is None
     assert c.max_streams >= 20 and c.default_fps == 60 and 1 <= c.default_quality <= 100
@@ -26,24 +26,24 @@ def test_defaults() -> None:
 def test_yaml_and_json_files(tmp_path) -> None:
     y = write(tmp_path, "c.yaml",
               "host: 0.0.0.0\nport: 9000\nmax_streams: 4\naccess_token: abcdefgh123\nfps: 30\n")
-    c = Config.from_file(y)
+    c = Settings.from_file(y)
     assert (c.host, c.port, c.max_streams, c.access_token, c.fps) == ("0.0.0.0", 9000, 4, "abcdefgh123", 30.0)
     assert isinstance(c.fps, float)
     j = write(tmp_path, "c.json", json.dumps({"backend": "emulated", "stream_timeout_s": 2}))
-    assert Config.from_file(j).backend == "emulated"
-    assert Config.from_file(write(tmp_path, "empty.yaml", "")) == Config()
-    assert Config.from_file(y).public()["access_token"] == "set" and "abcdefgh123" not in str(c.public())
+    assert Settings.from_file(j).backend == "emulated"
+    assert Settings.from_file(write(tmp_path, "empty.yaml", "")) == Settings()
+    assert Settings.from_file(y).public()["access_token"] == "set" and "abcdefgh123" not in str(c.public())
 
 
 def test_unknown_keys_are_named_with_a_suggestion(tmp_path) -> None:
     path = write(tmp_path, "c.yaml", "max_stream: 4\n")
-    with pytest.raises(ConfigError) as info:
-        Config.from_file(path)
+    with pytest.raises(SettingsError) as info:
+        Settings.from_file(path)
     message = str(info.value)
     assert message.startswith(
         f"{path}: unknown key 'max_stream' (did you mean 'max_streams'?); known keys: host, port")
-    with pytest.raises(ConfigError, match=r"unknown key 'xyzzy'; known keys"):
-        Config.from_mapping({"xyzzy": 1})
+    with pytest.raises(SettingsError, match=r"unknown key 'xyzzy'; known keys"):
+        Settings.from_mapping({"xyzzy": 1})
 
 
 @pytest.mark.parametrize("text,message", [
@@ -68,35 +68,36 @@ def test_unknown_keys_are_named_with_a_suggestion(tmp_path) -> None:
 ])
 def test_bad_values_are_named(tmp_path, text, message) -> None:
     path = write(tmp_path, "c.yaml", text + "\n")
-    with pytest.raises(ConfigError) as info:
-        Config.from_file(path)
+    with pytest.raises(SettingsError) as info:
+        Settings.from_file(path)
     assert str(info.value) == f"{path}: {message}"
 
 
 def test_unreadable_files(tmp_path) -> None:
-    with pytest.raises(ConfigError, match=r"nope.yaml: no such file"):
-        Config.from_file(tmp_path / "nope.yaml")
-    with pytest.raises(ConfigError, match=r"not valid YAML: line 2, column 7: mapping values are not allowed"):
-        Config.from_file(write(tmp_path, "bad.yaml", "host: a\n  port: [\n"))
-    with pytest.raises(ConfigError, match=r"not valid JSON"):
-        Config.from_file(write(tmp_path, "bad.json", "{host"))
+    with pytest.raises(SettingsError, match=r"nope.yaml: no such file"):
+        Settings.from_file(tmp_path / "nope.yaml")
+    with pytest.raises(SettingsError,
+                       match=r"not valid YAML: line 2, column 7: mapping values are not allowed"):
+        Settings.from_file(write(tmp_path, "bad.yaml", "host: a\n  port: [\n"))
+    with pytest.raises(SettingsError, match=r"not valid JSON"):
+        Settings.from_file(write(tmp_path, "bad.json", "{host"))
 
 
 def test_command_line_overrides_the_file(tmp_path) -> None:
     path = write(tmp_path, "c.yaml", "host: 0.0.0.0\nport: 9000\n")
-    c = Config.load(path, port=9100, host=None, captures="/tmp/x")
+    c = Settings.load(path, port=9100, host=None, captures="/tmp/x")
     assert (c.host, c.port, c.captures) == ("0.0.0.0", 9100, "/tmp/x")
-    with pytest.raises(ConfigError, match="port must be"):
-        Config.load(None, port=-1)
-    with pytest.raises(ConfigError, match="unknown setting 'colour'"):
-        Config().replace(colour=1)
+    with pytest.raises(SettingsError, match="port must be"):
+        Settings.load(None, port=-1)
+    with pytest.raises(SettingsError, match="unknown setting 'colour'"):
+        Settings().replace(colour=1)
 
 
 def test_config_is_keyword_only_and_frozen() -> None:
-    c = Config(port=1234)
+    c = Settings(port=1234)
     with pytest.raises(TypeError):
-        Config("0.0.0.0")  # type: ignore[misc]
+        Settings("0.0.0.0")  # type: ignore[misc]
     with pytest.raises(AttributeError):
         c.port = 1  # type: ignore[misc]
-    with pytest.raises(ConfigError, match="max_streams must be"):
-        Config(max_streams=0)
+    with pytest.raises(SettingsError, match="max_streams must be"):
+        Settings(max_streams=0)

@@ -13,19 +13,19 @@ from ..spec.rectify import RECTIFY_MAP, CameraParams, CameraRegs, CoreConfig, ca
 from .linebuffer import LineBufferFit, rows_needed
 
 
-class ConfigError(ValueError):
+class CoreParamsError(ValueError):
     """A calibration or frame size the core cannot run; the message says what to change."""
 
 
-class ParameterOutOfRange(ConfigError):
+class ParameterOutOfRange(CoreParamsError):
     pass
 
 
-class FrameSizeError(ConfigError):
+class FrameSizeError(CoreParamsError):
     pass
 
 
-class LineBufferTooSmall(ConfigError):
+class LineBufferTooSmall(CoreParamsError):
     def __init__(self, fit: LineBufferFit, lb_rows: int) -> None:
         super().__init__(
             f"this calibration needs {fit.rows} line-buffer rows but the core buffers {lb_rows}: "
@@ -47,7 +47,10 @@ def check_frame_size(width: int, height: int, max_width: int, max_height: int) -
 def registers(
     left: Union[CameraParams, CameraRegs], right: Union[CameraParams, CameraRegs], width: int, height: int
 ) -> Tuple[CameraRegs, CameraRegs]:
-    """Both cameras' registers for this frame size; :class:`ParameterOutOfRange` says every value that does not fit."""
+    """Both cameras' registers for this frame size.
+
+    :class:`ParameterOutOfRange` says every value that does not fit.
+    """
     problems: List[str] = []
     out: List[CameraRegs] = []
     for side, cam in (("left", left), ("right", right)):
@@ -79,7 +82,7 @@ def plan(
 ) -> "tuple[CoreConfig, LineBufferFit]":
     """The register set for this calibration and frame size, checked against the bitstream.
 
-    Raises a :class:`ConfigError` subclass; nothing is written anywhere.
+    Raises a :class:`CoreParamsError` subclass; nothing is written anywhere.
     """
     check_frame_size(width, height, max_width, max_height)
     lregs, rregs = registers(left, right, width, height)
@@ -88,5 +91,5 @@ def plan(
         raise LineBufferTooSmall(fit, lb_rows)
     delay_max = RECTIFY_MAP["LB_DELAY"].field("VALUE").max
     if fit.delay > delay_max:  # pragma: no cover - needs a frame taller than 65535 rows
-        raise ConfigError(f"line-buffer delay {fit.delay} exceeds the register's {delay_max}")
+        raise CoreParamsError(f"line-buffer delay {fit.delay} exceeds the register's {delay_max}")
     return CoreConfig(lregs, rregs, width, height, fit.delay), fit

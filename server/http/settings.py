@@ -1,10 +1,10 @@
-"""The daemon's configuration: one frozen :class:`Config`, read from a YAML/JSON file and the command line.
+"""The daemon's settings: one frozen :class:`Settings`, read from a YAML/JSON file and the command line.
 
-A config file holds a mapping whose keys are exactly the field names of
-:class:`Config` (a subset of them); an unknown key, a value of the wrong
-type or out of range is a :class:`ConfigError` naming the file and the key,
+A settings file holds a mapping whose keys are exactly the field names of
+:class:`Settings` (a subset of them); an unknown key, a value of the wrong
+type or out of range is a :class:`SettingsError` naming the file and the key,
 with the closest known key when the name looks misspelt. Command-line options
-override the file (:meth:`Config.load`). Nothing here touches the network,
+override the file (:meth:`Settings.load`). Nothing here touches the network,
 the fabric or the disk beyond reading the one file.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 from ...overlays.spec.rectify import BUILDS
 
-__all__ = ["Config", "ConfigError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "LOG_LEVELS", "MAX_FPS"]
+__all__ = ["Settings", "SettingsError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "LOG_LEVELS", "MAX_FPS"]
 
 BACKENDS = ("auto", "pynq", "emulated")
 LOG_LEVELS = ("debug", "info", "warning", "error")  # debug adds every HTTP request (aiohttp's access log)
@@ -28,12 +28,12 @@ MAX_FPS = 120.0
 DEFAULT_CAPTURES = "~/.local/share/stereocam/captures"
 
 
-class ConfigError(ValueError):
+class SettingsError(ValueError):
     """A configuration that cannot be used; the message names the file (if any) and the key."""
 
 
 @dataclass(frozen=True, kw_only=True)
-class Config:
+class Settings:
     """Every setting of ``stereocam serve``; construct with keywords only (all have defaults).
 
     Network: ``host``/``port`` (the board's service listens on 0.0.0.0).
@@ -96,75 +96,85 @@ class Config:
     board: Optional[str] = None
     log_level: str = "info"
     allow_fault_injection: bool = False  # the --allow-fault-injection flag only: never from a file
-    extra: Mapping[str, Any] = field(default_factory=dict)  # sections owned by extensions (issues 4, 5)
+    extra: Mapping[str, Any] = field(default_factory=dict)  # the extensions' own sections
 
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, _check(None, f.name, getattr(self, f.name)))
 
+    @property
+    def frame_wait_s(self) -> float:
+        """How long a request waits for a fresh frame before answering "no signal" (503).
+
+        Twice ``no_signal_s``, so a frame late enough to show the no-signal
+        frame is still waited for, and at least a second.
+        """
+        return max(1.0, 2 * self.no_signal_s)
+
     # -- building -----------------------------------------------------------------------
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], *, origin: Optional[str] = None) -> "Config":
+    def from_mapping(cls, data: Mapping[str, Any], *, origin: Optional[str] = None) -> "Settings":
         """A config from a mapping of field names; ``origin`` (a file name) prefixes every message."""
         if not isinstance(data, Mapping):
-            raise ConfigError(f"{_where(origin)}the configuration must be a mapping of settings, "
+            raise SettingsError(f"{_where(origin)}the configuration must be a mapping of settings, "
                               f"got {type(data).__name__}")
         known = [f.name for f in fields(cls) if f.name not in FLAG_ONLY]
         for key in data:
             if key in FLAG_ONLY:
-                raise ConfigError(f"{_where(origin)}{key} cannot be set in a settings file: it lets any "
-                                  f"client break the fabric, so only the --{key.replace('_', '-')} flag sets it")
+                flag = "--" + key.replace("_", "-")
+                raise SettingsError(f"{_where(origin)}{key} cannot be set in a settings file: it lets any "
+                                  f"client break the fabric, so only the {flag} flag sets it")
             if not isinstance(key, str) or key not in known:
                 hint = difflib.get_close_matches(str(key), known, n=1)
                 suggestion = f" (did you mean {hint[0]!r}?)" if hint else ""
-                raise ConfigError(f"{_where(origin)}unknown key {key!r}{suggestion}; "
+                raise SettingsError(f"{_where(origin)}unknown key {key!r}{suggestion}; "
                                   f"known keys: {', '.join(known)}")
         values = dict(data)
         for key, value in values.items():
             values[key] = _check(origin, key, value)
         try:
             return cls(**values)
-        except ConfigError as exc:  # pragma: no cover - _check already ran
-            raise ConfigError(f"{_where(origin)}{exc}") from None
+        except SettingsError as exc:  # pragma: no cover - _check already ran
+            raise SettingsError(f"{_where(origin)}{exc}") from None
 
     @classmethod
-    def from_file(cls, path: "str | Path") -> "Config":
+    def from_file(cls, path: "str | Path") -> "Settings":
         """Read a ``.json`` file as JSON and anything else as YAML (which JSON also is)."""
         p = Path(path)
         try:
             text = p.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise ConfigError(f"{p}: no such file") from None
+            raise SettingsError(f"{p}: no such file") from None
         except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{p}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+            raise SettingsError(f"{p}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
         if p.suffix.lower() == ".json":
             try:
                 data = json.loads(text)
             except json.JSONDecodeError as exc:
-                raise ConfigError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+                raise SettingsError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
         else:
             from ...calibration.safe_yaml import YamlRefused, load
 
             try:
                 data = load(text)
             except YamlRefused as exc:
-                raise ConfigError(f"{p}: {exc}") from None
+                raise SettingsError(f"{p}: {exc}") from None
         if data is None:
             data = {}
         return cls.from_mapping(data, origin=str(p))
 
     @classmethod
-    def load(cls, path: "str | Path | None" = None, **overrides: Any) -> "Config":
+    def load(cls, path: "str | Path | None" = None, **overrides: Any) -> "Settings":
         """The file's settings (if ``path``), then every override that is not None."""
         base = cls.from_file(path) if path is not None else cls()
         given = {k: v for k, v in overrides.items() if v is not None}
         return base.replace(**given)
 
-    def replace(self, **changes: Any) -> "Config":
+    def replace(self, **changes: Any) -> "Settings":
         known = {f.name for f in fields(self)}
         for key in changes:
             if key not in known:
-                raise ConfigError(f"unknown setting {key!r}")
+                raise SettingsError(f"unknown setting {key!r}")
         return dataclasses.replace(self, **{k: _check(None, k, v) for k, v in changes.items()})
 
     # -- derived ------------------------------------------------------------------------
@@ -195,10 +205,10 @@ def _number(origin: Optional[str], key: str, value: Any, lo: float, hi: float, *
     ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
     if isinstance(value, bool) or not ok_type:
         kind = "a whole number" if integer else "a number"
-        raise ConfigError(f"{_where(origin)}{key} must be {kind}, got {value!r}")
+        raise SettingsError(f"{_where(origin)}{key} must be {kind}, got {value!r}")
     if not math.isfinite(float(value)) or value > hi or value < lo or (lo_open and value == lo):
         lower = f"> {lo:g}" if lo_open else f">= {lo:g}"
-        raise ConfigError(f"{_where(origin)}{key} must be {lower} and <= {hi:g}, got {value!r}")
+        raise SettingsError(f"{_where(origin)}{key} must be {lower} and <= {hi:g}, got {value!r}")
     return int(value) if integer else float(value)
 
 
@@ -207,7 +217,7 @@ def _text(origin: Optional[str], key: str, value: Any, *, optional: bool) -> Opt
         return None
     if not isinstance(value, str) or not value.strip():
         kind = "a non-empty string" + (" or null" if optional else "")
-        raise ConfigError(f"{_where(origin)}{key} must be {kind}, got {value!r}")
+        raise SettingsError(f"{_where(origin)}{key} must be {kind}, got {value!r}")
     return value
 
 
@@ -232,7 +242,7 @@ FLAG_ONLY = ("allow_fault_injection",)
 
 
 def _check(origin: Optional[str], key: str, value: Any) -> Any:
-    """``value`` if valid for ``key`` (ints widened to float where a float is wanted), else ConfigError."""
+    """``value`` if valid for ``key`` (ints widened to float where a float is wanted), else SettingsError."""
     if key == "cpu_budget" and value is None:
         return None
     if key in _RANGES:
@@ -240,22 +250,24 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
         return _number(origin, key, value, lo, hi, integer=integer, lo_open=lo_open)
     if key == "backend":
         if value not in BACKENDS:
-            raise ConfigError(f"{_where(origin)}backend must be one of {', '.join(BACKENDS)}, got {value!r}")
+            raise SettingsError(f"{_where(origin)}backend must be one of {', '.join(BACKENDS)}, "
+                                f"got {value!r}")
         return value
     if key == "core_build":
         if value not in BUILDS:
-            raise ConfigError(f"{_where(origin)}core_build must be one of {', '.join(BUILDS)}, got {value!r}")
+            raise SettingsError(f"{_where(origin)}core_build must be one of {', '.join(BUILDS)}, "
+                                f"got {value!r}")
         return value
     if key == "core":
         if value not in CORES:
-            raise ConfigError(f"{_where(origin)}core must be one of {', '.join(CORES)}, got {value!r}")
+            raise SettingsError(f"{_where(origin)}core must be one of {', '.join(CORES)}, got {value!r}")
         return value
     if key in ("host", "source", "captures"):
         return _text(origin, key, value, optional=False)
     if key == "log_level":
         level = value.strip().lower() if isinstance(value, str) else value
         if level not in LOG_LEVELS:
-            raise ConfigError(f"{_where(origin)}log_level must be one of {', '.join(LOG_LEVELS)}, "
+            raise SettingsError(f"{_where(origin)}log_level must be one of {', '.join(LOG_LEVELS)}, "
                               f"got {value!r}")
         return level
     if key in ("bitstream", "calibration", "state_dir", "rtl_dir", "board"):
@@ -263,11 +275,11 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
     if key == "access_token":
         token = _text(origin, key, value, optional=True)
         if token is not None and (len(token) < 8 or any(c.isspace() for c in token)):
-            raise ConfigError(f"{_where(origin)}access_token must be at least 8 characters without spaces")
+            raise SettingsError(f"{_where(origin)}access_token must be at least 8 characters without spaces")
         return token
     if key == "protect":
         if value not in ("all", "control"):
-            raise ConfigError(f"{_where(origin)}protect must be all or control, got {value!r}")
+            raise SettingsError(f"{_where(origin)}protect must be all or control, got {value!r}")
         return value
     if key == "allowed_hosts":
         if isinstance(value, str):
@@ -278,15 +290,16 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
             return bool(text) and not any(c.isspace() or c in "/:@" for c in text)
 
         if not isinstance(value, (list, tuple)) or not all(name_ok(v) for v in value):
-            raise ConfigError(f"{_where(origin)}allowed_hosts must be a list of host names "
+            raise SettingsError(f"{_where(origin)}allowed_hosts must be a list of host names "
                               f"(no ports or spaces), got {value!r}")
         return tuple(v.strip().lower() for v in value)
     if key == "allow_fault_injection":
         if not isinstance(value, bool):
-            raise ConfigError(f"{_where(origin)}{key} must be true or false, got {value!r}")
+            raise SettingsError(f"{_where(origin)}{key} must be true or false, got {value!r}")
         return value
     if key == "extra":
         if not isinstance(value, Mapping):
-            raise ConfigError(f"{_where(origin)}extra must be a mapping of extension sections, got {value!r}")
+            raise SettingsError(f"{_where(origin)}extra must be a mapping of extension sections, "
+                                f"got {value!r}")
         return dict(value)
-    raise ConfigError(f"{_where(origin)}unknown key {key!r}")  # pragma: no cover - guarded by callers
+    raise SettingsError(f"{_where(origin)}unknown key {key!r}")  # pragma: no cover - guarded by callers

@@ -1,0 +1,55 @@
+"""Request bodies: the one reader of JSON bodies, so every endpoint refuses a bad one alike.
+
+The body's size is bounded before it is read (``client_max_size``, set from
+``max_upload_bytes``; the guard middleware refuses a declared larger one first).
+Every refusal is an :class:`~..frames.errors.ApiError` the error middleware answers.
+"""
+from __future__ import annotations
+
+from typing import Any, Optional
+
+from aiohttp import web
+
+from ..frames.errors import ApiError, parse_json
+from .errors import too_large
+
+__all__ = ["read_json", "JSON"]
+
+JSON = "application/json"
+
+
+async def read_json(request: web.Request, *, example: Optional[str] = None, optional: bool = False,
+                    typed: bool = True) -> Any:
+    """The JSON value of ``request``'s body; raises ApiError 400 (not JSON), 413 (too large) or 415.
+
+    ``typed``: the body must come as ``application/json`` (415 otherwise); the calibration
+    panel's endpoints take any type. ``optional``: an empty body is ``None``, whatever its type
+    (else a 400).
+    ``example`` (a JSON text) is shown in the refusals.
+    """
+    wrong_type = typed and request.content_type != JSON
+    if wrong_type and not optional:
+        raise _unsupported(request, example)
+    try:
+        raw = await request.read()
+    except web.HTTPRequestEntityTooLarge:
+        raise ApiError(too_large(request.client_max_size), status=413) from None
+    if not raw.strip():
+        if optional:
+            return None
+        such = f" such as {example}" if example else ""
+        raise ApiError(f"the body is empty: send JSON{such}", status=400)
+    if wrong_type:
+        raise _unsupported(request, example)
+    try:
+        return parse_json(raw)
+    except ValueError as exc:  # UnicodeDecodeError too
+        reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise ApiError(f"the body is not valid JSON ({reason})" + (f": send {example}" if example else ""),
+                       status=400) from None
+
+
+def _unsupported(request: web.Request, example: Optional[str]) -> ApiError:
+    given = request.content_type or "nothing"
+    such = f" such as {example}" if example else ""
+    return ApiError(f"send JSON (Content-Type: {JSON}){such}, not {given}", status=415)
