@@ -230,7 +230,7 @@ class Overlay(Protocol):
     def restart_channel(self, channel: Channel, timeout: Optional[float] = None) -> None:
         """Get a halted channel running again as it was configured (:class:`RegisterTimeout` if it won't)."""
 
-    # -- sensors, faults and the emulated rig (H1c)
+    # -- sensors, faults and the emulated rig ----------------------------------------------
     @property
     def sensors(self) -> Optional[SensorPair]:
         """The emulated image sensors once brought up (:func:`.backend.sensor_bus`); None on the board."""

@@ -32,6 +32,11 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 KEPT_HEADERS = ("WWW-Authenticate", "Allow", "Retry-After")  # of an aiohttp HTTPException's, in the answer
 
 
+def shutting_down() -> ApiError:
+    """What a request that needs the frame path gets once the daemon has begun to stop."""
+    return ApiError("the daemon is shutting down", status=503)
+
+
 def json_error(status: int, message: str, **headers: str) -> web.Response:
     """The daemon's error answer: ``{"error": message}`` (on one line) with ``status``."""
     return web.json_response({"error": " ".join(message.split())}, status=status, headers=headers or None)

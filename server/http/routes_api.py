@@ -29,6 +29,7 @@ from ..frames.pipeline import FrameSet
 from ..frames.verify import compare, difference_image
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from .bodies import read_json
+from .errors import shutting_down
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
     BUDGET,
@@ -250,7 +251,7 @@ async def post_virtual_camera(request: web.Request) -> web.Response:
     except BroadcastClosed:
         if replay is not None:
             replay.close()
-        raise ApiError("the daemon is shutting down", status=503) from None
+        raise shutting_down() from None
     w, h = frame_size
     body: Dict[str, Any] = {"frame": result.frame, "source": "virtual", "width": w, "height": h,
                             "input": origin}
@@ -342,7 +343,7 @@ async def post_verify(request: web.Request) -> web.Response:
         raise ApiError("the fabric returned no processed frame of the virtual input in time",
                        status=504) from None
     except BroadcastClosed:
-        raise ApiError("the daemon is shutting down", status=503) from None
+        raise shutting_down() from None
     result = await _run(request, _verify_blocking, vc, vc.input, actual)
     vc.verify = result
     return web.json_response(result.report)
@@ -387,7 +388,7 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
         raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",
                        status=503) from None
     except BroadcastClosed:
-        raise ApiError("the daemon is shutting down", status=503) from None
+        raise shutting_down() from None
 
 
 def paired_raw(app: web.Application, fs: FrameSet) -> Tuple[np.ndarray, str]:

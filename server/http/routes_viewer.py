@@ -33,6 +33,7 @@ from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
+from .errors import shutting_down
 from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
 __all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_scale"]
@@ -184,7 +185,7 @@ async def get_point(request: web.Request) -> web.Response:
         except asyncio.TimeoutError:
             raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
         except BroadcastClosed:
-            raise ApiError("the daemon is shutting down", status=503) from None
+            raise shutting_down() from None
     state = app[CALIBRATION]
     ran = state.for_frame(fs.fabric_count)
     same = ran is not None and ran.get("id") == state.id

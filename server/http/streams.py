@@ -33,6 +33,7 @@ from ..frames.errors import ApiError, parse_json
 from ..frames.feed import BroadcastClosed, Latest
 from ..frames.pipeline import FrameSet
 from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS
+from .errors import shutting_down
 from .settings import MAX_FPS
 from .state import ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, SETTINGS, STREAMS
 
@@ -40,7 +41,6 @@ log = logging.getLogger(__name__)
 
 __all__ = ["StreamClients", "StreamClient", "StreamParams", "parse_params", "send_newest", "setup_routes"]
 
-SHUTTING_DOWN = "the daemon is shutting down"
 
 
 # -- clients -------------------------------------------------------------------------------
@@ -98,7 +98,7 @@ class StreamClients:
     def admit(self) -> None:
         """Raise the 503 for a new client while the daemon stops or ``max_streams`` clients watch."""
         if self.closing:
-            raise ApiError(SHUTTING_DOWN, status=503)
+            raise shutting_down()
         if self.full():
             self.refused += 1
             raise ApiError(f"too many streams: {self.max_streams} clients are watching already "
@@ -347,7 +347,7 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
         raise ApiError(f"no signal: the fabric sent no frame within {timeout:g} s; "
                        "check the cameras (GET /api/status)", status=503) from None
     except BroadcastClosed:
-        raise ApiError(SHUTTING_DOWN, status=503) from None
+        raise shutting_down() from None
     loop = asyncio.get_running_loop()
     executor = app[EXECUTORS].encode
     if fmt == "jpg":
