@@ -72,7 +72,7 @@ class Fault:
 
 
 class FaultInjector:
-    """Injects and ends faults on an :class:`~.fabric.EmulatedFabric` (its sensors, once attached).
+    """Injects and ends faults on an :class:`~.logic.EmulatedFabric` (its sensors, once attached).
 
     The emulated overlay's :attr:`~..interface.Overlay.fault_injection`.
     """

@@ -30,7 +30,7 @@ rig's scene as the rig renders it by itself. The window registers set the row
 time (so exposure time) but do not crop the rig's frames.
 
 :class:`EmulatedSensorPair` is the board's two sensors on one emulated bus,
-and what :class:`.fabric.EmulatedFabric` ticks around each camera frame.
+and what :class:`.logic.EmulatedFabric` ticks around each camera frame.
 """
 from __future__ import annotations
 

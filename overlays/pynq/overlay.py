@@ -1,10 +1,10 @@
 """The board overlay: a ``pynq.Overlay`` that loads our bitstream, binds our drivers and owns the fabric.
 
 Imported only where pynq is installed (on the board, and in the board-like
-test environment); :mod:`.backend` decides.
+test environment); :mod:`..backend` decides.
 
-* Binding: the IP named in :data:`~.spec.overlay.INSTANCES` get the drivers
-  of :mod:`.pynq_drivers` (``ov.rectify`` is a ``RectifyCore``, ``ov.vdma_raw``
+* Binding: the IP named in :data:`~..spec.overlay.INSTANCES` get the drivers
+  of :mod:`.drivers` (``ov.rectify`` is a ``RectifyCore``, ``ov.vdma_raw``
   a ``VDMA``...), whatever else pynq has registered for their VLNVs, and
   :attr:`StereocamOverlay.fabric` is built from those same objects.
 * Loading: the fabric is programmed only when pynq's PL state (the file in
@@ -20,7 +20,7 @@ test environment); :mod:`.backend` decides.
   access. When pynq's PL state stops recording our bitstream (another
   process downloaded a design, which pynq records *before* programming),
   or the rectify core's ID register stops reading as ours, it raises
-  :class:`~.pynq_drivers.FabricLost` from then on and logs why, once:
+  :class:`~.drivers.FabricLost` from then on and logs why, once:
   the daemon's status shows the error and nothing touches the bus (on a
   Zynq, reading IP that is not there hangs the AXI bus).
 """

@@ -45,7 +45,7 @@ class Field:
 class Register:
     """One register: offset (or address), access, reset value, fields and the values the device accepts.
 
-    32-bit and word aligned here (AXI4-Lite); :class:`..mt9v034.Register16`
+    32-bit and word aligned here (AXI4-Lite); :class:`.mt9v034.Register16`
     sets :attr:`BITS` and :attr:`ALIGN` for an I2C device's 16-bit registers.
     ``limits`` lists ``(name, lo, hi)``: what the device accepts for a field
     (``name`` a field name) or for the whole register (``name`` the

@@ -1,7 +1,7 @@
 """The calibration panel's work: checkerboard corners on live frames, stored pairs, coverage, figures.
 
 Everything here is blocking (OpenCV, disk) and runs on the daemon's work
-threads; :mod:`.routes_calibration_panel` holds the HTTP side.
+threads; :mod:`..http.routes_calibration_panel` holds the HTTP side.
 
 Pairs are ordinary captures (:class:`.captures.CaptureStore`) kept in their
 own folder, ``<captures>/../calibration-pairs/`` by default, with the

@@ -8,7 +8,7 @@ A capture is a folder ``<root>/<id>/`` holding
 
 and, only where needed, ``<frame>_y.png`` (see "Pixels" below). The names of
 the raw pair are the ones the emulated cameras' replay and the calibration
-read (:mod:`..calibration.image_files` names them), so a capture folder (or
+read (:mod:`stereocam.calibration.image_files` names them), so a capture folder (or
 the whole store) replays as a live source.
 
 Pixels. A frame is an ``(H, W, 4)`` RGBY view of the stream (or ``(H, W, 3)``
@@ -17,7 +17,7 @@ RGB, or ``(H, W)`` gray) and is stored losslessly as PNG:
 - ``"color": "gray"``: R == G == B == Y at every pixel (a gray camera): an
   8-bit gray PNG.
 - ``"color": "rgb"``: an RGB PNG. Y is not stored when it equals
-  :func:`..overlays.spec.pixel.gray_of` of the RGB pixels, which is what the
+  :func:`...overlays.spec.pixel.gray_of` of the RGB pixels, which is what the
   demosaic stage computes for raw frames. Otherwise (rectified frames: the
   core interpolates Y on its own) Y goes to a gray PNG ``<frame>_y.png``,
   named by ``"y_file"``, so every stored frame comes back bit for bit.

@@ -10,7 +10,7 @@ A recording is a folder ``<root>/<id>/`` holding
 
 Pixels are stored as captures store them (:mod:`.captures`): an 8-bit gray PNG
 for a gray camera, RGB otherwise; Y goes to ``y_left_000000.png`` only where it
-is not :func:`..overlays.spec.pixel.gray_of` of RGB (never for live raw frames),
+is not :func:`...overlays.spec.pixel.gray_of` of RGB (never for live raw frames),
 so every frame comes back bit for bit. The pairs are named so any tool that
 pairs ``left*``/``right*`` files reads them; the emulated cameras' replay
 (``stereocam serve --source FOLDER``) recognises ``recording.json`` and replays

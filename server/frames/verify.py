@@ -1,9 +1,9 @@
 """Verify (the paper's flow 5): compare the model's output with the fabric's, bit for bit.
 
 :func:`compare` takes two ``(H, W, 8)`` uint8 stream frames (see
-:mod:`..overlays.spec.pixel`): ``expected`` (the numpy model's output) and
+:mod:`...overlays.spec.pixel`): ``expected`` (the numpy model's output) and
 ``actual`` (what the fabric wrote back). It reports whether they are
-identical and, per channel (:data:`..overlays.spec.pixel.CHANNELS`), per
+identical and, per channel (:data:`...overlays.spec.pixel.CHANNELS`), per
 camera and overall: how many pixels differ and their share, the largest
 absolute difference and the PSNR in dB. :func:`difference_image` shows
 where they differ.

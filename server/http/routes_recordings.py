@@ -1,6 +1,6 @@
 """Recordings over HTTP: start, stop, list, download, delete; and opening one for the virtual camera.
 
-The recording itself (what is stored, how, and when it ends) is :mod:`.recordings`;
+The recording itself (what is stored, how, and when it ends) is :mod:`..frames.recordings`;
 these handlers check requests, answer, and run the blocking parts on the daemon's
 ``work`` threads. Recordings live in ``<state_dir>/recordings/`` and keep
 ``min_free_mb`` free on that disk, as captures do. See server/API.md, "Recordings".

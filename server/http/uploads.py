@@ -314,7 +314,7 @@ def decode_pair(
     ``right``, or exactly ``sbs``. ``size = (width, height)`` is one camera's
     image size, as the fabric takes it. If one side is gray and the other
     colour, the gray one is used as RGB (R = G = B). Gray is computed as the
-    demosaic stage computes it (:func:`..overlays.spec.pixel.rgby`).
+    demosaic stage computes it (:func:`...overlays.spec.pixel.rgby`).
 
     Raises :class:`UploadError`: 400 for missing, unknown or extra fields
     (named), and everything :func:`decode_image` raises, naming the field.

@@ -19,10 +19,10 @@ The steps, as pure functions a daemon can call in a worker thread:
 The rectified row error is measured through the core's own mapping, not
 OpenCV's: each detected raw corner is carried to the rectified position
 whose core source position (steps 1-4 of ``overlays/RECTIFY_CORE.md``, the
-real-number mapping of :mod:`~.overlays.model.ideal` that the fixed-point
+real-number mapping of :mod:`~stereocam.overlays.model.ideal` that the fixed-point
 core approximates) is that corner, by Newton's method started from
 ``cv2.undistortPoints``; the forward mapping used is checked against the
-core's fixed-point positions (:func:`~.overlays.model.reference.source_position`)
+core's fixed-point positions (:func:`~stereocam.overlays.model.reference.source_position`)
 at the nearest output pixels, within their 1/32 pixel. ``row_error`` is then ``|y_left - y_right|`` of
 corresponding corners: 0 for a perfect calibration and detector.
 """
@@ -345,7 +345,7 @@ def _same_order(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 def core_source(p: CameraParams, x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """The core's source position (pixels) of output positions (x, y), in real numbers.
 
-    Continuous in (x, y) (:func:`~.overlays.model.ideal.ideal_positions`), for
+    Continuous in (x, y) (:func:`~stereocam.overlays.model.ideal.ideal_positions`), for
     Newton's method; at integer pixels the core's fixed-point ``iu`` is
     ``rint(32 * u)`` or next to it. NaN where the homography maps to infinity.
     """

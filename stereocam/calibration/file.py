@@ -38,7 +38,7 @@ Layout (schema_version 1)::
 
 Floats are written with the shortest text that reads back as the same
 double, so saving and loading is exact. :func:`load_calibration` reads this
-file and every format :mod:`.calibration_io` imports, and validates what it
+file and every format :mod:`.formats` imports, and validates what it
 reads: schema version, known and complete fields, finite values and shapes,
 register ranges, frame size, the line-buffer fit against a bitstream, and,
 for this format, that ``core`` and ``id`` are what the model gives (a file

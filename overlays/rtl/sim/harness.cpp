@@ -1,6 +1,6 @@
 // harness.cpp: the rectify core (rectify_core, compiled by Verilator) as a program that
 // Python drives with whole frames and register accesses over a pipe
-// (stereocam/rtl_core.py builds and runs it). No per-beat traffic crosses the pipe: the
+// (overlays/rtl/core.py builds and runs it). No per-beat traffic crosses the pipe: the
 // AXI4-Stream and AXI4-Lite handshakes are all done here, at full simulation speed.
 //
 // Protocol. Binary, little-endian, one request on stdin then one reply on stdout, in
