@@ -20,7 +20,7 @@ import pytest
 
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import captures
+from stereocam.server.frames import captures, store_files
 from stereocam.server.frames.captures import (
     CaptureDamaged,
     CaptureDiskFull,
@@ -478,7 +478,7 @@ def test_a_crash_mid_delete_never_leaves_a_half_capture_listed(
     store: CaptureStore, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     info = store.save(stream_frames(), meta())
-    monkeypatch.setattr(captures, "_remove_tree", lambda path: None)  # "crash" after the rename
+    monkeypatch.setattr(captures, "remove_tree", lambda path: None)  # "crash" after the rename
     store.delete(info.id)
     assert store.list() == [] and any(p.name.startswith(".deleting-") for p in store.root.iterdir())
     monkeypatch.undo()
@@ -583,7 +583,7 @@ def test_disk_full_midway_leaves_no_partial_files(
 ) -> None:
     before = store.save(stream_frames(1), meta(frame=1))
     snapshot = tree(store.root)
-    monkeypatch.setattr(captures, "_os_write", failing_write(fail_on_call, err, partial=partial))
+    monkeypatch.setattr(store_files, "_os_write", failing_write(fail_on_call, err, partial=partial))
     with pytest.raises(CaptureDiskFull) as exc:
         store.save(stream_frames(2), meta(frame=2))
     assert exc.value.status == 507
@@ -600,7 +600,7 @@ def test_disk_full_on_fsync_or_mkdir_leaves_nothing(
     def no_space(*args: object, **kwargs: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(captures, "_os_fsync", no_space)
+    monkeypatch.setattr(store_files, "_os_fsync", no_space)
     with pytest.raises(CaptureDiskFull, match="while writing raw_left.png"):
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []
@@ -614,7 +614,7 @@ def test_disk_full_on_fsync_or_mkdir_leaves_nothing(
 def test_other_io_errors_are_500_and_leave_nothing(
     store: CaptureStore, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(captures, "_os_write", failing_write(3, errno.EIO))
+    monkeypatch.setattr(store_files, "_os_write", failing_write(3, errno.EIO))
     with pytest.raises(CaptureError) as err:
         store.save(stream_frames(), meta())
     assert type(err.value) is CaptureError and err.value.status == 500
@@ -626,7 +626,7 @@ def test_an_exception_mid_save_leaves_nothing(store: CaptureStore, monkeypatch: 
     def interrupted(fd: int, data: object) -> int:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(captures, "_os_write", interrupted)
+    monkeypatch.setattr(store_files, "_os_write", interrupted)
     with pytest.raises(KeyboardInterrupt):
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []

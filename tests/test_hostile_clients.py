@@ -1,6 +1,6 @@
 """Hostile and slow clients: what the daemon does; how fast is ``stereocam bench robustness``'s.
 
-- 2,000 malformed requests (:func:`stereocam.bench.robustness.malformed_requests`: uploads, JSON,
+- 2,000 malformed requests (:func:`stereocam.bench.malformed.malformed_requests`: uploads, JSON,
   YAML calibrations, headers, request lines, on every endpoint) and malformed WebSocket messages
   against ``stereocam serve`` run as a subprocess, as on the board: every one gets the 4xx it
   should, none a 5xx; the daemon's log holds no traceback; an MJPEG client watching all along
@@ -22,7 +22,13 @@ from typing import Any, Callable, Dict, List, Optional
 
 import pytest
 
-from stereocam.bench import robustness as br
+from stereocam.bench.alias_bomb import alias_bombs
+from stereocam.bench.barrage import FLOOR_RSS_DELTA_MB, Barrage, run_barrage
+from stereocam.bench.daemon_process import daemon, daemon_facts, log_tracebacks
+from stereocam.bench.malformed import malformed_requests
+from stereocam.bench.malformed_bodies import JSON_ENDPOINTS
+from stereocam.bench.malformed_headers import corrupt_encoding_cases
+from stereocam.bench.raw_http import get_json, send_raw
 from stereocam.bench.rectify import bench_calibration
 from stereocam.calibration.file import Calibration
 from stereocam.server.frames.encoders import EncoderKey
@@ -41,7 +47,7 @@ SETTLE_S = 30.0  # the memory's time to come down after the barrage (freed memor
 
 @dataclass
 class Run:
-    barrage: br.Barrage
+    barrage: Barrage
     log: str
     calibration_before: Dict[str, Any]
     calibration_after: Dict[str, Any]
@@ -56,17 +62,17 @@ def hostile_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     requests; what it answered, logged and kept."""
     folder = tmp_path_factory.mktemp("hostile")
     log_path = folder / "daemon.log"
-    with br.daemon(fps=TEST_FPS, log_path=log_path, folder=folder) as (proc, base):
+    with daemon(fps=TEST_FPS, log_path=log_path, folder=folder) as (proc, base):
         port = int(base.rsplit(":", 1)[1])
 
         async def run() -> Run:
-            frame_size, calibration = await br.daemon_facts(port)
-            before = await br.get_json(port, "/api/calibration")
-            cases = br.malformed_requests(REQUESTS, frame_size=frame_size, calibration_yaml=calibration)
-            barrage = await br.run_barrage(port, proc.pid, cases, settle_s=SETTLE_S)
-            after = await br.get_json(port, "/api/calibration")
-            captures = (await br.get_json(port, "/api/captures"))["captures"]
-            status = await br.get_json(port, "/api/status")
+            frame_size, calibration = await daemon_facts(port)
+            before = await get_json(port, "/api/calibration")
+            cases = malformed_requests(REQUESTS, frame_size=frame_size, calibration_yaml=calibration)
+            barrage = await run_barrage(port, proc.pid, cases, settle_s=SETTLE_S)
+            after = await get_json(port, "/api/calibration")
+            captures = (await get_json(port, "/api/captures"))["captures"]
+            status = await get_json(port, "/api/status")
             return Run(barrage, "", before, after, captures, bool(status["signal"]), [])
 
         result = asyncio.run(run())
@@ -79,12 +85,12 @@ def hostile_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
 
 def test_the_requests_cover_every_kind_and_every_endpoint_with_a_body() -> None:
     model, rect, _, _ = bench_calibration()
-    cases = br.malformed_requests(REQUESTS, calibration_yaml=Calibration.derive(model, rect).to_yaml())
+    cases = malformed_requests(REQUESTS, calibration_yaml=Calibration.derive(model, rect).to_yaml())
     kinds = Counter(c.kind for c in cases)
     assert len(cases) == REQUESTS
     assert all(kinds[k] >= 100 for k in ("upload", "json", "yaml", "header", "line")), kinds
     names = " | ".join(c.name for c in cases)
-    for method, path in br.JSON_ENDPOINTS:
+    for method, path in JSON_ENDPOINTS:
         assert any(c.data.startswith(method + b" " + path + b" ") for c in cases), path
     for what in ("PNG claiming 60000x60000", "JPEG claiming", "BMP claiming", "TIFF claiming",
                  "flipped bytes", "cut to", "a part header over 8 KB", "16-bit PNG", "two-page TIFF",
@@ -110,7 +116,7 @@ def test_every_malformed_request_gets_the_4xx_it_should_and_none_a_5xx(hostile_r
 
 @pytest.mark.timeout(900)
 def test_the_daemon_logs_no_traceback(hostile_run: Run) -> None:
-    assert br.log_tracebacks(hostile_run.log) == []
+    assert log_tracebacks(hostile_run.log) == []
     assert "Traceback" not in hostile_run.log
 
 
@@ -135,7 +141,7 @@ def test_the_watched_stream_flows_throughout_and_after(hostile_run: Run) -> None
 def test_memory_comes_back_within_50_mb(hostile_run: Run) -> None:
     b = hostile_run.barrage
     start, end, peak = b.rss_start_mb, b.rss_end_mb, b.rss_peak_mb
-    assert end - start <= br.FLOOR_RSS_DELTA_MB, (
+    assert end - start <= FLOOR_RSS_DELTA_MB, (
         f"resident memory {start:.0f} MB after the warm-up, {end:.0f} MB {SETTLE_S:g} s after the barrage "
         f"(peak {peak:.0f} MB)")
 
@@ -158,8 +164,8 @@ def tracebacks(caplog: pytest.LogCaptureFixture):
 async def test_a_body_whose_content_encoding_does_not_decode_is_a_400_without_a_traceback(start_daemon,
                                                                                          tracebacks) -> None:
     d = await start_daemon(extensions=(routes_calibration.setup,))
-    for case in br.corrupt_encoding_cases(token=None):
-        status, answer = await br.send_raw(d.port, case.data)
+    for case in corrupt_encoding_cases(token=None):
+        status, answer = await send_raw(d.port, case.data)
         assert status == 400 and b"the body cannot be read" in answer, (case.name, status, answer[-300:])
     for _ in range(3):  # aiohttp reads what is left of a body after answering: let it, then look at the log
         async with d.http.get("/api/status") as r:
@@ -173,7 +179,7 @@ async def test_a_yaml_alias_bomb_is_refused_with_a_400_that_says_why(start_daemo
     d = await start_daemon(extensions=(routes_calibration.setup,))
     async with d.http.get("/api/calibration") as r:
         before = await r.json()
-    for name, text in br.alias_bombs(before["yaml"]).items():
+    for name, text in alias_bombs(before["yaml"]).items():
         async with d.http.put("/api/calibration", data=text.encode(),
                               headers={"Content-Type": "application/yaml"}) as r:
             body = await r.json()
@@ -282,7 +288,7 @@ async def test_headers_that_are_not_utf8_are_4xx_without_a_traceback(start_daemo
                          (b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
                           b"Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
                           b"Sec-WebSocket-Key: \xff\xfe\r\n", 400)):
-        got, answer = await br.send_raw(d.port, head + b"Content-Length: 0\r\nConnection: close\r\n\r\n")
+        got, answer = await send_raw(d.port, head + b"Content-Length: 0\r\nConnection: close\r\n\r\n")
         assert got == status, (head, got, answer[-300:])
         assert b"\\xff" in answer or status == 400, answer[-300:]  # the bytes shown, as escapes
     assert tracebacks() == []
@@ -298,7 +304,7 @@ async def test_a_client_that_goes_away_mid_body_leaves_no_traceback(start_daemon
                 f"Content-Length: 100000\r\n\r\n").encode() + b"{" * 1000
         if path == "/api/virtual-camera":
             data = data.replace(b"PUT", b"POST", 1)
-        got, _ = await br.send_raw(d.port, data, half_close=True)
+        got, _ = await send_raw(d.port, data, half_close=True)
         assert got in (None, 400), (path, got)
     for _ in range(3):  # the handlers finish on the loop: let them
         async with d.http.get("/api/status") as r:

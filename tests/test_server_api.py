@@ -18,7 +18,7 @@ from aiohttp import FormData
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import captures as captures_module
+from stereocam.server.frames import store_files
 from stereocam.server.http.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
 
 from .server_fixtures import (
@@ -461,7 +461,7 @@ async def test_full_disk_is_507_and_leaves_nothing(start_daemon, monkeypatch) ->
     def no_space(fd, data):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(captures_module, "_os_write", no_space)
+    monkeypatch.setattr(store_files, "_os_write", no_space)
     async with d.http.post("/api/captures") as resp:
         assert resp.status == 507
         error = (await resp.json())["error"]

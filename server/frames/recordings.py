@@ -90,26 +90,23 @@ from typing import (
 import numpy as np
 
 from ...overlays.spec import pixel
-from .captures import (
-    _FULL_ERRNOS,
-    DELETING_PREFIX,
-    ID_EXAMPLE,
-    INCOMING_PREFIX,
-    CaptureStore,
-    _close_all,
-    _dumps,
-    _encode_frame,
-    _fsync_dir,
-    _iso,
-    _mb,
-    _open_member,
-    _remove_tree,
-    _utcnow,
-    _write_new_file,
-    _zip_chunks,
-)
+from .capture_ids import ID_EXAMPLE
+from .capture_images import encode_frame
+from .captures import DELETING_PREFIX, INCOMING_PREFIX, CaptureStore
 from .errors import ApiError
 from .pipeline import COUNT_MOD, FrameSet
+from .store_files import (
+    FULL_ERRNOS,
+    fsync_dir,
+    iso_utc,
+    mb,
+    meta_dumps,
+    open_member,
+    remove_tree,
+    utcnow,
+    write_new_file,
+)
+from .zip_stream import close_all, zip_chunks
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +223,7 @@ class RecordingStore:
         if min_free_bytes < 0:
             raise ValueError(f"min_free_bytes must be >= 0, got {min_free_bytes}")
         self.min_free_bytes = int(min_free_bytes)
-        self._clock = clock or _utcnow
+        self._clock = clock or utcnow
         try:
             Path(root).mkdir(parents=True, exist_ok=True)
             self.root = Path(root).resolve(strict=True)
@@ -236,7 +233,7 @@ class RecordingStore:
         with os.scandir(self.root) as entries:
             stale = [Path(e.path) for e in entries if e.name.startswith((INCOMING_PREFIX, DELETING_PREFIX))]
         for path in stale:
-            _remove_tree(path)
+            remove_tree(path)
 
     # -- ids and space ---------------------------------------------------------------------------------
     @staticmethod
@@ -286,7 +283,7 @@ class RecordingStore:
     def publish(self, tmp: Path, rid: str) -> None:
         os.rename(tmp, self.root / rid)
         with contextlib.suppress(OSError):
-            _fsync_dir(self.root)
+            fsync_dir(self.root)
 
     # -- read ------------------------------------------------------------------------------------------
     def list(self) -> List[RecordingInfo]:
@@ -319,7 +316,7 @@ class RecordingStore:
         doc: Dict[str, Any] = {}
         problems: List[str] = []
         try:
-            fd = _open_member(folder, META_FILE)
+            fd = open_member(folder, META_FILE)
             with os.fdopen(fd, "rb") as fh:
                 loaded = json.loads(fh.read(_MAX_META_BYTES + 1).decode("utf-8"))
             if not isinstance(loaded, dict):
@@ -337,7 +334,7 @@ class RecordingStore:
                 problems.append(f"{missing[0]} is missing")
                 break
         stamp = doc.get("created")
-        created = stamp if isinstance(stamp, str) else _iso(
+        created = stamp if isinstance(stamp, str) else iso_utc(
             datetime.strptime(rid[:16], "%Y%m%dT%H%M%SZ").replace(tzinfo=timezone.utc))
 
         def num(key: str) -> Optional[float]:
@@ -375,17 +372,17 @@ class RecordingStore:
         handles: List[Tuple[str, IO[bytes], int]] = []
         try:
             for name in names:
-                member: IO[bytes] = os.fdopen(_open_member(folder, name), "rb")
+                member: IO[bytes] = os.fdopen(open_member(folder, name), "rb")
                 handles.append((name, member, os.fstat(member.fileno()).st_size))
         except OSError as exc:
-            _close_all([fh for _, fh, _ in handles])
+            close_all([fh for _, fh, _ in handles])
             if isinstance(exc, FileNotFoundError):
                 raise RecordingNotFound(f"recording {rid} was deleted while it was being read") from None
             raise RecordingError(f"cannot read recording {rid}: {exc.strerror or exc}") from exc
         stamp = datetime.strptime(info.created[:19], "%Y-%m-%dT%H:%M:%S")
         date_time = (max(stamp.year, 1980), stamp.month, stamp.day, stamp.hour, stamp.minute, stamp.second)
-        gen = _zip_chunks(rid, date_time, handles, max(1, int(chunk_size)))
-        weakref.finalize(gen, _close_all, [fh for _, fh, _ in handles])
+        gen = zip_chunks(rid, date_time, handles, max(1, int(chunk_size)))
+        weakref.finalize(gen, close_all, [fh for _, fh, _ in handles])
         return gen
 
     def delete(self, rid: object) -> None:
@@ -398,7 +395,7 @@ class RecordingStore:
             raise _not_found(folder.name) from None
         except OSError as exc:
             raise RecordingError(f"cannot delete recording {folder.name}: {exc.strerror or exc}") from exc
-        _remove_tree(trash)
+        remove_tree(trash)
 
 
 # -- recording ------------------------------------------------------------------------------------------
@@ -444,7 +441,7 @@ class Recording:
         self._stop = threading.Event()
         self._accepting = True
         self._done = threading.Event()
-        self.created = _iso(_utcnow())
+        self.created = iso_utc(utcnow())
         self.end: Optional[str] = None
         self.end_text: Optional[str] = None
         self.error: Optional[str] = None  # why nothing was kept
@@ -550,7 +547,7 @@ class Recording:
         entry: Dict[str, Any] = {}
         for side, name, rgby in (("left", names[0], fs.raw[..., pixel.LEFT]),
                                  ("right", names[1], fs.raw[..., pixel.RIGHT])):
-            image, pngs = _encode_frame(name[:-4], rgby)
+            image, pngs = encode_frame(name[:-4], rgby)
             y_name = None
             for file_name, data in pngs:
                 if file_name == name:
@@ -564,7 +561,7 @@ class Recording:
         room = self.store.room()
         if room < need:
             self._end("disk_full", f"the disk filled after {self.frames} frames: they were kept, and "
-                                   f"{_mb(self.store.min_free_bytes)} kept free; delete old recordings or "
+                                   f"{mb(self.store.min_free_bytes)} kept free; delete old recordings or "
                                    f"captures to make room")
             return False
         first = self._first or fs
@@ -585,7 +582,7 @@ class Recording:
             for path in written:
                 with contextlib.suppress(OSError):
                     path.unlink()
-            if exc.errno in _FULL_ERRNOS:
+            if exc.errno in FULL_ERRNOS:
                 self._end("disk_full", f"the disk filled after {self.frames} frames "
                                        f"({exc.strerror or 'no space left'}): they were kept; delete old "
                                        f"recordings or captures to make room")
@@ -634,7 +631,7 @@ class Recording:
                 why = {"disk_full": "the disk is full", "error": self.end_text or "it failed"}.get(
                     self.end or "", "no frame came")
                 self.error = f"nothing was recorded: {why}"
-                _remove_tree(self.folder)
+                remove_tree(self.folder)
                 return
             _sync_files(self.folder)
             fps = self._fps()
@@ -659,14 +656,14 @@ class Recording:
             }
             for key, value in self.meta.items():
                 doc.setdefault(key, value)
-            _write_new_file(self.folder / META_FILE, _dumps(doc))
-            _fsync_dir(self.folder)
+            write_new_file(self.folder / META_FILE, meta_dumps(doc))
+            fsync_dir(self.folder)
             self.store.publish(self.folder, self.id)
             self.info = self.store.get(self.id)
             log.info("recording %s: %d frames, %.1f s (%s)", self.id, self.frames, duration, end)
         except Exception as exc:
-            _remove_tree(self.folder)
-            full = isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS
+            remove_tree(self.folder)
+            full = isinstance(exc, OSError) and exc.errno in FULL_ERRNOS
             self.error = ("nothing was kept: the disk filled while the recording was being finished; "
                           "delete old recordings or captures to make room") if full else (
                 f"nothing was kept: the recording could not be finished ({exc})")
@@ -771,8 +768,8 @@ class Recorder:
                 what = f"{seconds:g} s" if seconds is not None else "a recording (1 s at least)"
                 raise RecordingDiskFull(
                     f"not enough free space for {what} at {rate:.0f} fps in {self.store.root}: it needs "
-                    f"about {_mb(need)}, {_mb(max(0, room + self.store.min_free_bytes))} are free and "
-                    f"{_mb(self.store.min_free_bytes)} are kept free; record fewer seconds or delete old "
+                    f"about {mb(need)}, {mb(max(0, room + self.store.min_free_bytes))} are free and "
+                    f"{mb(self.store.min_free_bytes)} are kept free; record fewer seconds or delete old "
                     f"recordings or captures")
             rid, folder = self.store.reserve(frame_no)
             rec = Recording(self.store, rid, folder, seconds=seconds, frame_size=(int(w), int(h)),
@@ -785,7 +782,7 @@ class Recorder:
                 rec._thread.start()
             except BaseException:
                 holds.close()
-                _remove_tree(folder)
+                remove_tree(folder)
                 raise
             self.current, self._holds = rec, holds
         log.info("recording %s started (%s)", rid,

@@ -257,7 +257,7 @@ async def until_taken(client: "StreamClient", limit: int) -> None:
     """Wait until at most ``limit`` written bytes are still on their way to ``client``.
 
     A frame is then chosen when the client can take it, so a slow reader gets the newest
-    frame instead of one that waited seconds in socket buffers (megabytes of them). The
+    frame instead of one that waited seconds in socket buffers (mb of them). The
     caller keeps ``writing_since`` set: a client that takes nothing is still dropped.
     """
     while queued_bytes(client.transport) > limit:

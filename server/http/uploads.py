@@ -52,7 +52,8 @@ import numpy as np
 from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
 from ...overlays.spec import pixel
-from ..frames.captures import ID_EXAMPLE, CaptureStore
+from ..frames.capture_ids import ID_EXAMPLE
+from ..frames.captures import CaptureStore
 from ..frames.errors import ApiError
 
 __all__ = [

@@ -1,0 +1,158 @@
+"""A capture's frames as PNG files: encoded losslessly, decoded bit for bit.
+
+A frame is an ``(H, W, 4)`` RGBY view of the stream (or ``(H, W, 3)``
+RGB, or ``(H, W)`` gray) and is stored losslessly as PNG:
+
+- ``"color": "gray"``: R == G == B == Y at every pixel (a gray camera): an
+  8-bit gray PNG.
+- ``"color": "rgb"``: an RGB PNG. Y is not stored when it equals
+  :func:`...overlays.spec.pixel.gray_of` of the RGB pixels, which is what the
+  demosaic stage computes for raw frames. Otherwise (rectified frames: the
+  core interpolates Y on its own) Y goes to a gray PNG ``<frame>_y.png``,
+  named by ``"y_file"``, so every stored frame comes back bit for bit.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Tuple
+
+import cv2
+import numpy as np
+
+from ...calibration.image_files import CAPTURE_FILES, RAW_FRAMES, capture_file
+from ...overlays.spec import pixel
+from .capture_errors import CaptureDamaged, CaptureError
+from .store_files import read_member
+
+__all__ = ["FRAME_NAMES", "read_raw_pair"]
+
+FRAME_NAMES = RAW_FRAMES + ("rect_left", "rect_right")
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+
+
+def _png(name: str, image: np.ndarray) -> bytes:
+    if image.ndim == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), _PNG_PARAMS)
+    if not ok:
+        raise CaptureError(f"cannot encode {name} as PNG (OpenCV refused it): nothing was stored")
+    return buf.tobytes()
+
+
+def encode_frame(name: str, frame: Any) -> Tuple[Dict[str, Any], List[Tuple[str, bytes]]]:
+    """The image entry of meta.json and the PNG files of one frame (see the module doc)."""
+    a = np.asarray(frame)
+    if a.dtype != np.uint8:
+        raise TypeError(f"frame {name} must be uint8, got {a.dtype}")
+    if a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 3):
+        a = pixel.rgby(a)
+    elif not (a.ndim == 3 and a.shape[2] == 4):
+        raise ValueError(f"frame {name} must be (H, W, 4) RGBY, (H, W, 3) RGB or (H, W) gray; got {a.shape}")
+    h, w = a.shape[:2]
+    if h == 0 or w == 0:
+        raise ValueError(f"frame {name} is empty: {a.shape}")
+    r, g, b, y = (a[..., i] for i in range(4))
+    file, y_file = capture_file(name), capture_file(name, y_plane=True)
+    entry: Dict[str, Any] = {"file": file, "width": int(w), "height": int(h)}
+    if np.array_equal(r, g) and np.array_equal(r, b) and np.array_equal(r, y):
+        entry.update(color="gray", y_file=None)
+        return entry, [(file, _png(name, r))]
+    rgb = a[..., :3]
+    files = [(file, _png(name, rgb))]
+    if np.array_equal(y, pixel.gray_of(rgb)):
+        entry.update(color="rgb", y_file=None)
+    else:
+        entry.update(color="rgb", y_file=y_file)
+        files.append((y_file, _png(f"{name}_y", np.ascontiguousarray(y))))
+    return entry, files
+
+
+def encode_frames(frames: Mapping[str, np.ndarray]) -> Tuple[Dict[str, Any], List[Tuple[str, bytes]]]:
+    """meta.json's ``images`` and the PNG files of a capture's :data:`FRAME_NAMES` frames.
+
+    ``ValueError`` unless ``frames`` has exactly those keys and each pair's
+    left and right frames have the same size.
+    """
+    missing = [n for n in FRAME_NAMES if n not in frames]
+    extra = sorted(str(n) for n in frames if n not in FRAME_NAMES)
+    if missing or extra:
+        raise ValueError(
+            f"frames must have exactly the keys {', '.join(FRAME_NAMES)}"
+            + (f"; missing {', '.join(missing)}" if missing else "")
+            + (f"; unknown {', '.join(extra)}" if extra else "")
+        )
+    images: Dict[str, Any] = {}
+    files: List[Tuple[str, bytes]] = []
+    for name in FRAME_NAMES:
+        entry, pngs = encode_frame(name, frames[name])
+        images[name] = entry
+        files.extend(pngs)
+    for a, b in (("raw_left", "raw_right"), ("rect_left", "rect_right")):
+        sa = (images[a]["width"], images[a]["height"])
+        sb = (images[b]["width"], images[b]["height"])
+        if sa != sb:
+            raise ValueError(
+                f"frames {a} ({sa[0]}x{sa[1]}) and {b} ({sb[0]}x{sb[1]}) must have the same size"
+            )
+    return images, files
+
+
+def _decode_png(data: bytes) -> Optional[np.ndarray]:
+    if not data:
+        return None
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint8:
+        return None
+    if img.ndim == 3:
+        if img.shape[2] == 3:
+            return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return None
+    return img
+
+
+def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
+    """The raw left and right frames of the capture ``cid`` in ``folder``, as RGBY arrays.
+
+    :class:`CaptureDamaged` (422) if a raw image is missing or corrupt, or the two differ in size.
+    """
+    out = []
+    for name in RAW_FRAMES:
+        file, y_file = capture_file(name), capture_file(name, y_plane=True)
+        try:
+            data = read_member(folder, file)
+        except FileNotFoundError:
+            raise CaptureDamaged(f"capture {cid} cannot be replayed: {file} is missing") from None
+        except OSError as exc:
+            raise CaptureDamaged(
+                f"capture {cid} cannot be replayed: {file} cannot be read ({exc.strerror or exc})"
+            ) from exc
+        image = _decode_png(data)
+        if image is None:
+            raise CaptureDamaged(
+                f"capture {cid} cannot be replayed: {file} is not a valid 8-bit image"
+            )
+        frame = pixel.rgby(image)
+        try:
+            y_data: Optional[bytes] = read_member(folder, y_file)
+        except FileNotFoundError:
+            y_data = None
+        except OSError as exc:
+            raise CaptureDamaged(
+                f"capture {cid} cannot be replayed: {y_file} cannot be read ({exc.strerror or exc})"
+            ) from exc
+        if y_data is not None:
+            y = _decode_png(y_data)
+            if y is None or y.shape != frame.shape[:2]:
+                raise CaptureDamaged(
+                    f"capture {cid} cannot be replayed: {y_file} is not a gray image of the "
+                    f"frame's size"
+                )
+            frame[..., pixel.Y] = y
+        out.append(frame)
+    left, right = out
+    if left.shape != right.shape:
+        raise CaptureDamaged(
+            f"capture {cid} cannot be replayed: {CAPTURE_FILES[0]} is {left.shape[1]}x{left.shape[0]} "
+            f"but {CAPTURE_FILES[1]} is {right.shape[1]}x{right.shape[0]}"
+        )
+    return left, right

@@ -1,0 +1,49 @@
+"""The small JPEG the capture list shows for each capture."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ...calibration.image_files import capture_file
+from .capture_errors import CaptureDamaged, CaptureError, not_found
+from .store_files import read_member
+
+__all__ = ["THUMB_FRAMES", "THUMB_WIDTH", "thumbnail_jpeg"]
+
+THUMB_FRAMES = ("rect_left", "raw_left")  # what a thumbnail shows: the first of these that can be read
+THUMB_WIDTH = 160  # pixels: the capture list's thumbnails (shown at 80 CSS px, sharp on a 2x screen)
+_THUMB_QUALITY = 80
+
+
+def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
+    """The thumbnail of the capture ``cid`` in ``folder``: the first of :data:`THUMB_FRAMES` that reads.
+
+    404 if the folder is gone meanwhile; :class:`CaptureDamaged` (422) when no image can be read.
+    """
+    image = None
+    for name in map(capture_file, THUMB_FRAMES):
+        try:
+            data = read_member(folder, name, 64 << 20)
+        except FileNotFoundError:
+            continue
+        except (OSError, ValueError):
+            continue
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if image is not None:
+            break
+    if image is None:
+        if not os.path.isdir(folder):
+            raise not_found(cid)
+        raise CaptureDamaged(f"capture {cid} has no readable "
+                             f"{' or '.join(map(capture_file, THUMB_FRAMES))} for a thumbnail")
+    h, w = image.shape[:2]
+    tw = max(1, min(int(width), w))
+    th = max(1, round(h * tw / w))
+    small = cv2.resize(image, (tw, th), interpolation=cv2.INTER_AREA) if tw != w else image
+    ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, _THUMB_QUALITY])
+    if not ok:
+        raise CaptureError(f"cannot encode the thumbnail of capture {cid}")
+    return buf.tobytes()
