@@ -14,8 +14,18 @@ build; 7,600 with g++ 12, 8,250 before): the coordinate engine about 4,200 of th
 (its divider 1,800, its thirteen products 1,850 with their sign extensions), the datapath
 2,150, the register block 750, Verilator's scheduling 250, the harness 100. Five frame pairs
 per second would need about 4,800 instructions a clock at clang++'s rate, which the
-coordinate engine and the datapath alone exceed. It has the methods of
-``overlays/emulated/rectify.py: EmulatedRectifyCore`` that the rest of the code uses,
+coordinate engine and the datapath alone exceed. Measured ceilings (copies of the RTL with the
+arithmetic replaced by one XOR a stage, same clocks, outputs wrong; CPU time, 10-12 frames,
+about 7 % run-to-run noise): 3.5-3.8 pairs/s as built; 4.3-5.1 without the divider's
+arithmetic; 4.8-5.7 without the thirteen products'; 5.6 without either. Five pairs/s would
+need, with the rest as it is, the engine's arithmetic at under a fifth of its cost, with every
+product already the four partial products of its DSP48E1 cascade and the divider one adder a
+quotient bit. Other routes tried, none reaching it: Verilator's ``--compiler clang``,
+``--inline-mult``, ``-fno-table``, ``--x-assign fast`` (within the noise or slower); calling
+the model's evaluation without ``eval_step``'s bookkeeping (within the noise); the divider's
+stages as arrays in one loop (the same rate: Verilator unrolls it, nothing is vectorised);
+``-march=x86-64-v3`` (the model crashes in its static initialisation, on an aligned AVX store).
+It has the methods of ``overlays/emulated/rectify.py: EmulatedRectifyCore`` that the rest of the code uses,
 ``read``, ``write`` and ``process``, so the driver (``drivers/rectify.py: RectifyCore``)
 programs it unchanged and the emulated core can serve as its oracle frame for frame.
 
