@@ -70,6 +70,9 @@ __all__ = [
 CAMERAS = ("left", "right")
 SYNC_MODES = ("master-slave", "snapshot")
 TEST_PATTERN_OFF = "off"
+# A manual exposure in microseconds is > 0 (API.md), so at least one row: the register itself
+# also takes 0 (fine shutter only), which ``exposure_rows`` still writes for whoever asks in rows.
+MANUAL_EXPOSURE_MIN_ROWS = 1
 
 
 class SensorError(DriverError):
@@ -231,6 +234,7 @@ class MT9V034:
 
     def exposure_range_us(self, row_us: Optional[float] = None) -> Tuple[float, float]:
         lo, hi = self.map["COARSE_SHUTTER_WIDTH_TOTAL"].limit()
+        lo = max(lo, MANUAL_EXPOSURE_MIN_ROWS)
         row_us = self.row_time_us() if row_us is None else row_us
         return spec.exposure_us_from_rows(lo, row_us), spec.exposure_us_from_rows(hi, row_us)
 
@@ -240,6 +244,7 @@ class MT9V034:
         row_us = self.row_time_us() if row_us is None else row_us
         reg = "COARSE_SHUTTER_WIDTH_TOTAL" if limit == "exposure" else "MAX_COARSE_SHUTTER_WIDTH"
         lo, hi = self.map[reg].limit()
+        lo = max(lo, MANUAL_EXPOSURE_MIN_ROWS)
         rows = spec.exposure_rows_from_us(us, row_us)
         if not lo <= rows <= hi:
             lo_us, hi_us = spec.exposure_us_from_rows(lo, row_us), spec.exposure_us_from_rows(hi, row_us)
@@ -415,8 +420,8 @@ class SensorSettings:
     def __post_init__(self) -> None:
         if self.exposure_us is not None:
             us = _number(self.exposure_us, "exposure_us")
-            if us < 0:
-                raise SettingsError(f"exposure_us must be >= 0 microseconds, not {self.exposure_us!r}")
+            if not us > 0:
+                raise SettingsError(f"exposure_us must be > 0 microseconds, not {self.exposure_us!r}")
         if self.gain is not None:
             g = _number(self.gain, "gain")
             if not spec.GAIN_MIN <= g <= spec.GAIN_MAX:

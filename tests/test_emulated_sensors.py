@@ -13,7 +13,7 @@ import pytest
 
 from stereocam.board.profile import BoardProfile, load_profile, profile_from_dict
 from stereocam.drivers.i2c import I2CNack
-from stereocam.drivers.mt9v034 import SensorRangeError, SensorUnavailable, StereoSensors
+from stereocam.drivers.mt9v034 import SensorError, SensorRangeError, SensorUnavailable, StereoSensors
 from stereocam.overlays.emulated.i2c import EmulatedI2CBus
 from stereocam.overlays.emulated.logic import EmulatedFabric
 from stereocam.overlays.emulated.regblock import EmulationError
@@ -311,3 +311,20 @@ def test_rig_sensor_hook_validates(rig: SyntheticRig) -> None:
         rig.set_sensor(0, gain=-1.0)
     with pytest.raises(ValueError, match=r"test_pattern must be a \(120, 188\) uint8 image"):
         rig.set_sensor(0, test_pattern=np.zeros((10, 10), np.uint8))
+
+
+@pytest.mark.parametrize("us", [0, -5, 5.0])
+def test_an_exposure_of_no_whole_row_is_refused(started: Tuple[EmulatedSensorPair, StereoSensors],
+                                                us: float) -> None:
+    """``exposure_us`` is > 0 and at least one row: zero, negative, or under half a row (0 rows)
+    is refused with the range, and nothing changes."""
+    _, sensors = started
+    before = sensors.read()
+    row_us = before["left"]["exposure_us"] / before["left"]["exposure_rows"]
+    expected = (rf"left: exposure {us:g} us is out of range: {row_us:g}\.\." if us > 0
+                else rf"exposure_us must be > 0 microseconds, not {us!r}")
+    with pytest.raises(SensorError, match=expected):
+        sensors.apply({"exposure_us": us})
+    assert sensors.read() == before
+    sensors.apply({"exposure_us": row_us})  # one row is the least
+    assert sensors.read()["left"]["exposure_rows"] == 1

@@ -185,8 +185,8 @@ def test_exposure_out_of_range_names_the_range() -> None:
     s, bus = sensor(*row_time_reads())
     with pytest.raises(SensorRangeError) as err:
         s.exposure_us = 2_000_000
-    assert str(err.value) == (f"left: exposure 2e+06 us is out of range: 0..{32765 * ROW_US:.0f} us "
-                              f"(0..32765 rows of {ROW_US:.2f} us)")
+    assert str(err.value) == (f"left: exposure 2e+06 us is out of range: {ROW_US:g}..{32765 * ROW_US:.0f} us "
+                              f"(1..32765 rows of {ROW_US:.2f} us)")
     bus.assert_done()  # the row time was read, nothing was written
     s, bus = sensor()
     with pytest.raises(SensorRangeError, match=r"exposure \(rows\) 40000 is out of range: 0\.\.32765"):
@@ -332,7 +332,8 @@ def test_settings_from_a_request() -> None:
     ({"gain": 5.0}, "gain 5 is out of range: 1.0..4.0"),
     ({"gain": None}, "gain may not be null"),
     ({"aec": "yes"}, "aec must be true or false, not 'yes'"),
-    ({"exposure_us": -1}, "exposure_us must be >= 0"),
+    ({"exposure_us": -1}, "exposure_us must be > 0"),
+    ({"exposure_us": 0}, "exposure_us must be > 0"),
     ({"test_pattern": "bars"}, "test_pattern 'bars' is not one of"),
     ([1, 2], "camera settings must be an object"),
 ])
