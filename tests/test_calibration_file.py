@@ -612,6 +612,31 @@ def test_physically_meaningless_calibrations_are_refused(written, change, messag
     assert parse_yaml(_edited(written, lambda doc: None), where="cal", derive_missing=True)  # unchanged: fine
 
 
+@pytest.mark.parametrize("section,name,row,col,message", [
+    ("rectification", "P1", 0, 1, "the rectification (P1*R1 or P2*R2) is singular"),
+    ("rectification", "P2", 1, 2, "the rectification (P1*R1 or P2*R2) is singular"),
+    ("model", "R", 0, 1, "model.R is not a rotation matrix"),
+    ("rectification", "R2", 2, 2, "rectification.R2 is not a rotation matrix"),
+])
+@pytest.mark.parametrize("value", [1e308, -1e308, 1e154])
+def test_huge_numbers_are_refused_without_overflowing(written, tmp_path, capsys, section, name, row, col,
+                                                      message, value) -> None:
+    """A hostile file's 1e308 in a projection or a rotation: its check must not overflow on the
+    way (an OverflowError was a traceback from ``calibration import`` and a 500 from the daemon;
+    numpy's overflow warnings are errors here)."""
+    def change(doc: Dict[str, Any]) -> None:
+        doc[section][name][row][col] = value
+
+    text = _edited(written, change)
+    with pytest.raises(CalibrationFileError, match=re.escape(message)):
+        parse_yaml(text, where="cal", derive_missing=True)
+    hostile = tmp_path / "hostile.yaml"
+    hostile.write_text(text)
+    err = cli_error(capsys, ["calibration", "import", str(hostile), "-o", str(tmp_path / "out.yaml")])
+    assert message in err
+    assert not (tmp_path / "out.yaml").exists()
+
+
 def test_a_rectification_of_another_rig_is_refused(written) -> None:
     # Turn the right camera 3 degrees behind the rectification's back.
     def rotate(doc: Dict[str, Any]) -> None:

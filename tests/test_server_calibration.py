@@ -131,7 +131,7 @@ def _nan(text: str) -> str:
 
 
 @pytest.mark.parametrize("case", ["broken", "nan", "frame_size", "line_buffer", "not_calibration", "empty",
-                                  "alias_bomb", "deep", "zero_baseline"])
+                                  "alias_bomb", "deep", "zero_baseline", "huge_projection"])
 async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_path, case) -> None:
     daemon = await start_daemon(extensions=EXT)
     path = tmp_path / "calibration.yaml"
@@ -164,6 +164,11 @@ async def test_put_refuses_and_keeps_the_previous_calibration(start_daemon, tmp_
         doc["model"]["T"] = [0.0, 0.0, 0.0]
         del doc["core"], doc["id"]
         text, status_code, words = yaml.safe_dump(doc), 400, "baseline of 0"
+    elif case == "huge_projection":  # its singularity check overflowed: a 500, and nothing said why
+        doc = yaml.safe_load(good.to_yaml())
+        doc["rectification"]["P1"][0][1] = 1e308
+        del doc["core"], doc["id"]
+        text, status_code, words = yaml.safe_dump(doc), 400, "singular"
     elif case == "deep":
         text, status_code, words = good.to_yaml() + "deep: " + "[" * 5000 + "]" * 5000 + "\n", 400, "nested"
     else:

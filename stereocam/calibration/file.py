@@ -161,7 +161,9 @@ MAX_BASELINE = 1e6  # in the file's units (m, mm or squares): a million of them 
 
 
 def _check_rotation(where: str, name: str, R: np.ndarray) -> None:
-    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOL or abs(np.linalg.det(R) - 1.0) > ROTATION_TOL:
+    # A rotation's entries are within [-1, 1]; checking that first keeps R^T R from overflowing.
+    if (np.abs(R).max() > 1.0 + ROTATION_TOL or np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOL
+            or abs(np.linalg.det(R) - 1.0) > ROTATION_TOL):
         raise CalibrationFileError(f"{where}: {name} is not a rotation matrix (R^T R must be I and det R 1); "
                                    "the file is not a valid calibration")
 

@@ -74,8 +74,14 @@ def inverse_homography(K: np.ndarray, R: np.ndarray, P: np.ndarray) -> np.ndarra
     ``P`` is the 3x3 left part of the rectified projection. Raises
     ``numpy.linalg.LinAlgError`` if ``P R`` is singular.
     """
-    M = np.asarray(P, dtype=np.float64)[:, :3] @ np.asarray(R, dtype=np.float64)
-    if not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12 * max(1.0, float(np.abs(M).max()) ** 3):
+    with np.errstate(over="ignore", invalid="ignore"):  # a hostile file's 1e308: refused just below
+        M = np.asarray(P, dtype=np.float64)[:, :3] @ np.asarray(R, dtype=np.float64)
+    if not np.all(np.isfinite(M)):
+        raise np.linalg.LinAlgError("the rectifying projection P*R is not finite: its numbers are too large")
+    # Singular when |det M| < 1e-12 max(1, s^3), s the largest |entry|: det(M / s) for s > 1,
+    # whose entries are at most 1, so the determinant cannot overflow.
+    scale = float(np.abs(M).max())
+    if abs(np.linalg.det(M / scale if scale > 1.0 else M)) < 1e-12:
         raise np.linalg.LinAlgError("the rectifying projection P*R is singular")
     return np.asarray(K, dtype=np.float64) @ np.linalg.inv(M)
 
