@@ -18,13 +18,14 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Tuple
 
+import aiohttp
 import pytest
 
 from stereocam.bench.serve import wait_healthy
 from stereocam.calibration.file import MAX_FILE_CHARS, Calibration, load_calibration
 from stereocam.calibration.stereo import rectify
 from stereocam.overlays.emulated.render import SyntheticRig
-from stereocam.server.http import routes_calibration
+from stereocam.server.http import routes_calibration, routes_calibration_panel
 from stereocam.server.http.routes_calibration import ACTIVE, previous_path
 from stereocam.server.http.state import Executors
 
@@ -224,3 +225,36 @@ async def test_put_refuses_a_file_the_next_start_could_not_read(start_daemon, tm
     assert error.endswith(f"more than the {MAX_FILE_CHARS:,} a calibration file may have: "
                           "shorten its quality section")
     assert not (tmp_path / "calibration.yaml").exists()
+
+
+async def test_stopping_abandons_a_running_calibration_compute(start_daemon, monkeypatch) -> None:
+    """The panel's compute (seconds of corner detection and calibration; minutes on the board's
+    ARM cores) reads the stored pairs and writes nothing: stopping stops it rather than the
+    exit waiting for it to end."""
+    daemon = await start_daemon(extensions=(routes_calibration.setup, routes_calibration_panel.setup))
+    entered, ended, release = threading.Event(), threading.Event(), threading.Event()
+
+    def long_compute(*args: Any, **kwargs: Any) -> Any:  # Python that runs until released
+        entered.set()
+        try:
+            while not release.is_set():
+                time.sleep(0.001)
+            raise AssertionError("the compute was let run to its end")
+        finally:
+            ended.set()
+
+    monkeypatch.setattr(routes_calibration_panel, "compute", long_compute)
+    post = asyncio.ensure_future(daemon.http.post("/api/calibration/compute"))
+    try:
+        await until(entered.is_set, "the compute started")
+        took = await daemon.stop(close_sessions=False)
+        assert took <= STOP_BOUND_S, f"the shutdown took {took:.2f} s"
+        await until(ended.is_set, "the compute's thread stopped")  # without being released
+        with pytest.raises(aiohttp.ClientError):  # the request was cut short: no candidate was answered
+            async with await post as r:
+                await r.read()
+        assert daemon.app[routes_calibration_panel.PANEL].progress["state"] == "failed"
+    finally:
+        release.set()
+        post.cancel()
+        await daemon.close_sessions()

@@ -286,7 +286,8 @@ async def post_compute(request: web.Request) -> web.Response:
         async with panel.pairs_lock:  # a snapshot: pairs captured meanwhile wait for the next compute
             ids = await app[EXECUTORS].run(pair_ids, panel.store)
         panel.computing = set(ids)
-        report = await app[EXECUTORS].run(
+        # It reads the pairs and writes nothing, so shutdown may stop it anywhere rather than wait.
+        report = await app[EXECUTORS].run_abandonable(
             lambda: compute(panel.store, ids, settings, rectify, progress=progress))
     except PanelError as exc:
         panel.progress = {"state": "failed", "error": exc.message, "started": started}
