@@ -57,6 +57,8 @@ def test_unknown_keys_are_named_with_a_suggestion(tmp_path) -> None:
      "allowed_hosts must be a list of host names (no ports or spaces), got ['board:8080']"),
     ("allowed_hosts: [3]", "allowed_hosts must be a list of host names (no ports or spaces), got [3]"),
     ("core_build: big", "core_build must be one of gray, colour, got 'big'"),
+    ("core_build: [colour]", "core_build must be one of gray, colour, got ['colour']"),
+    ("backend: {emulated: 1}", "backend must be one of auto, pynq, emulated, got {'emulated': 1}"),
     ("rtl_dir: ''", "rtl_dir must be a non-empty string or null, got ''"),
     ("default_quality: 0", "default_quality must be >= 1 and <= 100, got 0"),
     ("default_fps: 0", "default_fps must be > 0 and <= 120, got 0"),

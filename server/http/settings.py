@@ -17,13 +17,12 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Dict, Mapping, Optional, Tuple
 
+from ...overlays.backend import BACKENDS, CORES
 from ...overlays.spec.rectify import BUILDS
 
 __all__ = ["Settings", "SettingsError", "BACKENDS", "CORES", "DEFAULT_CAPTURES", "LOG_LEVELS", "MAX_FPS"]
 
-BACKENDS = ("auto", "pynq", "emulated")
 LOG_LEVELS = ("debug", "info", "warning", "error")  # debug adds every HTTP request (aiohttp's access log)
-CORES = ("model", "rtl")  # what stands behind the emulated fabric's rectify core
 MAX_FPS = 120.0
 DEFAULT_CAPTURES = "~/.local/share/stereocam/captures"
 
@@ -254,7 +253,7 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
                                 f"got {value!r}")
         return value
     if key == "core_build":
-        if value not in BUILDS:
+        if not isinstance(value, str) or value not in BUILDS:  # BUILDS is a dict: a list is unhashable
             raise SettingsError(f"{_where(origin)}core_build must be one of {', '.join(BUILDS)}, "
                                 f"got {value!r}")
         return value
