@@ -114,10 +114,14 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
 def _read_image(path: Path) -> np.ndarray:
     import cv2
 
+    from .calibration.image_files import ImageTooLarge, decode_image_file
+
     if not path.is_file():
         raise UserError(f"{path}: no such file")
-    data = np.fromfile(str(path), dtype=np.uint8)
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    try:
+        image = decode_image_file(path, cv2.IMREAD_UNCHANGED)
+    except ImageTooLarge as exc:
+        raise UserError(str(exc)) from None
     if image is None:
         raise UserError(f"{path}: not a readable image (PNG, JPEG, BMP, TIFF, PGM/PPM)")
     if image.dtype != np.uint8:

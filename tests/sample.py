@@ -6,6 +6,8 @@ model (k3 fixed at 0). Cached: several test modules share it.
 from __future__ import annotations
 
 import functools
+import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Tuple
@@ -115,3 +117,16 @@ def synthetic_views(
         poses = random_board_poses(rig.model, SYNTH_PATTERN, SYNTH_SQUARE, n=n, rng=rng)
         views = tuple(rig.render_plane_views(board, size_m, R, t) for R, t in poses)
         return rig.model, views
+
+
+# -- image files that lie about their size -----------------------------------------
+
+def png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_claiming(w: int, h: int) -> bytes:
+    """A tiny, well-formed PNG whose IHDR (valid CRC) claims w x h RGB pixels: no pixel data to speak of."""
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + png_chunk(b"IDAT", zlib.compress(b"\x00" * 64))
+            + png_chunk(b"IEND", b""))

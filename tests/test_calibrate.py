@@ -28,7 +28,7 @@ from stereocam.calibration.file import load_calibration
 from stereocam.cli import main
 from stereocam.overlays.model.reference import source_position
 
-from .sample import DATA, PAIRS, SYNTH_SQUARE, calibrate_sample, pair_paths, synthetic_views
+from .sample import DATA, PAIRS, SYNTH_SQUARE, calibrate_sample, pair_paths, png_claiming, synthetic_views
 
 LEFTS = [str(pair_paths(i)[0]) for i in PAIRS]
 RIGHTS = [str(pair_paths(i)[1]) for i in PAIRS]
@@ -252,6 +252,8 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
     corrupt = tmp_path / "corrupt.png"
     ok, buf = cv2.imencode(".png", cv2.imread(LEFTS[1]))
     corrupt.write_bytes(buf.tobytes()[:300])
+    bomb = tmp_path / "bomb.png"  # OpenCV would decode its 25 megapixels; a gigapixel raised cv2.error
+    bomb.write_bytes(png_claiming(5000, 5000))
     blank = tmp_path / "blank"
     for k in range(6):
         cap = blank / f"c{k}"
@@ -273,6 +275,9 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
             ["--left", LEFTS[0], str(corrupt), "--right", RIGHTS[0], RIGHTS[1]],
             "corrupt.png: not a readable image",
         ),
+        (["--left", LEFTS[0], str(bomb), "--right", RIGHTS[0], RIGHTS[1]],
+         "bomb.png: the image header claims more than the 16.8 megapixels read: 5000x5000 "
+         "(25.0 megapixels; a decompression bomb?): replace it"),
         (["--left", *LEFTS[:2], "--right", RIGHTS[0]], "2 left images but 1 right images"),
         ([str(tmp_path / "half")], "has no raw_right.png"),
         ([str(small)], "is a file: give capture folders, or image files with --left"),

@@ -19,6 +19,8 @@ from stereocam.overlays.model import camera_in as camera_model
 from stereocam.overlays.spec import camera_in as camera_spec
 from stereocam.overlays.spec.pixel import gray_of, pack, rgby
 
+from .sample import png_claiming
+
 DATA = Path(__file__).parent / "data" / "opencv-stereo-calib"
 
 
@@ -459,6 +461,17 @@ def test_replay_errors_say_what_is_wrong_and_what_to_do(tmp_path: Path) -> None:
     _write(deep / "left1.png", img)
     assert cv2.imwrite(str(deep / "right1.png"), img.astype(np.uint16) * 256)
     assert "uint16" in _error(deep) and "8 bits" in _error(deep)
+
+
+TOO_MANY_PIXELS = "the image header claims more than the 16.8 megapixels read"
+
+
+def test_replay_refuses_an_image_whose_header_claims_too_many_pixels(tmp_path: Path) -> None:
+    img = _images(9, 1, (48, 64, 3))[0]
+    _write(tmp_path / "left1.png", img)
+    (tmp_path / "right1.png").write_bytes(png_claiming(5000, 5000))  # 25 megapixels, before any decode
+    msg = _error(tmp_path)
+    assert f"right1.png: {TOO_MANY_PIXELS}: 5000x5000" in msg and "replace or remove it" in msg
 
 
 def test_replay_names_a_file_truncated_after_its_header(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ import pytest
 
 from stereocam.cli import main
 
-from .sample import calibrate_sample, pair_paths, write_opencv_files
+from .sample import calibrate_sample, pair_paths, png_claiming, write_opencv_files
 
 
 @pytest.fixture(scope="module")
@@ -148,14 +148,20 @@ def test_bad_images_get_one_line_and_exit_2(tmp_path, calfiles, capsys) -> None:
     huge_l, huge_r = tmp_path / "hl.png", tmp_path / "hr.png"
     cv2.imwrite(str(huge_l), np.zeros((100, 2000), np.uint8))
     cv2.imwrite(str(huge_r), np.zeros((100, 2000), np.uint8))
+    bomb, gigapixel = tmp_path / "bomb.png", tmp_path / "gigapixel.png"
+    bomb.write_bytes(png_claiming(5000, 5000))  # OpenCV would decode it: 75 MB for a header
+    gigapixel.write_bytes(png_claiming(60000, 60000))  # OpenCV raised its own error: a traceback
     deep = tmp_path / "deep.png"
     cv2.imwrite(str(deep), np.zeros((480, 640), np.uint16))
     cal = cal_arg(calfiles)
+    too_many = "the image header claims more than the 16.8 megapixels read"
     for l_img, r_img, message in (
         (corrupt, right, "corrupt.png: not a readable image"),
         (left, small, "left is 640x480 but right is 120x100"),
         (huge_l, huge_r, "a 2000x100 frame does not fit the core (at most 752x1024)"),
         (deep, right, "uint16 pixels"),
+        (bomb, right, f"bomb.png: {too_many}: 5000x5000 (25.0 megapixels"),
+        (left, gigapixel, f"gigapixel.png: {too_many} (a decompression bomb?)"),
         (tmp_path / "nope.png", right, "nope.png: no such file"),
     ):
         args = ["rectify", "--calibration", cal, "-o", str(tmp_path / "o"), str(l_img), str(r_img)]

@@ -6,9 +6,7 @@ import errno
 import io
 import json
 import os
-import struct
 import zipfile
-import zlib
 
 import cv2
 import numpy as np
@@ -21,6 +19,7 @@ from stereocam.overlays.spec import pixel
 from stereocam.server.frames import store_files
 from stereocam.server.http.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
 
+from .sample import png_claiming
 from .server_fixtures import (
     FULL,
     SMALL,
@@ -68,15 +67,6 @@ def decode_png(data: bytes) -> np.ndarray:
 def model_output(daemon, frame: np.ndarray) -> np.ndarray:
     config, options = daemon.overlay.core_setup()
     return RectifyModel(config.left, config.right, config.width, config.height, options).process(frame).frame
-
-
-def png_claiming(w: int, h: int) -> bytes:
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
-    idat = chunk(b"IDAT", zlib.compress(b"\0" * 64))
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + idat + chunk(b"IEND", b"")
 
 
 # -- status, source, operations -------------------------------------------------------------------

@@ -5,7 +5,6 @@ import io
 import struct
 import threading
 import warnings
-import zlib
 from typing import Any, Dict, List
 
 import cv2
@@ -23,6 +22,8 @@ from stereocam.server.http.uploads import (
     parse_json_capture_request,
 )
 
+from .sample import png_claiming
+
 W, H = 24, 16
 SIZE = (W, H)
 
@@ -39,17 +40,6 @@ def encode(array: np.ndarray, fmt: str, **params: Any) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(array).save(buf, format=fmt, **params)
     return buf.getvalue()
-
-
-def png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-
-def png_claiming(w: int, h: int) -> bytes:
-    """A tiny, well-formed PNG whose IHDR (valid CRC) claims w x h RGB pixels: no pixel data to speak of."""
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + png_chunk(b"IDAT", zlib.compress(b"\x00" * 64))
-            + png_chunk(b"IEND", b""))
 
 
 def bmp_claiming(w: int, h: int) -> bytes:

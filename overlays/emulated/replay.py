@@ -19,7 +19,14 @@ from typing import Dict, List, Optional, Tuple, Union
 import cv2
 import numpy as np
 
-from ...calibration.image_files import CAPTURE_FILES, is_image_file, natural_key
+from ...calibration.image_files import (
+    CAPTURE_FILES,
+    ImageTooLarge,
+    decode_image_file,
+    image_size,
+    is_image_file,
+    natural_key,
+)
 from ..spec.pixel import pack, rgby
 from .cameras import SourceClosedError
 
@@ -230,14 +237,15 @@ class ReplaySource:
         return entries
 
     def _check_sizes(self) -> Tuple[int, int]:
-        from PIL import Image, UnidentifiedImageError
-
         def size_of(path: Path) -> Tuple[int, int]:
             try:
-                with Image.open(path) as im:
-                    return im.size
-            except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-                raise ReplayError(f"cannot read image {path}: {exc}; replace or remove that file") from exc
+                size = image_size(path, str(path)) if path.is_file() else None
+            except ImageTooLarge as exc:
+                raise ReplayError(f"{exc}: replace or remove it") from None
+            if size is None:
+                raise ReplayError(f"cannot read image {path}: not an image, or its header is truncated or "
+                                  "corrupt; replace or remove that file")
+            return size
 
         first: Optional[Tuple[int, int]] = None
         # A recording: its first frame (recording.json gives the size; every frame is checked on decode).
@@ -369,8 +377,10 @@ class ReplaySource:
 
     def _load(self, path: Path) -> np.ndarray:
         """An (H, W) gray or (H, W, 3) RGB uint8 image."""
-        data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
-        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data is not None and data.size else None
+        try:
+            image = decode_image_file(path, cv2.IMREAD_UNCHANGED)
+        except ImageTooLarge as exc:
+            raise ReplayError(f"{exc}: replace or remove it") from None
         if image is None:
             raise ReplayError(
                 f"cannot decode image {path} (missing, truncated or corrupt): replace or remove it"

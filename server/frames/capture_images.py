@@ -19,7 +19,13 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 import cv2
 import numpy as np
 
-from ...calibration.image_files import CAPTURE_FILES, RAW_FRAMES, capture_file
+from ...calibration.image_files import (
+    CAPTURE_FILES,
+    RAW_FRAMES,
+    ImageTooLarge,
+    capture_file,
+    check_image_header,
+)
 from ...overlays.spec import pixel
 from .capture_errors import CaptureDamaged, CaptureError
 from .store_files import read_member
@@ -99,6 +105,10 @@ def encode_frames(frames: Mapping[str, np.ndarray]) -> Tuple[Dict[str, Any], Lis
 
 def _decode_png(data: bytes) -> Optional[np.ndarray]:
     if not data:
+        return None
+    try:
+        check_image_header(data, "a capture's image")
+    except ImageTooLarge:  # no capture of ours: treated as unreadable
         return None
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None or img.dtype != np.uint8:

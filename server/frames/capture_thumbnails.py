@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ...calibration.image_files import capture_file
+from ...calibration.image_files import ImageTooLarge, capture_file, check_image_header
 from .capture_errors import CaptureDamaged, CaptureError, not_found
 from .store_files import read_member
 
@@ -30,6 +30,10 @@ def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
         except FileNotFoundError:
             continue
         except (OSError, ValueError):
+            continue
+        try:
+            check_image_header(data, name)
+        except ImageTooLarge:  # no capture of ours: treated as unreadable
             continue
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
         if image is not None:

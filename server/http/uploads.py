@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
+from ...calibration.image_files import MAX_IMAGE_PIXELS  # larger headers: decompression bombs
 from ...overlays.spec import pixel
 from ..frames.capture_ids import ID_EXAMPLE
 from ..frames.captures import CaptureStore
@@ -83,8 +84,6 @@ Also the default limit of one field in :func:`decode_image`. Two 752x480
 pairs of uncompressed 24-bit BMP or TIFF need about 2.2 MB.
 """
 
-MAX_IMAGE_PIXELS = 4096 * 4096
-"""Largest image (width x height) decoded at all; larger headers are refused as decompression bombs."""
 
 ACCEPTED_FORMATS = ("PNG", "BMP", "JPEG", "TIFF")
 PAIR_FIELDS = ("left", "right")

@@ -49,7 +49,7 @@ from ..overlays.spec.rectify import (
     CameraParams,
 )
 from .file import Calibration
-from .image_files import CAPTURE_FILES, is_image_file, natural_key
+from .image_files import CAPTURE_FILES, ImageTooLarge, decode_image_file, is_image_file, natural_key
 from .stereo import StereoModel, rectify
 
 MIN_PAIRS = 5
@@ -188,8 +188,10 @@ def _gray(image: ImageLike, what: str) -> np.ndarray:
     path = Path(image)
     if not path.is_file():
         raise CalibrationInputError(f"{path}: no such file")
-    data = np.fromfile(str(path), dtype=np.uint8)
-    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    try:
+        gray = decode_image_file(path, cv2.IMREAD_GRAYSCALE)
+    except ImageTooLarge as exc:
+        raise CalibrationInputError(f"{exc}: replace it or leave that pair out") from None
     if gray is None:
         raise CalibrationInputError(
             f"{path}: not a readable image (missing, truncated or corrupt): replace it or leave that pair out"

@@ -6,11 +6,21 @@ lowest layer that needs them, a folder one accepts the others read alike.
 """
 from __future__ import annotations
 
+import io
 import re
+import threading
+import warnings
 from pathlib import Path
-from typing import Tuple
+from typing import Optional, Tuple, Union
 
-__all__ = ["CAPTURE_FILES", "IMAGE_EXTS", "RAW_FRAMES", "capture_file", "is_image_file", "natural_key"]
+import numpy as np
+
+__all__ = ["CAPTURE_FILES", "IMAGE_EXTS", "MAX_IMAGE_PIXELS", "RAW_FRAMES", "ImageTooLarge", "capture_file",
+           "check_image_header", "decode_image_file", "image_size", "is_image_file", "natural_key"]
+
+MAX_IMAGE_PIXELS = 4096 * 4096
+"""Largest image (width x height) decoded at all, from a file or an upload: a header claiming more is
+refused before a pixel is decoded (a decompression bomb would take gigabytes; the sensors are 752x480)."""
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 """Image files a folder of ``left*``/``right*`` pairs may hold (lower-case; matched case-insensitively)."""
@@ -43,3 +53,60 @@ def is_image_file(path: Path) -> bool:
 def natural_key(text: str) -> Tuple[object, ...]:
     """Sort key putting ``left2`` before ``left10`` (digit runs compared as numbers, case ignored)."""
     return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", text.lower()))
+
+
+class ImageTooLarge(ValueError):
+    """An image file whose header claims more than :data:`MAX_IMAGE_PIXELS`; the message names it."""
+
+
+_HEADER_LOCK = threading.Lock()  # Python's warning filters are process-wide
+
+
+def image_size(source: Union[bytes, Path], where: str,
+               max_pixels: int = MAX_IMAGE_PIXELS) -> Optional[Tuple[int, int]]:
+    """``(width, height)`` from the header of an image (bytes, or a file: only its header is read).
+
+    None when Pillow does not read the format or cannot parse the header (the decoder then
+    decides); raises :class:`ImageTooLarge` over ``max_pixels`` pixels, before any pixel is
+    decoded. Pillow's warnings about odd files are suppressed, and its own decompression-bomb
+    error (far above our limit) counts as too large.
+    """
+    from PIL import Image
+
+    too_large = f"{where}: the image header claims more than the {max_pixels / 1e6:.1f} megapixels read"
+    with _HEADER_LOCK, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            with Image.open(io.BytesIO(source) if isinstance(source, bytes) else source) as image:
+                w, h = image.size
+        except Image.DecompressionBombError:
+            raise ImageTooLarge(f"{too_large} (a decompression bomb?)") from None
+        except Exception:  # not a format Pillow reads, or a header it cannot parse
+            return None
+    if w * h > max_pixels:
+        raise ImageTooLarge(f"{too_large}: {w}x{h} ({w * h / 1e6:.1f} megapixels; a decompression bomb?)")
+    return int(w), int(h)
+
+
+def check_image_header(data: bytes, where: str) -> None:
+    """Raise :class:`ImageTooLarge` when the image's header claims more than :data:`MAX_IMAGE_PIXELS`."""
+    image_size(data, where)
+
+
+def decode_image_file(path: Path, flags: int) -> Optional[np.ndarray]:
+    """``cv2.imdecode(bytes, flags)`` of the file at ``path``, its header checked first.
+
+    None when the file is missing, empty or not decodable (as ``cv2.imdecode``); raises
+    :class:`ImageTooLarge` for a header over :data:`MAX_IMAGE_PIXELS` pixels, which OpenCV would
+    otherwise decode (up to a gigapixel) or fail on with an error of its own.
+    """
+    import cv2
+
+    data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
+    if data is None or not data.size:
+        return None
+    check_image_header(data.tobytes(), str(path))
+    try:
+        return cv2.imdecode(data, flags)
+    except cv2.error:  # a header Pillow could not read and OpenCV refuses (e.g. over its own limits)
+        return None
