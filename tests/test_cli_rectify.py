@@ -82,6 +82,14 @@ def test_console_script_runs(tmp_path, calfiles) -> None:
     bad = subprocess.run(args, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "two files separated by a comma" in bad.stderr
     assert "Traceback" not in bad.stderr
+    # A truncated image: the one line, without OpenCV's own warning printed beside it.
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(cv2.imencode(".png", cv2.imread(str(left)))[1].tobytes()[:200])
+    args = [exe, "rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path), str(corrupt), str(right)]
+    bad = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2
+    assert bad.stderr == (f"stereocam rectify: error: {corrupt}: not a readable image "
+                          "(PNG, JPEG, BMP, TIFF, PGM/PPM)\n")
 
 
 def write_yml(path: Path, **mats) -> Path:

@@ -106,6 +106,9 @@ def decode_image_file(path: Path, flags: int) -> Optional[np.ndarray]:
     if data is None or not data.size:
         return None
     check_image_header(data.tobytes(), str(path))
+    # OpenCV prints its own warnings about a corrupt file straight to stderr ("[ WARN:0@0.1] ...
+    # PNG input buffer is incomplete"), beside the one-line error the caller gives: errors only.
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     try:
         return cv2.imdecode(data, flags)
     except cv2.error:  # a header Pillow could not read and OpenCV refuses (e.g. over its own limits)
