@@ -180,6 +180,12 @@ def _lb_rows(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"line-buffer rows must be at least 1, not {value}")
+    from .overlays.spec.rectify import SIZE_BITS
+
+    if value >= 1 << SIZE_BITS:  # no frame the core takes has that many rows; an RTL build would try them
+        raise argparse.ArgumentTypeError(
+            f"line-buffer rows must be below {1 << SIZE_BITS} (the core counts rows in {SIZE_BITS} bits), "
+            f"not {value}")
     return value
 
 

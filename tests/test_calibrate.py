@@ -295,7 +295,8 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
             img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
             cv2.imwrite(str(cap / name), img if k < 4 else cv2.resize(img, (320, 240)))
     assert "pair c4 is 320x240 but the first pair (c0) is 640x480" in error_line(capsys, base + [str(odd)])
-    for square, message in (("25", "give the unit"), ("-3mm", "give a length"), ("0mm", "more than 0")):
+    for square, message in (("25", "give the unit"), ("-3mm", "give a length"), ("0mm", "more than 0"),
+                            ("1e400mm", "'1e400mm' is not a finite length")):
         line = error_line(
             capsys, ["calibrate", "--pattern", "9x6", f"--square={square}", "-o", str(out), str(blank)]
         )
@@ -303,6 +304,13 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
     assert "COLSxROWS" in error_line(
         capsys, ["calibrate", "--pattern", "nine", "--square", "1in", "-o", str(out), str(blank)]
     )
+    for rows, message in (("0", "at least 1, not 0"),
+                          ("2048", "below 2048 (the core counts rows in 11 bits)")):
+        with pytest.raises(SystemExit) as exited:  # argparse's usage error
+            main(["calibrate", "--pattern", "9x6", "--square", "1in", "--lb-rows", rows, "-o", str(out),
+                  str(blank)])
+        assert exited.value.code == 2
+        assert f"error: argument --lb-rows: line-buffer rows must be {message}" in capsys.readouterr().err
     assert out.read_text() == "previous calibration\n"
 
 

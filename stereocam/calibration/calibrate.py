@@ -100,8 +100,10 @@ def parse_length(text: str) -> float:
     if unit not in _LENGTH_UNITS:
         raise CalibrationError(f"square size {text!r}: give the unit ({', '.join(_LENGTH_UNITS)}), e.g. 25mm")
     value = float(m.group(1)) * _LENGTH_UNITS[unit]
-    if not (value > 0 and math.isfinite(value)):
+    if not value > 0:
         raise CalibrationError(f"square size {text!r} must be more than 0")
+    if not math.isfinite(value):
+        raise CalibrationError(f"square size {text!r} is not a finite length")
     return value
 
 
