@@ -60,6 +60,8 @@ def test_unknown_keys_are_named_with_a_suggestion(tmp_path) -> None:
     ("core_build: [colour]", "core_build must be one of gray, colour, got ['colour']"),
     ("backend: {emulated: 1}", "backend must be one of auto, pynq, emulated, got {'emulated': 1}"),
     ("rtl_dir: ''", "rtl_dir must be a non-empty string or null, got ''"),
+    ("rtl_dir: my-rtl", "rtl_dir 'my-rtl' is for the RTL core: set core to rtl (--core rtl) as well, "
+                        "or leave rtl_dir out"),
     ("default_quality: 0", "default_quality must be >= 1 and <= 100, got 0"),
     ("default_fps: 0", "default_fps must be > 0 and <= 120, got 0"),
     ("stream_timeout_s: .nan", "stream_timeout_s must be > 0 and <= 3600, got nan"),

@@ -100,6 +100,9 @@ class Settings:
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, _check(None, f.name, getattr(self, f.name)))
+        if self.rtl_dir is not None and self.core != "rtl":  # else it would be ignored without a word
+            raise SettingsError(f"rtl_dir {self.rtl_dir!r} is for the RTL core: set core to rtl "
+                                "(--core rtl) as well, or leave rtl_dir out")
 
     @property
     def frame_wait_s(self) -> float:
