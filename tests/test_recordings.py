@@ -491,3 +491,41 @@ def test_a_damaged_recording_folder_is_named_when_replayed(tmp_path) -> None:
     (folder / "frames.jsonl").write_text("")
     with pytest.raises(ReplayError, match="holds no frames"):
         ReplaySource(folder)
+    # A frame count of Infinity (Python's json reads it): damaged, not an OverflowError.
+    (folder / "frames.jsonl").write_text('{"fabric_count": Infinity, "left": "l.png", "right": "r.png"}\n')
+    with pytest.raises(ReplayError, match=r"line 1 of frames.jsonl is damaged \(cannot convert float inf"):
+        ReplaySource(folder)
+    # The frames file is the recording's own too: no path out of it.
+    for name in ("../frames.jsonl", "/etc/passwd", ".hidden"):
+        (folder / "recording.json").write_text(json.dumps({
+            "format": "stereocam-recording/1", "fps": 10, "frame_size": [8, 8], "frames_file": name}))
+        with pytest.raises(ReplayError, match=r"names a frames file .* outside the recording"):
+            ReplaySource(folder)
+
+
+def _standard_json(text: str) -> Any:
+    """``text`` as JSON a browser's ``JSON.parse`` takes: no NaN, Infinity or -Infinity."""
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"{constant} in a response: not JSON, JSON.parse refuses the whole body")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+async def test_a_damaged_recording_json_with_nan_is_listed_as_standard_json(start_daemon) -> None:
+    """Python's json reads NaN and Infinity; a recording.json holding them (damaged, or written by
+    hand) made GET /api/recordings send them back, and the page could not read its list."""
+    d = await start_daemon(overlay=counting_overlay())
+    await wait_for_frames(d, 3)
+    rid = (await record(d, {"seconds": 0.2}))["id"]
+    await wait_until("the recording done", lambda: d.app[RECORDER].current is None)
+    meta_file = d.app[RECORDINGS].root / rid / "recording.json"
+    doc = json.loads(meta_file.read_text())
+    doc.update(fps=float("inf"), duration_s=float("nan"), seconds=-float("inf"))
+    meta_file.write_text(json.dumps(doc))  # json.dumps writes Infinity and NaN
+    for url in ("/api/recordings", f"/api/recordings/{rid}"):
+        async with d.http.get(url) as resp:
+            assert resp.status == 200
+            body = _standard_json(await resp.text())
+        entry = body["recordings"][0] if "recordings" in body else body
+        assert entry["id"] == rid and entry["fps"] is None and entry["seconds"] is None
+        assert entry["frames"] >= 1

@@ -193,7 +193,11 @@ class ReplaySource:
         if not (isinstance(size, list) and len(size) == 2
                 and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
             raise bad(f"{_RECORDING_FILE} has no valid frame_size ({size!r})")
-        frames_file = folder / str(doc.get("frames_file") or "frames.jsonl")
+        frames_name = doc.get("frames_file") or "frames.jsonl"
+        if not isinstance(frames_name, str) or "/" in frames_name or "\\" in frames_name \
+                or frames_name.startswith("."):
+            raise bad(f"{_RECORDING_FILE} names a frames file {frames_name!r} outside the recording")
+        frames_file = folder / frames_name
         entries: List[_Entry] = []
         counts: List[int] = []
         try:
@@ -218,7 +222,7 @@ class ReplaySource:
                 left, right = member(line, "left"), member(line, "right")
             except ReplayError:
                 raise
-            except (ValueError, KeyError, TypeError) as exc:
+            except (ValueError, KeyError, TypeError, OverflowError) as exc:  # OverflowError: Infinity
                 raise bad(f"line {number} of {frames_file.name} is damaged ({exc})") from None
             if left is None or right is None:
                 raise bad(f"line {number} of {frames_file.name} names no left or right file")

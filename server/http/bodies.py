@@ -1,4 +1,5 @@
-"""Request bodies: the one reader of JSON bodies, so every endpoint refuses a bad one alike.
+"""JSON in and out: the one reader of JSON bodies, so every endpoint refuses a bad one alike, and
+the one writer of JSON responses, which never sends NaN or Infinity.
 
 The body's size is bounded before it is read (``client_max_size``, set from
 ``max_upload_bytes``; the guard middleware refuses a declared larger one first).
@@ -6,14 +7,16 @@ Every refusal is an :class:`~..frames.errors.ApiError` the error middleware answ
 """
 from __future__ import annotations
 
-from typing import Any, Optional
+import json
+import math
+from typing import Any, Mapping, Optional
 
 from aiohttp import web
 
 from ..frames.errors import ApiError, parse_json
 from .errors import too_large
 
-__all__ = ["read_json", "JSON"]
+__all__ = ["read_json", "json_response", "JSON"]
 
 JSON = "application/json"
 
@@ -53,3 +56,30 @@ def _unsupported(request: web.Request, example: Optional[str]) -> ApiError:
     given = request.content_type or "nothing"
     such = f" such as {example}" if example else ""
     return ApiError(f"send JSON (Content-Type: {JSON}){such}, not {given}", status=415)
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every float that is not finite replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def dumps(value: Any) -> str:
+    """Standard JSON: a NaN or an infinity (a damaged ``recording.json`` or ``meta.json`` may hold
+    them, Python's ``json`` reads them) becomes null, where ``json.dumps`` would write ``NaN`` and
+    every browser's ``JSON.parse`` would refuse the whole response."""
+    try:
+        return json.dumps(value, allow_nan=False)
+    except ValueError:  # rare: only then is the value walked
+        return json.dumps(_finite(value), allow_nan=False)
+
+
+def json_response(data: Any, *, status: int = 200,
+                  headers: Optional[Mapping[str, str]] = None) -> web.Response:
+    """``web.json_response`` writing standard JSON (:func:`dumps`)."""
+    return web.json_response(data, status=status, headers=headers, dumps=dumps)

@@ -28,7 +28,7 @@ from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.verify import compare, difference_image
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
-from .bodies import read_json
+from .bodies import json_response, read_json
 from .errors import shutting_down
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
@@ -120,11 +120,11 @@ async def status_handler(request: web.Request) -> web.Response:
     body["faults"] = [{**f, "for_s": round(now - f["since"], 3) if f.get("since") else None}
                       for f in app[EXTENSIONS].active_faults()]
     body.update(app[EXTENSIONS].status_sections())
-    return web.json_response(body, headers={"Cache-Control": "no-store"})
+    return json_response(body, headers={"Cache-Control": "no-store"})
 
 
 async def get_source(request: web.Request) -> web.Response:
-    return web.json_response({"source": request.app[VIRTUAL].source})
+    return json_response({"source": request.app[VIRTUAL].source})
 
 
 async def put_source(request: web.Request) -> web.Response:
@@ -132,7 +132,7 @@ async def put_source(request: web.Request) -> web.Response:
     if not isinstance(doc, dict) or set(doc) != {"source"} or doc["source"] not in SOURCES:
         raise ApiError('send {"source": "live"} or {"source": "virtual"}', status=400)
     await request.app[VIRTUAL].select(request.app[EXECUTORS].work, doc["source"])
-    return web.json_response({"source": request.app[VIRTUAL].source})
+    return json_response({"source": request.app[VIRTUAL].source})
 
 
 # -- virtual camera ---------------------------------------------------------------------------------
@@ -270,7 +270,7 @@ async def post_virtual_camera(request: web.Request) -> web.Response:
         else:
             source.close()
         body["playing"] = player.to_json() if player.running else None
-    return web.json_response(body)
+    return json_response(body)
 
 
 def _decode(fields: Dict[str, bytes], size: Tuple[int, int], limit: int, fit: str) -> Tuple[np.ndarray, Fit]:
@@ -303,7 +303,7 @@ async def preview_virtual_camera(request: web.Request) -> web.Response:
 
 
 async def get_virtual_camera(request: web.Request) -> web.Response:
-    return web.json_response(request.app[VIRTUAL].to_json())
+    return json_response(request.app[VIRTUAL].to_json())
 
 
 async def virtual_result(request: web.Request) -> web.Response:
@@ -346,7 +346,7 @@ async def post_verify(request: web.Request) -> web.Response:
         raise shutting_down() from None
     result = await _run(request, _verify_blocking, vc, vc.input, actual)
     vc.verify = result
-    return web.json_response(result.report)
+    return json_response(result.report)
 
 
 async def verify_difference(request: web.Request) -> web.Response:
@@ -464,20 +464,20 @@ async def post_capture(request: web.Request) -> web.Response:
         raise
     metrics.captures += 1
     body = info.to_json()
-    return web.json_response(body, status=201, headers={"Location": f"/api/captures/{info.id}"})
+    return json_response(body, status=201, headers={"Location": f"/api/captures/{info.id}"})
 
 
 async def list_captures(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
     infos = await _run(request, store.list)
-    return web.json_response({"captures": [i.to_json() for i in infos]},
+    return json_response({"captures": [i.to_json() for i in infos]},
                              headers={"Cache-Control": "no-store"})
 
 
 async def get_capture(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
     info = await _run(request, store.get, request.match_info["id"])
-    return web.json_response(info.to_json(meta=True))
+    return json_response(info.to_json(meta=True))
 
 
 async def capture_zip(request: web.Request) -> web.StreamResponse:

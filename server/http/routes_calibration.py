@@ -40,7 +40,7 @@ from ...overlays.interface import DriverError
 from ...overlays.model.core_params import CoreParamsError
 from ...overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH, CoreConfig
 from ..frames.errors import ApiError
-from .bodies import JSON, read_json
+from .bodies import JSON, json_response, read_json
 from .state import CALIBRATION, EXECUTORS, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
@@ -159,7 +159,7 @@ async def get_calibration(request: web.Request) -> web.Response:
         "rectification": _lists(cal.rect, ("R1", "R2", "P1", "P2", "Q")) if cal is not None else None,
         "yaml": cal.to_yaml() if cal is not None else None,
     }
-    return web.json_response(body)
+    return json_response(body)
 
 
 async def _body_text(request: web.Request) -> str:
@@ -336,7 +336,7 @@ async def put_calibration(request: web.Request) -> web.Response:
     overlay = app[OVERLAY]
     rectify, frame_size = overlay.rectify, overlay.frame_size
     body = await activate(app, lambda: _check(text, rectify, frame_size), "PUT /api/calibration")
-    return web.json_response(body)
+    return json_response(body)
 
 
 async def _stop_changes(app: web.Application) -> None:

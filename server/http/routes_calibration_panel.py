@@ -53,7 +53,7 @@ from ..frames.encoders import encode_image
 from ..frames.errors import ApiError
 from ..frames.pipeline import FrameSet
 from ..frames.views import render
-from .bodies import read_json
+from .bodies import json_response, read_json
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
 from .state import EXECUTORS, FEED, METRICS, OVERLAY, SETTINGS
@@ -135,7 +135,7 @@ async def _session_body(app: web.Application) -> Dict[str, Any]:
 # -- routes -----------------------------------------------------------------------------------------
 
 async def get_session(request: web.Request) -> web.Response:
-    return web.json_response(await _session_body(request.app), headers={"Cache-Control": "no-store"})
+    return json_response(await _session_body(request.app), headers={"Cache-Control": "no-store"})
 
 
 async def put_session(request: web.Request) -> web.Response:
@@ -151,7 +151,7 @@ async def put_session(request: web.Request) -> web.Response:
         raise ApiError(f"cannot write the panel's settings in {panel.folder}: {exc.strerror or exc}; "
                        "the previous settings stay", status=500) from None
     panel.live, panel.live_at = None, 0.0
-    return web.json_response(await _session_body(app))
+    return json_response(await _session_body(app))
 
 
 async def get_corners(request: web.Request) -> web.Response:
@@ -177,7 +177,7 @@ async def get_corners(request: web.Request) -> web.Response:
             panel.live_at = time.monotonic()
             panel.live_frames = [*panel.live_frames, fs][-LIVE_FRAMES_KEPT:]
         body = panel.live
-    return web.json_response(body, headers={"Cache-Control": "no-store"})
+    return json_response(body, headers={"Cache-Control": "no-store"})
 
 
 async def get_corners_frame(request: web.Request) -> web.Response:
@@ -230,7 +230,7 @@ async def post_pair(request: web.Request) -> web.Response:
     body = await _session_body(app)
     pair = next((p for p in body["pairs"] if p["id"] == info.id), None)
     log.info("calibration pair %s stored (frame %d, %d pairs)", info.id, fs.frame, body["count"])
-    return web.json_response({"pair": pair, **body}, status=201)
+    return json_response({"pair": pair, **body}, status=201)
 
 
 async def delete_pair(request: web.Request) -> web.Response:
@@ -258,7 +258,7 @@ async def delete_pairs(request: web.Request) -> web.Response:
 
 
 async def get_compute(request: web.Request) -> web.Response:
-    return web.json_response(dict(request.app[PANEL].progress), headers={"Cache-Control": "no-store"})
+    return json_response(dict(request.app[PANEL].progress), headers={"Cache-Control": "no-store"})
 
 
 async def post_compute(request: web.Request) -> web.Response:
@@ -304,7 +304,7 @@ async def post_compute(request: web.Request) -> web.Response:
                       "id": panel.candidate.id}
     log.info("calibration computed from %d pairs: RMS %.3f px, row error %.3f px, %s", report.pairs_used,
              report.rms, report.row_error_mean, report.calibration.id)
-    return web.json_response(panel.candidate.to_json())
+    return json_response(panel.candidate.to_json())
 
 
 def _candidate(app: web.Application) -> Candidate:
@@ -316,7 +316,7 @@ def _candidate(app: web.Application) -> Candidate:
 
 
 async def get_candidate(request: web.Request) -> web.Response:
-    return web.json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
+    return json_response(_candidate(request.app).to_json(), headers={"Cache-Control": "no-store"})
 
 
 async def candidate_yaml(request: web.Request) -> web.Response:
@@ -349,7 +349,7 @@ async def post_apply(request: web.Request) -> web.Response:
                          status=409)
     cal, rectify, size = cand.report.calibration, app[OVERLAY].rectify, _frame_size(app)
     body = await activate(app, lambda: check_runnable(cal, rectify, size), "calibration panel")
-    return web.json_response(body)
+    return json_response(body)
 
 
 def setup(app: web.Application) -> None:

@@ -34,7 +34,7 @@ from ...board.profile import BoardProfile, load_profile
 from ...overlays.backend import sensor_bus
 from ...overlays.interface import CAMERAS, I2CBus, Overlay, SensorPair, SensorUnavailable, StereoSensors
 from ..frames.errors import ApiError
-from .bodies import read_json
+from .bodies import json_response, read_json
 from .state import EXECUTORS, EXTENSIONS, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
@@ -240,7 +240,7 @@ def _unavailable(service: CameraService) -> ApiError:
 async def get_cameras(request: web.Request) -> web.Response:
     service = request.app[CAMERA_SERVICE]
     body = await request.app[EXECUTORS].run(service.refresh)
-    return web.json_response(body)
+    return json_response(body)
 
 
 async def put_cameras(request: web.Request) -> web.Response:
@@ -259,7 +259,7 @@ async def put_cameras(request: web.Request) -> web.Response:
         raise ApiError(str(exc), status=503) from None
     except ValueError as exc:
         raise ApiError(str(exc), status=400) from None
-    return web.json_response(answer)
+    return json_response(answer)
 
 
 def extension(*, profile: Optional[BoardProfile] = None,

@@ -15,7 +15,7 @@ from aiohttp import web
 
 from ...overlays.interface import FaultError, FaultInjection
 from ..frames.errors import ApiError
-from .bodies import read_json
+from .bodies import json_response, read_json
 from .state import OVERLAY
 
 log = logging.getLogger(__name__)
@@ -31,7 +31,7 @@ class FaultInjectionUnavailable(Exception):
 
 async def list_faults(request: web.Request) -> web.Response:
     injector = request.app[INJECTOR]
-    return web.json_response({"kinds": {k: list(v) if v else None for k, v in injector.kinds.items()},
+    return json_response({"kinds": {k: list(v) if v else None for k, v in injector.kinds.items()},
                               "injected": [f.to_json() for f in injector.active()]},
                              headers={"Cache-Control": "no-store"})
 
@@ -49,7 +49,7 @@ async def inject_fault(request: web.Request) -> web.Response:
     except FaultError as exc:
         raise ApiError(str(exc), status=409 if "already has" in str(exc) else 400) from None
     log.warning("fault injected on request: %s%s (id %d)", kind, f" on {target}" if target else "", fault.id)
-    return web.json_response(fault.to_json(), status=201)
+    return json_response(fault.to_json(), status=201)
 
 
 async def end_fault(request: web.Request) -> web.Response:
@@ -62,12 +62,12 @@ async def end_fault(request: web.Request) -> web.Response:
         raise ApiError(f"no injected fault {text}: it ended already, or GET /api/faults lists them",
                        status=404) from None
     log.warning("fault ended on request: %s (id %d)", fault.kind, fault.id)
-    return web.json_response(fault.to_json())
+    return json_response(fault.to_json())
 
 
 async def end_all_faults(request: web.Request) -> web.Response:
     ended = request.app[INJECTOR].end_all()
-    return web.json_response({"ended": [f.to_json() for f in ended]})
+    return json_response({"ended": [f.to_json() for f in ended]})
 
 
 async def _end_at_stop(app: web.Application) -> AsyncIterator[None]:

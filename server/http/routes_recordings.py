@@ -18,7 +18,7 @@ from ...overlays import backend
 from ...overlays.interface import Replay
 from ..frames.errors import ApiError
 from ..frames.recordings import MAX_SECONDS, Recorder, RecordingStore
-from .bodies import read_json
+from .bodies import json_response, read_json
 from .state import CALIBRATION, EXECUTORS, FEED, OVERLAY, PIPELINE, SETTINGS, VIRTUAL
 
 __all__ = ["RECORDINGS", "RECORDER", "setup", "open_replay"]
@@ -88,7 +88,7 @@ async def start_recording(request: web.Request) -> web.Response:
     rec = await app[EXECUTORS].run(lambda: app[RECORDER].start(
         seconds=seconds, frame_size=overlay.frame_size, fps=fps,
         frame_no=pipeline.last_frame_number or 0, meta=meta))
-    return web.json_response(rec.to_json(), status=201, headers={"Location": f"/api/recordings/{rec.id}"})
+    return json_response(rec.to_json(), status=201, headers={"Location": f"/api/recordings/{rec.id}"})
 
 
 async def list_recordings(request: web.Request) -> web.Response:
@@ -98,7 +98,7 @@ async def list_recordings(request: web.Request) -> web.Response:
     running = recorder.current
     entries = [running.to_json()] if running is not None else []
     last = recorder.last
-    return web.json_response({
+    return json_response({
         "recordings": entries + [i.to_json() for i in infos if running is None or i.id != running.id],
         "recording": running.id if running is not None else None,
         "last_error": last.error if last is not None and last.error else None,
@@ -109,9 +109,9 @@ async def get_recording(request: web.Request) -> web.Response:
     app, rid = request.app, request.match_info["id"]
     running = app[RECORDER].get(rid)
     if running is not None:
-        return web.json_response(running.to_json(), headers={"Cache-Control": "no-store"})
+        return json_response(running.to_json(), headers={"Cache-Control": "no-store"})
     info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
-    return web.json_response(info.to_json(meta=True))
+    return json_response(info.to_json(meta=True))
 
 
 async def stop_recording(request: web.Request) -> web.Response:
@@ -119,7 +119,7 @@ async def stop_recording(request: web.Request) -> web.Response:
     rec = app[RECORDER].get(rid)
     if rec is None:  # finished already (or never was): answer what there is
         info = await app[EXECUTORS].run(app[RECORDINGS].get, rid)
-        return web.json_response(info.to_json())
+        return json_response(info.to_json())
     rec.stop("stopped")
     kept = await asyncio.get_running_loop().run_in_executor(None, rec.join, STOP_WAIT_S)
     if kept is None:
@@ -128,7 +128,7 @@ async def stop_recording(request: web.Request) -> web.Response:
                            status=504)
         status = 507 if rec.end == "disk_full" else 503 if rec.frames == 0 else 500
         raise ApiError(rec.error or "nothing was recorded", status=status)
-    return web.json_response(kept.to_json())
+    return json_response(kept.to_json())
 
 
 async def recording_zip(request: web.Request) -> web.StreamResponse:

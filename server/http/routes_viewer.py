@@ -33,6 +33,7 @@ from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
+from .bodies import json_response
 from .errors import shutting_down
 from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
@@ -88,7 +89,7 @@ async def capture_thumb(request: web.Request) -> web.Response:
 async def restore_capture(request: web.Request) -> web.Response:
     store: CaptureStore = request.app[CAPTURES]
     info = await request.app[EXECUTORS].run(store.restore, request.match_info["id"])
-    return web.json_response(info.to_json(), headers={"Location": f"/api/captures/{info.id}"})
+    return json_response(info.to_json(), headers={"Location": f"/api/captures/{info.id}"})
 
 
 # -- depth -------------------------------------------------------------------------------------
@@ -205,7 +206,7 @@ async def get_point(request: web.Request) -> web.Response:
         why = "the calibration does not say the unit of its baseline (units: unknown)"
     if why is not None:
         body["depth_unavailable"] = why
-    return web.json_response(body, headers={"Cache-Control": "no-store"})
+    return json_response(body, headers={"Cache-Control": "no-store"})
 
 
 async def get_disparity(request: web.Request) -> web.Response:
@@ -221,7 +222,7 @@ async def get_disparity(request: web.Request) -> web.Response:
         "frame_size": list(request.app[FEED].frame_size),
         "colors": _jet_colours(),
     }
-    return web.json_response(body, headers={"Cache-Control": "no-store"})
+    return json_response(body, headers={"Cache-Control": "no-store"})
 
 
 @functools.lru_cache(maxsize=1)
