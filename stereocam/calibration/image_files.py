@@ -11,7 +11,7 @@ import re
 import threading
 import warnings
 from pathlib import Path
-from typing import Optional, Tuple, Union
+from typing import Any, Optional, Tuple, Union
 
 import numpy as np
 
@@ -93,6 +93,20 @@ def check_image_header(data: bytes, where: str) -> None:
     image_size(data, where)
 
 
+OPENCV_LOG_LEVEL_ERROR = 2  # cv::utils::logging::LOG_LEVEL_ERROR, in OpenCV 4 and 5 alike
+
+
+def _opencv_errors_only(cv2: Any) -> None:
+    """OpenCV prints its own warnings about a corrupt file straight to stderr ("[ WARN:0@0.1] ...
+    PNG input buffer is incomplete"), beside the one-line error the caller gives: errors only.
+    OpenCV 5 has the setting in ``cv2.utils.logging``, OpenCV 4 (the board's, Debian's) as
+    ``cv2.setLogLevel``."""
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    set_level = getattr(logging, "setLogLevel", None) or getattr(cv2, "setLogLevel", None)
+    if set_level is not None:
+        set_level(OPENCV_LOG_LEVEL_ERROR)
+
+
 def decode_image_file(path: Path, flags: int) -> Optional[np.ndarray]:
     """``cv2.imdecode(bytes, flags)`` of the file at ``path``, its header checked first.
 
@@ -106,9 +120,7 @@ def decode_image_file(path: Path, flags: int) -> Optional[np.ndarray]:
     if data is None or not data.size:
         return None
     check_image_header(data.tobytes(), str(path))
-    # OpenCV prints its own warnings about a corrupt file straight to stderr ("[ WARN:0@0.1] ...
-    # PNG input buffer is incomplete"), beside the one-line error the caller gives: errors only.
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    _opencv_errors_only(cv2)
     try:
         return cv2.imdecode(data, flags)
     except cv2.error:  # a header Pillow could not read and OpenCV refuses (e.g. over its own limits)
