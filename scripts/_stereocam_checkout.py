@@ -4,7 +4,7 @@ scripts/_env.sh copies this module into the armhf rootfs's site-packages, next t
 ``stereocam-checkout.pth`` that imports it in every Python process there. When
 ``STEREOCAM_CHECKOUT`` names a checkout (./scripts/test binds it into the rootfs and sets
 it), a meta path finder maps ``stereocam``, ``stereocam.board``, ``stereocam.overlays`` and
-the rest to their folders, read from setup.py's ``SUBPACKAGES``, as the editable install
+the rest to their folders, read from setup.py's ``FOLDERS``, as the editable install
 (``pip install -e .``) does in the other environments: ``stereocam.board`` is ``board/``,
 ``stereocam.server`` is ``server/``, and nothing else of the checkout is importable as
 part of the package. The checkout is read at each start, so the rootfs holds no copy of
@@ -19,14 +19,14 @@ import os
 import sys
 
 
-def _subpackages(root: str) -> dict[str, str]:
+def _folders(root: str) -> dict[str, str]:
     with open(os.path.join(root, "setup.py"), encoding="utf-8") as f:
         tree = ast.parse(f.read())
     for node in tree.body:
-        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "SUBPACKAGES"
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "FOLDERS"
                                                 for t in node.targets):
             return {k: os.path.join(root, v) for k, v in ast.literal_eval(node.value).items()}
-    raise ImportError(f"no SUBPACKAGES in {root}/setup.py")
+    raise ImportError(f"no FOLDERS in {root}/setup.py")
 
 
 class CheckoutFinder(importlib.abc.MetaPathFinder):
@@ -47,7 +47,7 @@ def install() -> None:
     root = os.environ.get("STEREOCAM_CHECKOUT")
     if not root or any(isinstance(f, CheckoutFinder) for f in sys.meta_path):
         return
-    sys.meta_path.insert(0, CheckoutFinder(_subpackages(root)))
+    sys.meta_path.insert(0, CheckoutFinder(_folders(root)))
 
 
 install()

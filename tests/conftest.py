@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from .slowness import SLOWNESS
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = Path(__file__).resolve().parent / "data"
 ARTIFACTS_DIR = REPO_ROOT / "test-artifacts"
@@ -138,6 +140,25 @@ def _mark_slow(config: pytest.Config, items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.slow)
 
 
+def _scale_timeouts(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Every test's timeout (its mark's, or the ini's) times the environment's slowness.
+
+    The timeouts are written as what an idle host needs, with room; pytest-timeout's is a hang
+    detector, and a busy machine or qemu must never trip it (tests/slowness.py).
+    """
+    try:
+        default = float(config.getini("timeout") or 0)
+    except ValueError:  # no pytest-timeout
+        return
+    for item in items:
+        mark = item.get_closest_marker("timeout")
+        kwargs = dict(mark.kwargs) if mark else {}
+        given = mark.args[0] if mark and mark.args else kwargs.pop("timeout", None)
+        base = float(given) if given is not None else default
+        if base > 0:
+            item.add_marker(pytest.mark.timeout(base * SLOWNESS, **kwargs), append=False)
+
+
 # -- the armhf env's subset ---------------------------------------------------------------------
 # The armhf env (README, "Test environments") runs Debian's armhf Python under qemu-user, many
 # times slower than the host. When pytest gets no test paths there (./scripts/test, CI), it runs
@@ -172,6 +193,8 @@ ARMHF_SUBSET = (
     "tests/test_uploads.py",
     "tests/test_captures.py",
     "tests/test_verify.py",
+    # a Python start there imports the checkout's finder (scripts/_stereocam_checkout.py)
+    "tests/test_python_start.py",
 )
 # Tests of those modules that cannot pass in the armhf env, by node id, with the reason.
 ARMHF_DESELECT: dict[str, str] = {
@@ -212,6 +235,7 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
 @pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     _mark_slow(config, items)
+    _scale_timeouts(config, items)
     if not _armhf_subset_run(config):
         return
     missing = [m for m in ARMHF_SUBSET if not (REPO_ROOT / m).is_file()]

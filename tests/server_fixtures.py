@@ -38,10 +38,13 @@ from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.http.app import create_app, program_default_calibration, serve
 from stereocam.server.http.settings import Settings
 
+from .slowness import SLOWNESS
+
 SMALL = (376, 240)
 FULL = (752, 480)
 TEST_FPS = 25.0
-WAIT_S = 60.0  # last-resort bound of a wait for something that does happen (start, stop, frames, parts)
+# The last-resort bound of a wait for something that does happen (start, stop, frames, parts).
+WAIT_S = 60.0 * SLOWNESS
 
 
 @functools.lru_cache(maxsize=4)

@@ -14,6 +14,7 @@ import pytest
 from stereocam.cli import main
 
 from .sample import calibrate_sample, pair_paths, png_claiming, write_opencv_files
+from .slowness import SLOWNESS
 
 
 @pytest.fixture(scope="module")
@@ -75,18 +76,18 @@ def test_console_script_runs(tmp_path, calfiles) -> None:
     assert exe, "the stereocam console script is installed beside the interpreter"
     left, right = pair_paths(1)
     args = [exe, "rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path), str(left), str(right)]
-    done = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(args, capture_output=True, text=True, timeout=120 * SLOWNESS)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "left.png").stat().st_size > 1000 and (tmp_path / "right.png").is_file()
     args = [exe, "rectify", "--calibration", "nope.yml", "-o", str(tmp_path), str(left), str(right)]
-    bad = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(args, capture_output=True, text=True, timeout=120 * SLOWNESS)
     assert bad.returncode == 2 and "two files separated by a comma" in bad.stderr
     assert "Traceback" not in bad.stderr
     # A truncated image: the one line, without OpenCV's own warning printed beside it.
     corrupt = tmp_path / "corrupt.png"
     corrupt.write_bytes(cv2.imencode(".png", cv2.imread(str(left)))[1].tobytes()[:200])
     args = [exe, "rectify", "--calibration", cal_arg(calfiles), "-o", str(tmp_path), str(corrupt), str(right)]
-    bad = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(args, capture_output=True, text=True, timeout=120 * SLOWNESS)
     assert bad.returncode == 2
     assert bad.stderr.splitlines()[-1] == (f"stereocam rectify: error: {corrupt}: not a readable image "
                                            "(PNG, JPEG, BMP, TIFF, PGM/PPM)")

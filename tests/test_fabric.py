@@ -16,6 +16,8 @@ from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.model.result import CoreOptions
 from stereocam.overlays.spec.axis_switch import LIVE, VIRTUAL
 
+from .slowness import SLOWNESS
+
 W, H = 752, 480
 
 
@@ -128,8 +130,8 @@ def test_the_overlay_is_what_the_daemon_asks_for(overlay: EmulatedOverlay, calib
 def test_realtime_clock_moves_frames(calibration) -> None:
     with EmulatedOverlay(clock="realtime", fps=60.0) as ov:
         ov.rectify.program(*calibration, W, H)
-        _, first = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0)
-        store, _ = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0)
+        _, first = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0 * SLOWNESS)
+        store, _ = ov.fabric.proc_vdma.s2mm.wait_frame(timeout=60.0 * SLOWNESS)
         assert ov.emulation.clock.frames >= 2
     assert ov.fabric.source == "live" and not ov.emulation.clock.running
 

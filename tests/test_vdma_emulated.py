@@ -16,6 +16,8 @@ from stereocam.overlays.emulated.regblock import EmulationError, ReadOnlyRegiste
 from stereocam.overlays.emulated.vdma import EmulatedVDMA
 from stereocam.overlays.spec.vdma import VDMA_MAP, reg
 
+from .slowness import SLOWNESS
+
 W, H = 6, 4
 PARK = VDMA_MAP["PARK_PTR_REG"]
 
@@ -33,7 +35,7 @@ def rig() -> Tuple[EmulatedVDMA, VDMA, EmulatedDDR]:
     ddr = EmulatedDDR(size=256 * PAGE)
     hw = EmulatedVDMA(ddr, num_fstores=3, name="raw")
     # A generous default bound: what these tests wait for does happen (a timeout's tests pass their own).
-    return hw, VDMA(hw, ddr, num_fstores=3, name="raw", timeout=10.0), ddr
+    return hw, VDMA(hw, ddr, num_fstores=3, name="raw", timeout=10.0 * SLOWNESS), ddr
 
 
 def bus(hw: EmulatedVDMA, name: str) -> int:
@@ -288,7 +290,8 @@ def test_timeouts_name_the_register_that_never_changed(rig) -> None:
     hw.hang("S2MM", "reset", False)
     hw.hang("MM2S", "run")
     with pytest.raises(RegisterTimeout, match="MM2S_VDMASR never cleared Halted after RS=1"):
-        vdma.mm2s.start(W, H, timeout=2.0)  # ample for the reset, which does finish, even on a busy machine
+        # ample for the reset, which does finish, even on a busy machine
+        vdma.mm2s.start(W, H, timeout=2.0 * SLOWNESS)
     hw.hang("MM2S", "run", False)
     vdma.s2mm.start(W, H)
     with pytest.raises(RegisterTimeout, match="S2MM_VDMASR never set FrmCnt_Irq"):
@@ -297,7 +300,7 @@ def test_timeouts_name_the_register_that_never_changed(rig) -> None:
     hw.hang("S2MM", "halt")
     with pytest.raises(RegisterTimeout, match="S2MM_VDMASR never set Halted after RS=0"):
         vdma.s2mm.stop(timeout=0.02)
-    recovery = vdma.s2mm.recover(timeout=2.0)  # the reset ends what the stop could not
+    recovery = vdma.s2mm.recover(timeout=2.0 * SLOWNESS)  # the reset ends what the stop could not
     assert recovery == Recovery((), False) and vdma.s2mm.running
     vdma.mm2s.start(W, H, circular=False)
     assert vdma.mm2s.wait_parked() == 0
