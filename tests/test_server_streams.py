@@ -23,6 +23,7 @@ from stereocam.server.http.state import ENCODERS, FEED, METRICS, PIPELINE, STREA
 
 from .server_fixtures import (
     SMALL,
+    TEST_FPS,
     WAIT_S,
     read_parts,
     start_daemon_fixture,  # noqa: F401
@@ -124,6 +125,72 @@ async def test_snapshots_are_newer_than_the_request(start_daemon) -> None:
             stamp = float(resp.headers["X-Timestamp"])
         assert frame > before and stamp >= t0
         assert jpeg_size(body) == (H, W, 3)
+
+
+def frame_period(d) -> float:
+    """The fabric's frame period: nominal, or as measured when a loaded machine makes it longer."""
+    return max(1 / TEST_FPS, d.app[PIPELINE].period or 0.0)
+
+
+async def first_frame_stamp(d, kind: str, view: str, **query: str) -> float:
+    """``X-Timestamp`` (the daemon's capture time) of the first frame a new client of ``view`` gets
+    (``kind`` "encoder": the first frame a newly started encoder publishes, whoever asks)."""
+    if kind == "encoder":
+        key = EncoderKey(view, int(query.get("quality", 80)))
+        with d.app[ENCODERS].subscribe(key, TEST_FPS) as encoder:
+            _, first = await asyncio.wait_for(encoder.output.wait_newer(0), WAIT_S)
+        return first.timestamp
+    if kind == "mjpeg":
+        async with d.http.get(f"/stream/{view}", params=query) as resp:
+            assert resp.status == 200
+            headers, _ = (await read_parts(resp, 1))[0]
+        return float(headers["x-timestamp"])
+    async with d.http.ws_connect("/ws") as ws:
+        await ws.send_str(json.dumps({"views": [view], **query}))
+        msg = await ws.receive(timeout=WAIT_S)
+        assert msg.type == WSMsgType.BINARY, msg
+        (n,) = struct.unpack(">I", msg.data[:4])
+        return float(json.loads(msg.data[4:4 + n])["timestamp"])
+
+
+@pytest.mark.parametrize("kind", ["mjpeg", "ws", "encoder"])
+async def test_a_new_streams_first_frame_is_newer_than_the_request(start_daemon, kind) -> None:
+    """After a view went unwatched, the feed still holds the last frame copied for it, many frame
+    periods old; a new client's first frame is one captured after it asked (in the daemon's clock,
+    allowing 2 frame periods), not that one: ``ffmpeg -frames 1`` gets a picture of now."""
+    d = await start_daemon()
+    feed, pipeline = d.app[FEED], d.app[PIPELINE]
+    async with d.http.get("/stream/rect_left") as resp:
+        await read_parts(resp, 2)
+    await until(lambda: not d.app[ENCODERS].active(), "the encoder stopping")
+    # Unwatched, frames are seen but no longer copied: wait until the one the feed holds is stale.
+    await until(lambda: feed.last_frame is not None
+                and pipeline.last_frame_number - feed.last_frame.frame >= 10
+                and time.time() - feed.last_frame.timestamp > 10 * frame_period(d), "the view going stale")
+    stale = feed.last_frame
+    asked = time.time()
+    stamp = await first_frame_stamp(d, kind, "rect_left")
+    assert stamp >= asked - 2 * frame_period(d), (
+        f"the first frame is {asked - stamp:.3f} s older than the request (the stale one: "
+        f"{asked - stale.timestamp:.3f} s)")
+
+
+async def test_a_client_joining_a_slow_stream_gets_a_frame_newer_than_its_request(start_daemon) -> None:
+    """An encoder shared with a 1 fps client holds a frame up to a second old; a client joining it
+    does not start with that one."""
+    d = await start_daemon()
+    async with d.session().get("/stream/rect_left", params={"fps": "1"}) as slow:
+        await read_parts(slow, 2)
+        (encoder,) = d.app[ENCODERS].active().values()
+
+        def held_is_stale() -> bool:
+            _, held = encoder.output.current()
+            return held is not None and time.time() - held.timestamp > 5 * frame_period(d)
+
+        await until(held_is_stale, "the 1 fps encoder's frame ageing")
+        asked = time.time()
+        stamp = await first_frame_stamp(d, "mjpeg", "rect_left")
+    assert stamp >= asked - 2 * frame_period(d), f"the first frame is {asked - stamp:.3f} s older than asked"
 
 
 async def test_png_snapshot_is_lossless(start_daemon) -> None:

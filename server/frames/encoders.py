@@ -6,7 +6,8 @@ Event-loop side of the frame path:
 
 - :class:`Encoder` (one per :class:`EncoderKey` = view, JPEG quality, gray)
   runs only while it has subscribers; it encodes the newest frame set in a
-  worker thread, at most at the highest rate a subscriber asked for, and
+  worker thread (never one published before it started: that one is as old
+  as the time nobody watched), at most at the highest rate a subscriber asked for, and
   publishes the :class:`Encoded` bytes that every client of that key sends
   as they are: the MJPEG part (headers included), the bare JPEG and the
   WebSocket message are all built once, in the worker thread.
@@ -192,6 +193,9 @@ class Encoder:
         self._on_error = on_error
         self._rates: List[float] = []
         self._task: Optional[asyncio.Task[None]] = None
+        # What the source holds now was published before anyone asked for this key: a view left
+        # unwatched holds its last frame for as long (seconds), so the first encode is of a newer one.
+        self._start_seq = source.seq
         self.meter = RateMeter()
         self.frames = 0
         self.limit: Optional[float] = None  # the CPU budget's planned rate (None: no limit)
@@ -234,7 +238,7 @@ class Encoder:
 
     async def _encode_loop(self) -> None:
         loop = asyncio.get_running_loop()
-        seq = 0
+        seq = self._start_seq
         pacer: Optional[Pacer] = None
         while True:
             seq, item = await self.source.wait_newer(seq)

@@ -279,18 +279,26 @@ async def send_newest(request: web.Request, client: StreamClient, params: Stream
                       running: Callable[[], bool] = lambda: True) -> None:
     """Send ``client`` the newest encoded frame of ``params``, paced to its ``fps``, while ``running()``.
 
+    The first frame sent is one captured after this call (as a snapshot's is): what the encoder
+    holds may be older (an encoder shared with a slower client), and a client reading one frame
+    (``ffmpeg -frames 1``) must not get a picture from before it asked.
     ``write`` sends one frame (the MJPEG part or the WebSocket message) and returns its size:
     the next frame is chosen once that frame has left the daemon's buffers (:func:`until_taken`).
     Returns when the broadcast closes (shutdown) or the connection breaks.
     """
     loop = asyncio.get_running_loop()
     feed = request.app[FEED]
+    asked = time.time()  # the frames' clock (FrameSet.timestamp, NoSignal.timestamp)
     with request.app[ENCODERS].subscribe(params.key, params.fps) as encoder:
         pacer = Pacer(params.fps)
         seq = 0
+        first = True
         try:
             while running():
                 seq, encoded = await _next(encoder.output, seq, pacer)
+                if first and encoded.timestamp < asked:
+                    continue  # older than the request: the encoder's next frame is newer
+                first = False
                 client.sending(encoded, feed.last_frame)
                 size = await write(encoded)
                 await until_taken(client, size)  # the frame before has reached the client
