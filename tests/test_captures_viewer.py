@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 from datetime import datetime, timedelta, timezone
@@ -195,7 +196,7 @@ async def test_thumb_restore_and_path_tricks_over_http(start_daemon) -> None:
 async def test_point_reads_the_disparity_map_and_gives_depth_from_q(start_daemon) -> None:
     d = await start_daemon(overlay=make_overlay(size=FULL, fps=5.0, calibrate=False))
     await wait_for_frames(d)
-    rect = d.app[CALIBRATION].calibration.rect  # what GET /api/calibration's "rectification" shows
+    rect = d.app[CALIBRATION].now.calibration.rect  # what GET /api/calibration's "rectification" shows
     rectification = {"R1": rect.R1.tolist(), "P1": rect.P1.tolist()}
     Q = np.asarray(rect.Q)
     async with d.http.get("/api/disparity") as resp:
@@ -246,7 +247,8 @@ async def test_point_reads_the_disparity_map_and_gives_depth_from_q(start_daemon
 async def test_point_without_a_calibration_says_why_there_is_no_depth(start_daemon) -> None:
     d = await start_daemon()
     await wait_for_frames(d)
-    d.app[CALIBRATION].calibration = None  # as a daemon whose core passes frames through says
+    in_effect = d.app[CALIBRATION]  # as a daemon whose core passes frames through says:
+    in_effect.swap(dataclasses.replace(in_effect.now, calibration=None))
     async with d.http.get("/api/point?x=10&y=10") as resp:
         assert resp.status == 200
         p = await resp.json()

@@ -16,6 +16,7 @@ from stereocam.server.http import routes_calibration
 from stereocam.server.http.app import default_extensions, program_default_calibration
 from stereocam.server.http.settings import Settings
 
+from .interleave import at_every_bytecode
 from .server_fixtures import SMALL, make_overlay, start_daemon_fixture  # noqa: F401
 
 EXT = (routes_calibration.setup,)
@@ -258,20 +259,76 @@ def test_frames_are_labelled_with_the_calibration_they_ran_with() -> None:
 
     state = CalibrationState(id="A")
     assert state.for_frame(5)["id"] == "A"  # type: ignore[index]
-    a = state.to_json()
-    state.changing = True
-    assert state.for_frame(7) is None  # registers being programmed: either set
-    state.changing = False
-    state.changed(10, 14, a)
-    state.id = "B"
+    changing = state.changing_from_count(6)
+    assert changing.for_frame(7) is None  # registers being programmed: either set
+    assert changing.unchanged().for_frame(7)["id"] == "A"  # type: ignore[index]  # a change that failed
+    state = changing.succeeded_by(CalibrationState(id="B"), 10, 14)
     labels = [(state.for_frame(c) or {}).get("id") for c in (9, 10, 11, 13, 14, 20)]
     assert labels == ["A", "A", None, None, "B", "B"]
-    wrap = CalibrationState(id="B")
-    wrap.changed((1 << 32) - 10, (1 << 32) - 6, a)
-    wrap.changed((1 << 32) - 2, 1, wrap.to_json())  # FRAME_COUNT wraps at 2**32
-    wrap.id = "C"
+    assert not state.changing and changing.id == "A"  # each state is a value: nothing changed in place
+    wrap = CalibrationState(id="A").succeeded_by(CalibrationState(id="B"), (1 << 32) - 10, (1 << 32) - 6)
+    wrap = wrap.succeeded_by(CalibrationState(id="C"), (1 << 32) - 2, 1)  # FRAME_COUNT wraps at 2**32
     counts = [(1 << 32) - 11, (1 << 32) - 6, (1 << 32) - 2, (1 << 32) - 1, 0, 1, 2]
     assert [(wrap.for_frame(c) or {}).get("id") for c in counts] == ["A", "B", "B", None, None, "C", "C"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        wrap.id = "D"  # type: ignore[misc]
+
+
+async def test_the_calibration_in_effect_is_read_whole_while_it_changes(start_daemon) -> None:
+    """The pipeline thread labels each recorded frame (``for_frame``) while PUTs change the calibration
+    on the loop: every label another thread can read is one calibration whole, never one's id with
+    another's line-buffer figures. A thread reads as fast as it can; and, so that no interleaving is
+    left to the scheduler's luck, the labels are also read between every two bytecodes the change runs
+    (where the GIL may pass to the pipeline thread)."""
+    import sys
+    import threading
+
+    from stereocam.server.http.state import CALIBRATION
+
+    daemon = await start_daemon(extensions=EXT)
+    cals = [rig_calibration(daemon, alpha=0.0), rig_calibration(daemon, alpha=0.6)]
+    wholes = {}
+    for cal in cals:
+        async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+            assert r.status == 200, await r.text()
+            body = await r.json()
+        wholes[cal.id] = {k: body[k] for k in ("id", "description", "rows_needed", "lb_rows", "lb_delay")}
+    a, b = wholes.values()
+    assert (a["rows_needed"], a["lb_delay"]) != (b["rows_needed"], b["lb_delay"])  # a torn read would show
+    in_effect = daemon.app[CALIBRATION]
+    later = int(daemon.overlay.frame_count()) + 1_000_000  # a frame after every change: the one in effect
+    seen: dict = {}
+    torn: list = []
+
+    def label() -> None:  # what the pipeline thread does for each frame of a recording
+        got = in_effect.for_frame(later)
+        if got is not None:
+            seen[got["id"]] = seen.get(got["id"], 0) + 1
+            if got != wholes.get(got["id"]):
+                torn.append(got)
+
+    stop = threading.Event()
+
+    def label_frames() -> None:
+        while not stop.is_set():
+            label()
+
+    switch, tracer = sys.getswitchinterval(), sys.gettrace()
+    sys.setswitchinterval(1e-6)  # let the thread run between any two bytecodes of the loop's
+    thread = threading.Thread(target=label_frames, name="test-labeller")
+    thread.start()
+    sys.settrace(at_every_bytecode(routes_calibration.activate.__code__, label))
+    try:
+        for cal in cals * 2:
+            async with daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML) as r:
+                assert r.status == 200, await r.text()
+    finally:
+        sys.settrace(tracer)
+        stop.set()
+        thread.join()
+        sys.setswitchinterval(switch)
+    assert not torn, f"{len(torn)} labels mixed two calibrations, e.g. {torn[0]} (wholes: {wholes})"
+    assert set(seen) == set(wholes), seen
 
 
 async def test_a_capture_during_a_calibration_change_names_the_calibration_its_frames_ran_with(
@@ -305,9 +362,9 @@ async def test_a_capture_during_a_calibration_change_names_the_calibration_its_f
     for cal in cals * 2:
         put = asyncio.ensure_future(daemon.http.put("/api/calibration", data=cal.to_yaml(), headers=YAML))
         state = daemon.app[CALIBRATION]
-        while not (state.changing or put.done()):  # until the PUT is in its slow write: new registers run
+        while not (state.now.changing or put.done()):  # until the PUT is in its slow write: new registers run
             await asyncio.sleep(0.005)
-        assert state.changing, "the PUT ended before the capture could be taken during it"
+        assert state.now.changing, "the PUT ended before the capture could be taken during it"
         async with daemon.http.post("/api/captures") as r:
             assert r.status == 201, await r.text()
             info = await r.json()

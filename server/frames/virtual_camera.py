@@ -38,20 +38,25 @@ Executor = Optional[concurrent.futures.Executor]
 
 
 class ModelCache:
-    """The last :class:`RectifyModel` built, reused while the core's registers say the same thing."""
+    """The last :class:`RectifyModel` built, reused while the core's registers say the same thing.
+
+    Called from several work threads at once (Verify, pairing captures): the cache is one
+    immutable ``(key, model)`` pair, read once and replaced in one assignment, so a call
+    always runs the model of the registers it read (the model itself is thread-safe).
+    """
 
     def __init__(self) -> None:
-        self._key: Any = None
-        self._model: Optional[RectifyModel] = None
+        self._entry: Optional[Tuple[Any, RectifyModel]] = None
 
     def run(self, overlay: Overlay, frame: np.ndarray) -> np.ndarray:
         """What the core should make of ``frame`` as it is configured now (blocks: registers, the model)."""
         config, options = overlay.core_setup()
         key: Tuple[Any, ...] = (config, options)
-        if self._model is None or self._key != key:
-            self._model = RectifyModel(config.left, config.right, config.width, config.height, options)
-            self._key = key
-        return self._model.process(frame).frame
+        entry = self._entry
+        if entry is None or entry[0] != key:
+            entry = (key, RectifyModel(config.left, config.right, config.width, config.height, options))
+            self._entry = entry
+        return entry[1].process(frame).frame
 
 
 @dataclass

@@ -61,6 +61,7 @@ from .state import (
     SETTINGS,
     STREAMS,
     VIRTUAL,
+    CalibrationInEffect,
     CalibrationState,
     Executors,
     Extensions,
@@ -155,7 +156,7 @@ def create_app(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
     rtl = overlay.core_kind == "rtl"
     app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
-    app[CALIBRATION] = calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows)
+    app[CALIBRATION] = CalibrationInEffect(calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows))
     app[EXTENSIONS] = Extensions()
     health = FabricHealth(overlay, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
                           period=lambda: pipeline.period, no_signal_s=config.no_signal_s)

@@ -90,6 +90,7 @@ async def status_handler(request: web.Request) -> web.Response:
     if pipeline.last_error:
         errors.append(f"pipeline: {pipeline.last_error}")
     age = feed.frame_age()
+    calibration = app[CALIBRATION].now
     body: Dict[str, Any] = {
         "backend": overlay.backend,
         "backend_reason": choice.reason if choice is not None else None,
@@ -105,7 +106,7 @@ async def status_handler(request: web.Request) -> web.Response:
         "core": hw.get("core"),
         "core_impl": overlay.core_kind,
         "vdma": hw.get("vdma"),
-        "calibration": {**app[CALIBRATION].to_json(), "changing": app[CALIBRATION].changing},
+        "calibration": {**calibration.to_json(), "changing": calibration.changing},
         "virtual_camera": app[VIRTUAL].to_json(),
         "clients": len(streams),
         "max_streams": streams.max_streams,
@@ -382,7 +383,7 @@ async def fresh_raw_frame(app: web.Application) -> FrameSet:
                     return await feed.next_frame(timeout=timeout, accept=wanted)
                 except asyncio.TimeoutError:
                     # Frames of a calibration change in progress are refused, not missing: wait it out.
-                    if not (calibration.changing and time.monotonic() < change_ends):
+                    if not (calibration.now.changing and time.monotonic() < change_ends):
                         raise
     except asyncio.TimeoutError:
         raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",

@@ -12,7 +12,8 @@
   refused one leaves the core, the file and ``app[CALIBRATION]`` as they
   were. An accepted one is programmed into the core, then written atomically
   to the calibration file (:func:`calibration_path`), then becomes
-  ``app[CALIBRATION]``.
+  ``app[CALIBRATION]``: a new immutable :class:`.state.CalibrationState` swapped
+  in with one assignment (the pipeline thread reads it for recorded frames).
 
 Shutdown (SIGTERM) must end the daemon within 2 s, and checking a large file
 takes seconds: the check changes nothing, so shutdown stops it
@@ -41,7 +42,7 @@ from ...overlays.model.core_params import CoreParamsError
 from ...overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH, CoreConfig
 from ..frames.errors import ApiError
 from .bodies import JSON, json_response, read_json
-from .state import CALIBRATION, EXECUTORS, OVERLAY, SETTINGS
+from .state import CALIBRATION, EXECUTORS, OVERLAY, SETTINGS, CalibrationState
 
 log = logging.getLogger(__name__)
 
@@ -305,29 +306,26 @@ async def activate(app: web.Application, check: Callable[[], Calibration], how: 
             raise ApiError(f"refused, the previous calibration stays active: {exc}", status=400) from None
         _refuse_if_stopping(active)
         cal = prepared.calibration
-        state = app[CALIBRATION]
-        previous = state.to_json()
-        before = await executors.run(overlay.frame_count)
-        state.changing, state.changing_from = True, int(before)  # later frames may carry either set
+        in_effect = app[CALIBRATION]
+        before = int(await executors.run(overlay.frame_count))
+        changing = in_effect.now.changing_from_count(before)
+        in_effect.swap(changing)  # later frames may carry either set
         try:
             core_config = await executors.run(_apply, rectify, prepared, active.path)
             latched = await executors.run(overlay.frame_count)
-        except (OSError, CoreParamsError, DriverError) as exc:
-            raise ApiError(str(exc), status=500) from None
-        finally:
-            state.changing = False
-        state.changed(int(before), (int(latched) + 2) % (1 << 32), previous)
-        state.id = cal.id
-        state.description = (f"calibration file {active.path} ({how}"
-                             + (f"; {cal.source})" if cal.source else ")"))
-        state.rows_needed = cal.rows_needed
-        state.lb_rows = rectify.lb_rows
-        state.lb_delay = core_config.lb_delay
-        state.calibration = cal
+        except BaseException as exc:
+            in_effect.swap(changing.unchanged())  # _apply put the previous registers back
+            if isinstance(exc, (OSError, CoreParamsError, DriverError)):
+                raise ApiError(str(exc), status=500) from None
+            raise
+        description = f"calibration file {active.path} ({how}" + (f"; {cal.source})" if cal.source else ")")
+        new = CalibrationState(id=cal.id, description=description, rows_needed=cal.rows_needed,
+                               lb_rows=rectify.lb_rows, lb_delay=core_config.lb_delay, calibration=cal)
+        in_effect.swap(changing.succeeded_by(new, before, (int(latched) + 2) % (1 << 32)))
         active.calibration = cal
     log.info("calibration %s programmed (%s) and written to %s (line buffer %d of %d rows)",
              cal.id, how, active.path, cal.rows_needed, rectify.lb_rows)
-    return {**state.to_json(), "file": str(active.path), "summary": cal.summary()}
+    return {**new.to_json(), "file": str(active.path), "summary": cal.summary()}
 
 
 async def put_calibration(request: web.Request) -> web.Response:
@@ -354,7 +352,7 @@ async def _stop_changes(app: web.Application) -> None:
 
 def setup(app: web.Application) -> None:
     app[ACTIVE] = ActiveCalibration(path=calibration_path(app[SETTINGS]),
-                                    calibration=app[CALIBRATION].calibration)
+                                    calibration=app[CALIBRATION].now.calibration)
     app.on_shutdown.append(_stop_changes)
     app.router.add_get("/api/calibration", get_calibration)
     app.router.add_put("/api/calibration", put_calibration)

@@ -187,7 +187,7 @@ async def get_point(request: web.Request) -> web.Response:
             raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
         except BroadcastClosed:
             raise shutting_down() from None
-    state = app[CALIBRATION]
+    state = app[CALIBRATION].now  # one calibration, whole: the label, the id and the Q matrix agree
     ran = state.for_frame(fs.fabric_count)
     same = ran is not None and ran.get("id") == state.id
     scale = depth_scale(state.calibration) if same else None
@@ -210,7 +210,7 @@ async def get_point(request: web.Request) -> web.Response:
 
 
 async def get_disparity(request: web.Request) -> web.Response:
-    state = request.app[CALIBRATION]
+    state = request.app[CALIBRATION].now
     scale = depth_scale(state.calibration)
     body: Dict[str, Any] = {
         "min_disparity": STEREO_BM["min_disparity"], "num_disparities": STEREO_BM["num_disparities"],

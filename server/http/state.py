@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional, Tuple, TypeVar
 
 from aiohttp import web
@@ -37,7 +37,8 @@ T = TypeVar("T")
 __all__ = [
     "SETTINGS", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "STREAMS", "METRICS", "CAPTURES",
     "VIRTUAL",
-    "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState", "Extensions",
+    "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState",
+    "CalibrationInEffect", "Extensions",
 ]
 
 
@@ -161,13 +162,16 @@ class Executors:
         self.work.shutdown(wait=False, cancel_futures=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class CalibrationState:
-    """The calibration the core runs with, as status and captures report it.
+    """The calibration the core runs with, whole, as status and captures report it (immutable).
 
     ``id`` names it (captures record it), ``description`` says where it came
-    from, ``rows_needed``/``lb_rows`` are the line-buffer fit. The
-    calibration routes replace these fields when they program a new one.
+    from, ``rows_needed``/``lb_rows`` are the line-buffer fit. Never changed in
+    place: a change makes a new one (:meth:`changing_from_count`,
+    :meth:`succeeded_by`) and :class:`CalibrationInEffect` swaps it in with one
+    assignment, so a reader on another thread (the pipeline's, labelling a
+    recorded frame) holding one reference sees every field of one calibration.
     """
 
     id: Optional[str] = None
@@ -180,20 +184,29 @@ class CalibrationState:
     # calibrations that ran before, each from the FRAME_COUNT it surely took effect.
     changing: bool = field(default=False, compare=False)
     changing_from: Optional[int] = field(default=None, compare=False)  # FRAME_COUNT read before it began
-    history: List[Tuple[int, int, Dict[str, Any]]] = field(default_factory=list, repr=False, compare=False)
+    history: Tuple[Tuple[int, int, "CalibrationState"], ...] = field(default=(), repr=False, compare=False)
 
     def to_json(self) -> Dict[str, Any]:
         return {"id": self.id, "description": self.description, "rows_needed": self.rows_needed,
                 "lb_rows": self.lb_rows, "lb_delay": self.lb_delay}
 
-    def changed(self, before: int, effective: int, previous: Dict[str, Any]) -> None:
-        """Record a change: frames up to ``before`` ran ``previous``, frames from ``effective`` this one.
+    def changing_from_count(self, before: int) -> "CalibrationState":
+        """This calibration while a change begun at FRAME_COUNT ``before`` is programmed."""
+        return replace(self, changing=True, changing_from=before)
+
+    def unchanged(self) -> "CalibrationState":
+        """This calibration after a change that failed (its registers were put back)."""
+        return replace(self, changing=False)
+
+    def succeeded_by(self, new: "CalibrationState", before: int, effective: int) -> "CalibrationState":
+        """``new``, after this one: frames up to ``before`` ran this one, from ``effective`` on ``new``.
 
         ``before``/``effective`` are FRAME_COUNT values read before programming and two frames
         after the core latched (the frame in flight may still leave with the old set).
         """
-        self.history.append((before, effective, previous))
-        del self.history[:-HISTORY]
+        previous = replace(self, changing=False, changing_from=None, history=())
+        history = (self.history + ((before, effective, previous),))[-HISTORY:]
+        return replace(new, changing=False, changing_from=None, history=history)
 
     def for_frame(self, count: int) -> Optional[Dict[str, Any]]:
         """``to_json()`` of the calibration frame ``count`` (its FRAME_COUNT) ran with; None when unknown.
@@ -203,15 +216,47 @@ class CalibrationState:
         start = self.changing_from
         if self.changing and (start is None or _not_before(count, start + 1)):
             return None  # after programming began: either register set
-        after = self.to_json()  # during a change still the old one: the fields change once it is done
+        after: CalibrationState = self  # during a change still the old one: the new one is swapped in whole
         for before, effective, previous in reversed(self.history):
             if _not_before(count, effective):
-                return after
+                return after.to_json()
             if not _not_before(count, before + 1):
                 after = previous
                 continue
             return None
-        return after
+        return after.to_json()
+
+
+class CalibrationInEffect:
+    """``app[CALIBRATION]``: the :class:`CalibrationState` in effect, replaced whole by :meth:`swap`.
+
+    Swapped on the event loop only; read from any thread (the pipeline's labels recorded
+    frames with :meth:`for_frame`). A reader takes :attr:`now` once and reads every field
+    it needs from that one state.
+    """
+
+    def __init__(self, state: CalibrationState) -> None:
+        self._now = state
+
+    @property
+    def now(self) -> CalibrationState:
+        return self._now
+
+    def swap(self, state: CalibrationState) -> None:
+        """Put ``state`` in effect (loop thread): one assignment, so no reader sees half of it."""
+        self._now = state
+
+    def for_frame(self, count: int) -> Optional[Dict[str, Any]]:
+        """:meth:`CalibrationState.for_frame` of the state in effect (safe from any thread)."""
+        return self._now.for_frame(count)
+
+    def to_json(self) -> Dict[str, Any]:
+        return self._now.to_json()
+
+    @property
+    def id(self) -> Optional[str]:
+        """The id of the calibration in effect (captures and recordings name it)."""
+        return self._now.id
 
 
 HISTORY = 8  # calibration changes remembered for labelling frames (a capture is seconds old at most)
@@ -294,7 +339,7 @@ STREAMS: "web.AppKey[StreamClients]" = web.AppKey("stereocam.streams")
 METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics")
 CAPTURES: "web.AppKey[CaptureStore]" = web.AppKey("stereocam.captures")
 VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual")
-CALIBRATION: "web.AppKey[CalibrationState]" = web.AppKey("stereocam.calibration")
+CALIBRATION: "web.AppKey[CalibrationInEffect]" = web.AppKey("stereocam.calibration")
 EXTENSIONS: "web.AppKey[Extensions]" = web.AppKey("stereocam.extensions")
 EXECUTORS: "web.AppKey[Executors]" = web.AppKey("stereocam.executors")
 FABRIC_HEALTH: "web.AppKey[FabricHealth]" = web.AppKey("stereocam.fabric_health")
