@@ -96,6 +96,7 @@ SLOW = (
     "tests/test_cpu_budget.py",
     "tests/test_faults.py",
     "tests/test_recordings.py",
+    "tests/test_recordings_durable.py",  # the daemon killed with SIGKILL, restarted; a disk filled 10 times
     # the daemon in process, driven through many frames (the quicker HTTP modules stay in)
     "tests/test_fit.py",
     "tests/test_server_api.py",

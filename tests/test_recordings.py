@@ -6,10 +6,12 @@ import asyncio
 import errno
 import io
 import json
+import os
+import re
 import time
 import zipfile
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from stereocam.overlays.backend import camera_source
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.emulated.replay import ReplayError, ReplaySource
 from stereocam.overlays.spec.pixel import pack, rgby
+from stereocam.server.frames import recording_files
 from stereocam.server.frames import recordings as recordings_module
 from stereocam.server.frames.pipeline import Pipeline
 from stereocam.server.http.app import program_default_calibration
@@ -310,7 +313,7 @@ def test_a_raw_pair_that_comes_twice_is_recorded_once(tmp_path) -> None:
     assert info.meta["duplicates"] == 1 and info.meta["missed"] == 3  # 103 (came early) and 105, 106
     replay = ReplaySource(store.root / info.id)
     assert [stamp_of(replay.frame(k)) for k in range(5)] == [100, 101, 103, 104, 107]
-    assert replay.slots == [0, 1, 2, 4, 7]  # 107 after a gap of two frame periods
+    assert list(replay.slots) == [0, 1, 2, 4, 7]  # 107 after a gap of two frame periods
 
 
 # -- refusals ------------------------------------------------------------------------------------
@@ -352,16 +355,17 @@ async def test_a_disk_full_error_while_writing_leaves_no_half_frame_and_no_empty
         start_daemon, monkeypatch) -> None:
     d = await start_daemon(overlay=counting_overlay())
     await wait_for_frames(d, 3)
-    writes = {"n": 0}
-    real_write = recordings_module._os_write
+    full: Dict[str, Optional[int]] = {"frame": 3}  # the disk is full from this frame's images on (None: all)
+    real_write = recording_files._os_write
 
     def fills_up(fd: int, data: Any) -> int:
-        writes["n"] += 1
-        if writes["n"] > 7:  # 3 frames (2 files each), then the left image of the 4th, then no space
+        name = os.path.basename(os.readlink(f"/proc/self/fd/{fd}"))
+        image = re.fullmatch(r"(?:left|right)_([0-9]+)\.png", name)
+        if full["frame"] is None or (image is not None and int(image.group(1)) >= full["frame"]):
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write(fd, data)
 
-    monkeypatch.setattr(recordings_module, "_os_write", fills_up)
+    monkeypatch.setattr(recording_files, "_os_write", fills_up)
     entry = await record(d, {"seconds": 60})
     done = await finished(d, entry["id"])
     assert done["end"] == "disk_full" and done["frames"] == 3 and done["complete"] is False
@@ -369,8 +373,9 @@ async def test_a_disk_full_error_while_writing_leaves_no_half_frame_and_no_empty
     assert sorted(p.name for p in folder.glob("*.png")) == [
         "left_000000.png", "left_000001.png", "left_000002.png",
         "right_000000.png", "right_000001.png", "right_000002.png"]  # the 4th frame's left is gone too
+    assert len(frame_lines(folder)) == 3
 
-    writes["n"] = 10**6  # from now on no frame fits at all: nothing is kept
+    full["frame"] = 0  # from now on no frame fits at all: nothing is kept
     entry = await record(d)
     rec = d.app[RECORDER].current
     await wait_until("the recording gave up", lambda: not rec.running)
@@ -380,6 +385,12 @@ async def test_a_disk_full_error_while_writing_leaves_no_half_frame_and_no_empty
         listing = await resp.json()
     assert [r["id"] for r in listing["recordings"]] == [done["id"]]
     assert "nothing was recorded: the disk is full" in listing["last_error"]
+    assert sorted(p.name for p in d.app[RECORDINGS].root.iterdir()) == [done["id"]]
+
+    full["frame"] = None  # not even recording.json fits: refused at the start, nothing created
+    async with d.http.post("/api/recordings") as resp:
+        assert resp.status == 507, await resp.text()
+        assert "is full (No space left on device): nothing was recorded" in (await resp.json())["error"]
     assert sorted(p.name for p in d.app[RECORDINGS].root.iterdir()) == [done["id"]]
 
 

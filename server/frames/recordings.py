@@ -35,19 +35,26 @@ store) is recorded once and counted in ``duplicates``.
 FRAME_COUNT over time), ``frame_size``, ``source`` and ``calibration_id`` (of the
 first frame; ``sources``/``calibration_ids`` every one seen), ``calibration``,
 ``backend``, ``end`` (``duration``, ``stopped``, ``disk_full``, ``shutdown``,
-``error``), ``complete`` (false when it ended before the seconds asked: the disk
-filled, the daemon stopped or failed), ``end_text``, ``missed`` (FRAME_COUNT values
-between the first and the last frame with no frame recorded: frames the pipeline did
-not copy, or whose raw pair came with the next), ``duplicates``, ``skipped`` (frames
-copied that the writer could not keep up with), ``bytes``, ``frames_file``.
+``error``, ``interrupted``), ``complete`` (false when it ended before the seconds
+asked: the disk filled, the daemon stopped, failed or was killed), ``end_text``,
+``missed`` (FRAME_COUNT values between the first and the last frame with no frame
+recorded: frames the pipeline did not copy, or whose raw pair came with the next),
+``duplicates``, ``skipped`` (frames copied that the writer could not keep up with;
+both null for a recording recovered after a crash: not known), ``bytes``,
+``frames_file``.
 
-Atomicity: a recording is written into ``.incoming-<id>/`` and renamed to
-``<id>`` once every file is synced and ``recording.json`` written: listed
-complete or not at all. Frames are checked against the free space before each
-is written (``min_free_bytes`` kept free, as :class:`.captures.CaptureStore`
+On disk (:mod:`.recording_files`): a recording is written into
+``.incoming-<id>/`` and renamed to ``<id>`` once every file is synced and
+``recording.json`` written. Frames reach the disk whole and are synced in
+batches of at most a second; ``recording.json`` is created at the start with
+the room finishing needs, so a disk that fills cannot keep a recording from
+being finished. Frames are checked against the free space before each is
+written (``min_free_bytes`` kept free, as :class:`.captures.CaptureStore`
 does); the disk filling ends the recording, and a frame being written then is
-removed whole. A recording with no frame is removed. A new store clears the
-hidden folders a crash left.
+removed whole. A recording with no frame is removed. A new store recovers the
+recordings a crash or a power cut interrupted: their whole frames are kept
+and listed (``end`` ``interrupted``), and the log says so. Nothing recorded is
+ever removed but by :meth:`RecordingStore.delete`.
 
 Threads: :class:`Recorder` is driven from the event loop (``start``, ``stop``)
 and fed on the pipeline thread (``offer``, which never blocks); each recording
@@ -57,6 +64,7 @@ has a writer thread of its own that encodes and writes (blocking disk I/O).
 from __future__ import annotations
 
 import asyncio
+import builtins
 import contextlib
 import json
 import logging
@@ -95,6 +103,27 @@ from .capture_images import encode_frame
 from .captures import DELETING_PREFIX, INCOMING_PREFIX, CaptureStore
 from .errors import ApiError
 from .pipeline import COUNT_MOD, FrameSet
+from .recording_files import (
+    ENDS,
+    FORMAT,
+    FRAMES_FILE,
+    META_FILE,
+    META_RESERVE,
+    STOP_REASONS,
+    SYNC_FRAMES,
+    SYNC_S,
+    FramesFile,
+    FrameStats,
+    create_file,
+    frame_names,
+    incoming_id,
+    read_meta,
+    recover,
+    reserve_meta,
+    rewrite_meta,
+    sync_file,
+    sync_folder,
+)
 from .store_files import (
     FULL_ERRNOS,
     fsync_dir,
@@ -104,7 +133,6 @@ from .store_files import (
     open_member,
     remove_tree,
     utcnow,
-    write_new_file,
 )
 from .zip_stream import close_all, zip_chunks
 
@@ -116,21 +144,10 @@ __all__ = [
     "frame_names", "ENDS",
 ]
 
-FORMAT = "stereocam-recording/1"
-META_FILE = "recording.json"
-FRAMES_FILE = "frames.jsonl"
-ENDS = ("duration", "stopped", "disk_full", "shutdown", "error")
 MAX_SECONDS = 24 * 3600.0
 SLACK_BYTES = 64 * 1024  # per frame: folder entries, inodes, its line of frames.jsonl
-META_RESERVE = 256 * 1024  # recording.json and the last lines, kept free until the end
 PNG_SHARE = 0.75  # a PNG of camera frames, of the uncompressed RGB: what a start reckons with
 QUEUE_BYTES = 64 << 20  # frames waiting for the writer, at most (then they are skipped, counted)
-_MAX_META_BYTES = 4 << 20
-
-
-def frame_names(index: int) -> Tuple[str, str]:
-    """The file names of frame ``index``'s left and right images."""
-    return f"left_{index:06d}.png", f"right_{index:06d}.png"
 
 
 # -- errors -------------------------------------------------------------------------------------------
@@ -215,7 +232,8 @@ class RecordingStore:
     ``min_free_bytes`` is kept free on its filesystem (a recording stops before it
     would take it). Ids are capture-style (``20261122T040512Z-000123-ab12``: UTC
     second, first frame number, 4 random hex digits) and checked before any path is
-    built from them; symbolic links are never followed.
+    built from them; symbolic links are never followed. Made once per daemon: it
+    recovers what a crash or a power cut left being recorded (see :meth:`recover_interrupted`).
     """
 
     def __init__(self, root: "str | Path", *, min_free_bytes: int = 0,
@@ -230,10 +248,47 @@ class RecordingStore:
         except OSError as exc:
             raise RecordingError(f"cannot use {root} as the recordings folder: {exc.strerror or exc}; "
                                  f"give a writable folder") from exc
+        self.recover_interrupted()
+
+    def recover_interrupted(self) -> None:
+        """Publish the whole frames of every recording a crash interrupted; finish deletes a crash cut short.
+
+        Blocks (each interrupted recording's frames file is read once). Every recovery is
+        logged; a folder that cannot be recovered now (the disk, its permissions) is left for
+        the next start, never removed.
+        """
         with os.scandir(self.root) as entries:
-            stale = [Path(e.path) for e in entries if e.name.startswith((INCOMING_PREFIX, DELETING_PREFIX))]
-        for path in stale:
-            remove_tree(path)
+            hidden = [(e.name, e.is_dir(follow_symlinks=False)) for e in entries if e.name.startswith(".")]
+        for name, is_dir in hidden:
+            path = self.root / name
+            rid = incoming_id(name, INCOMING_PREFIX)
+            if rid is None or not is_dir:
+                if name.startswith((INCOMING_PREFIX, DELETING_PREFIX)):
+                    remove_tree(path)  # a delete a crash cut short, or nothing a recorder made
+                continue
+            if os.path.lexists(self.root / rid):
+                log.error("recording %s: both %s and a recording of that id exist; %s is left as it is",
+                          rid, name, name)
+                continue
+            try:
+                done = recover(self.root, path, rid)
+            except OSError as exc:
+                log.error("recording %s was interrupted and cannot be recovered now (%s): its folder %s "
+                          "is kept for the next start; make room or check the disk", rid,
+                          exc.strerror or exc, path)
+                continue
+            if done.finished:
+                log.warning("recording %s had been finished but not published when the daemon stopped: "
+                            "published (%d frames)", rid, done.frames)
+            elif done.frames:
+                log.warning("recording %s was interrupted (the daemon was killed or lost power while "
+                            "recording): recovered its %d whole frames (%.1f s)%s; listed with end "
+                            "'interrupted'", rid, done.frames, done.duration_s,
+                            f", {done.dropped} incomplete frame(s) after them were not kept" if done.dropped
+                            else "")
+            else:
+                log.warning("recording %s was interrupted before a whole frame was written: nothing to keep",
+                            rid)
 
     # -- ids and space ---------------------------------------------------------------------------------
     @staticmethod
@@ -306,32 +361,32 @@ class RecordingStore:
 
     def _info(self, rid: str, folder: Path) -> RecordingInfo:
         sizes: Dict[str, int] = {}
+        links = set()
         try:
             with os.scandir(folder) as entries:
                 for entry in entries:
-                    if entry.is_file(follow_symlinks=False):
+                    if entry.is_symlink():
+                        links.add(entry.name)
+                    elif entry.is_file(follow_symlinks=False):
                         sizes[entry.name] = entry.stat(follow_symlinks=False).st_size
         except (FileNotFoundError, NotADirectoryError):
             raise _not_found(rid) from None
         doc: Dict[str, Any] = {}
         problems: List[str] = []
         try:
-            fd = open_member(folder, META_FILE)
-            with os.fdopen(fd, "rb") as fh:
-                loaded = json.loads(fh.read(_MAX_META_BYTES + 1).decode("utf-8"))
-            if not isinstance(loaded, dict):
-                raise ValueError("not a JSON object")
-            doc = loaded
+            doc = read_meta(folder)
         except FileNotFoundError:
             problems.append(f"{META_FILE} is missing")
         except (OSError, ValueError) as exc:
-            problems.append(f"{META_FILE} is damaged ({' '.join(str(exc).split())[:80]})")
+            why = "a symbolic link, not a file" if META_FILE in links else "damaged"
+            problems.append(f"{META_FILE} is {why} ({' '.join(str(exc).split())[:80]})")
         count = doc.get("frames")
         frames = count if isinstance(count, int) and not isinstance(count, bool) else 0
         for i in range(frames):
             missing = [n for n in frame_names(i) if n not in sizes]
             if missing:
-                problems.append(f"{missing[0]} is missing")
+                why = "a symbolic link, not a file" if missing[0] in links else "missing"
+                problems.append(f"{missing[0]} is {why}")
                 break
         stamp = doc.get("created")
         created = stamp if isinstance(stamp, str) else iso_utc(
@@ -444,21 +499,33 @@ class Recording:
         self.created = iso_utc(utcnow())
         self.end: Optional[str] = None
         self.end_text: Optional[str] = None
-        self.error: Optional[str] = None  # why nothing was kept
+        self.error: Optional[str] = None  # why nothing was kept, or why it is not listed yet
         self.info: Optional[RecordingInfo] = None
         # Counters (written by the writer thread, read anywhere).
-        self.frames = 0
-        self.bytes = 0
         self.skipped = 0
         self.duplicates = 0
-        self._first: Optional[FrameSet] = None
+        self._stats = FrameStats()
         self._last: Optional[FrameSet] = None
-        self._sources: List[str] = []
-        self._calibrations: List[Optional[str]] = []
+        self._t0: Optional[float] = None  # the first frame's monotonic time
         self._first_calibration: Optional[Dict[str, Any]] = None
-        self._color: Optional[str] = None
-        self._lines: Optional[IO[bytes]] = None
+        self._lines: Optional[FramesFile] = None
+        self._unsynced = 0
+        self._synced_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"stereocam-recording-{rid}", daemon=True)
+
+    @property
+    def frames(self) -> int:
+        """Frames written so far (each whole: its images and its line)."""
+        return self._stats.frames
+
+    @property
+    def bytes(self) -> int:
+        return self._stats.bytes
+
+    @property
+    def missed(self) -> int:
+        """FRAME_COUNT values from the first frame to the last with no frame recorded."""
+        return self._stats.missed
 
     # -- any thread --------------------------------------------------------------------------------------
     @property
@@ -467,8 +534,8 @@ class Recording:
 
     def stop(self, reason: str = "stopped") -> None:
         """Ask the recording to end (idempotent); frames already queued are still written."""
-        if reason not in ENDS:
-            raise ValueError(f"reason must be one of {', '.join(ENDS)}, got {reason!r}")
+        if reason not in STOP_REASONS:
+            raise ValueError(f"reason must be one of {', '.join(STOP_REASONS)}, got {reason!r}")
         self._end(reason, None)
 
     def join(self, timeout: Optional[float] = None) -> Optional[RecordingInfo]:
@@ -478,17 +545,42 @@ class Recording:
 
     def to_json(self) -> Dict[str, Any]:
         """The listing entry of the recording while it runs (``state`` ``recording``)."""
-        first = self._first
-        fps = self._fps()
-        duration = self._duration(fps)
+        stats = self._stats
+        first = stats.first
+        fps = stats.fps(self.fps_hint)
         return RecordingInfo(
             id=self.id, created=self.created, state="recording" if self.running else "finishing",
-            frames=self.frames, seconds=self.seconds, duration_s=round(duration, 3),
+            frames=stats.frames, seconds=self.seconds, duration_s=round(stats.duration(fps), 3),
             fps=None if fps is None else round(fps, 3), frame_size=list(self.frame_size),
-            source=first.source if first is not None else None,
-            calibration_id=self._calibrations[0] if self._calibrations else None, bytes=self.bytes,
+            source=first["source"] if first is not None else None,
+            calibration_id=stats.calibration_ids[0] if stats.calibration_ids else None, bytes=stats.bytes,
             end=self.end, complete=None, end_text=self.end_text,
         ).to_json()
+
+    # -- files (Recorder.start, then the writer thread) ----------------------------------------------------
+    def _doc(self, **finished: Any) -> "builtins.bytes":  # (``bytes`` here is the property above)
+        """recording.json: at the start what is known then (``state`` ``recording``); finished, all of it."""
+        if finished:
+            return meta_dumps(self._stats.doc(
+                rid=self.id, created=self.created, seconds=self.seconds, frame_size=list(self.frame_size),
+                calibration=self._first_calibration, fps_hint=self.fps_hint, meta=self.meta, **finished))
+        return meta_dumps({
+            "format": FORMAT, "state": "recording", "id": self.id, "created": self.created,
+            "seconds": self.seconds, "frame_size": list(self.frame_size), "fps_hint": self.fps_hint,
+            "calibration": self._first_calibration, "frames_file": FRAMES_FILE, "meta": self.meta})
+
+    def begin(self) -> None:
+        """Create ``recording.json`` (with the room finishing needs) and ``frames.jsonl`` (blocks).
+
+        OSError when they cannot be written (ENOSPC: the disk is full); the caller removes the folder.
+        """
+        reserve_meta(self.folder / META_FILE, self._doc())
+        self._lines = FramesFile(self.folder / FRAMES_FILE)
+        fsync_dir(self.folder)
+
+    def close_files(self) -> None:
+        if self._lines is not None:
+            self._lines.close()
 
     # -- pipeline thread -------------------------------------------------------------------------------
     def offer(self, fs: FrameSet) -> None:
@@ -512,9 +604,14 @@ class Recording:
         self._accepting = False
         self._stop.set()
 
+    def _full(self, exc: Optional[OSError] = None) -> None:
+        why = f" ({exc.strerror or 'no space left'})" if exc is not None else ""
+        kept = f", and {mb(self.store.min_free_bytes)} kept free" if exc is None else ""
+        self._end("disk_full", f"the disk filled after {self.frames} frames{why}: they were kept{kept}; "
+                               f"delete old recordings or captures to make room")
+
     def _run(self) -> None:
         try:
-            self._lines = open(self.folder / FRAMES_FILE, "xb")  # noqa: SIM115 (closed in _finish)
             while True:
                 try:
                     fs, calibration = self._queue.get(timeout=0.05)
@@ -523,8 +620,9 @@ class Recording:
                         break
                     if self.deadline is not None and time.monotonic() >= self.deadline + 1.0:
                         self._end("duration", None)  # no frame came after the end: end anyway
+                    self._sync(idle=True)
                     continue
-                if not self._write(fs, calibration):
+                if not self._write(fs, calibration) or not self._sync(idle=False):
                     break
         except Exception as exc:
             log.exception("recording %s failed", self.id)
@@ -533,8 +631,25 @@ class Recording:
             self._accepting = False
             self._finish()
 
+    def _sync(self, *, idle: bool) -> bool:
+        """Sync the frames written since the last sync, when a batch is due; False when the disk failed."""
+        due = time.monotonic() - self._synced_at >= SYNC_S
+        if not self._unsynced or not (due or (not idle and self._unsynced >= SYNC_FRAMES)):
+            return True
+        try:
+            sync_folder(self.folder)
+        except OSError as exc:
+            if exc.errno in FULL_ERRNOS:
+                self._full(exc)
+            else:
+                self._end("error", f"syncing the recording failed after {self.frames} frames "
+                                   f"({exc.strerror or exc}): they were kept")
+            return False
+        self._unsynced, self._synced_at = 0, time.monotonic()
+        return True
+
     def _write(self, fs: FrameSet, calibration: Optional[Dict[str, Any]]) -> bool:
-        """Encode and write one frame; False when the recording must end (disk full)."""
+        """Encode and write one frame, whole or not at all; False when the recording must end (disk full)."""
         assert fs.raw is not None
         last = self._last
         if (last is not None and fs.raw_store is not None and fs.raw_store == last.raw_store
@@ -545,6 +660,7 @@ class Recording:
         names = frame_names(index)
         files: List[Tuple[str, bytes]] = []
         entry: Dict[str, Any] = {}
+        color = None
         for side, name, rgby in (("left", names[0], fs.raw[..., pixel.LEFT]),
                                  ("right", names[1], fs.raw[..., pixel.RIGHT])):
             image, pngs = encode_frame(name[:-4], rgby)
@@ -556,166 +672,78 @@ class Recording:
                     y_name = f"y_{name}"
                     files.append((y_name, data))
             entry[side], entry[f"{side}_y"] = name, y_name
-            self._color = image["color"]
-        need = sum(len(d) for _, d in files) + SLACK_BYTES + META_RESERVE
-        room = self.store.room()
-        if room < need:
-            self._end("disk_full", f"the disk filled after {self.frames} frames: they were kept, and "
-                                   f"{mb(self.store.min_free_bytes)} kept free; delete old recordings or "
-                                   f"captures to make room")
+            color = image["color"]
+        need = sum(len(d) for _, d in files) + SLACK_BYTES
+        if self.store.room() < need:
+            self._full()
             return False
-        first = self._first or fs
-        t = fs.monotonic - first.monotonic
+        t0 = fs.monotonic if self._t0 is None else self._t0
         line = {"index": index, "frame": fs.frame, "fabric_count": fs.fabric_count, "time": fs.timestamp,
-                "t": round(t, 6), "source": fs.source,
+                "t": round(fs.monotonic - t0, 6), "source": fs.source,
                 "calibration_id": calibration.get("id") if calibration else None,
-                **entry, "color": self._color, "bytes": sum(len(d) for _, d in files)}
+                **entry, "color": color, "bytes": sum(len(d) for _, d in files)}
         written: List[Path] = []
         try:
             for name, data in files:
                 written.append(self.folder / name)
-                _write_new_file_nosync(self.folder / name, data)
+                create_file(self.folder / name, data)
             assert self._lines is not None
-            self._lines.write((json.dumps(line) + "\n").encode("utf-8"))
-            self._lines.flush()
+            self._lines.append((json.dumps(line) + "\n").encode("utf-8"))
         except OSError as exc:
             for path in written:
                 with contextlib.suppress(OSError):
                     path.unlink()
             if exc.errno in FULL_ERRNOS:
-                self._end("disk_full", f"the disk filled after {self.frames} frames "
-                                       f"({exc.strerror or 'no space left'}): they were kept; delete old "
-                                       f"recordings or captures to make room")
+                self._full(exc)
                 return False
             raise
-        if self._first is None:
-            self._first, self._first_calibration = fs, calibration
+        if self._t0 is None:
+            self._t0 = fs.monotonic
+            self._first_calibration = calibration
+            try:  # the start as a recovery after a crash needs it; the end writes it anyway
+                rewrite_meta(self.folder / META_FILE, self._doc(), final=False)
+            except OSError as exc:
+                log.warning("recording %s: cannot note its calibration in %s (%s)", self.id, META_FILE,
+                            exc.strerror or exc)
         self._last = fs
-        if fs.source not in self._sources:
-            self._sources.append(fs.source)
-        cal_id = line["calibration_id"]
-        if cal_id not in self._calibrations:
-            self._calibrations.append(cal_id)
-        self.frames += 1
-        self.bytes += line["bytes"]
+        self._stats.add(line)
+        self._unsynced += 1
         return True
 
-    @property
-    def missed(self) -> int:
-        """FRAME_COUNT values from the first frame to the last with no frame recorded."""
-        first, last = self._first, self._last
-        if first is None or last is None:
-            return 0
-        return (last.fabric_count - first.fabric_count) % COUNT_MOD + 1 - self.frames
-
-    def _fps(self) -> Optional[float]:
-        first, last = self._first, self._last
-        if first is not None and last is not None and last.monotonic > first.monotonic:
-            counts = (last.fabric_count - first.fabric_count) % COUNT_MOD
-            if counts > 0:
-                return counts / (last.monotonic - first.monotonic)
-        return self.fps_hint
-
-    def _duration(self, fps: Optional[float]) -> float:
-        first, last = self._first, self._last
-        if first is None or last is None or not fps:
-            return 0.0
-        return ((last.fabric_count - first.fabric_count) % COUNT_MOD + 1) / fps
-
     def _finish(self) -> None:
-        """Sync and publish the folder, or remove it when nothing (or nothing sound) was recorded."""
+        """Sync and publish the folder (keeping every frame written), or remove it when no frame was."""
         try:
-            if self._lines is not None:
-                self._lines.close()
+            self.close_files()
             if self.frames == 0:
                 why = {"disk_full": "the disk is full", "error": self.end_text or "it failed"}.get(
                     self.end or "", "no frame came")
                 self.error = f"nothing was recorded: {why}"
                 remove_tree(self.folder)
                 return
-            _sync_files(self.folder)
-            fps = self._fps()
-            first = self._first
-            assert first is not None
-            duration = self._duration(fps)
             end = self.end or "stopped"
-            complete = end in ("duration", "stopped")
-            doc: Dict[str, Any] = {
-                "format": FORMAT, "id": self.id, "created": self.created,
-                "time_utc": datetime.fromtimestamp(first.timestamp, timezone.utc).isoformat(
-                    timespec="milliseconds"),
-                "seconds": self.seconds, "duration_s": round(duration, 3), "frames": self.frames,
-                "fps": None if fps is None else round(fps, 3), "frame_size": list(self.frame_size),
-                "color": self._color, "source": first.source, "sources": self._sources,
-                "calibration_id": self._calibrations[0] if self._calibrations else None,
-                "calibration_ids": self._calibrations, "calibration": self._first_calibration,
-                "end": end, "complete": complete, "end_text": self.end_text, "missed": self.missed,
-                "duplicates": self.duplicates, "skipped": self.skipped, "bytes": self.bytes,
-                "frames_file": FRAMES_FILE,
-                "first": {"frame": first.frame, "fabric_count": first.fabric_count, "time": first.timestamp},
-            }
-            for key, value in self.meta.items():
-                doc.setdefault(key, value)
-            write_new_file(self.folder / META_FILE, meta_dumps(doc))
-            fsync_dir(self.folder)
+            doc = self._doc(end=end, end_text=self.end_text, duplicates=self.duplicates, skipped=self.skipped)
+            rewrite_meta(self.folder / META_FILE, doc, final=True, sync=False)  # in the room reserved
+            try:
+                sync_folder(self.folder)
+                sync_file(self.folder, META_FILE)
+                fsync_dir(self.folder)
+            except OSError as exc:  # written whole (in the page cache): keep the frames, publish, say so
+                log.warning("recording %s: syncing its files failed (%s); they are kept and listed, but a "
+                            "power cut before the system writes them could still lose them", self.id,
+                            exc.strerror or exc)
             self.store.publish(self.folder, self.id)
             self.info = self.store.get(self.id)
-            log.info("recording %s: %d frames, %.1f s (%s)", self.id, self.frames, duration, end)
+            log.info("recording %s: %d frames, %.1f s (%s)", self.id, self.frames,
+                     self._stats.duration(self._stats.fps(self.fps_hint)), end)
         except Exception as exc:
-            remove_tree(self.folder)
             full = isinstance(exc, OSError) and exc.errno in FULL_ERRNOS
-            self.error = ("nothing was kept: the disk filled while the recording was being finished; "
-                          "delete old recordings or captures to make room") if full else (
-                f"nothing was kept: the recording could not be finished ({exc})")
-            log.error("recording %s: %s", self.id, self.error)
+            why = "the disk is full" if full else f"{exc}"
+            self.error = (f"recording {self.id} could not be finished ({why}): its {self.frames} frames are "
+                          f"kept and will be listed when the daemon starts again")
+            log.error("%s", self.error)
         finally:
             self._on_end(self)
             self._done.set()
-
-
-_os_write = os.write  # module-level, so a test can make the disk fill exactly here
-
-
-def _write_new_file_nosync(path: Path, data: bytes) -> None:
-    """Create ``path`` (must not exist) and write ``data``; synced at the end of the recording."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            view = view[_os_write(fd, view):]
-    finally:
-        os.close(fd)
-
-
-def _sync_files(folder: Path) -> None:
-    """Every file of ``folder`` on disk: one ``syncfs`` of its file system where there is one (Linux).
-
-    A recording holds thousands of files; an fsync each takes seconds on an SD card, which
-    would hold up a stop or SIGTERM. One syncfs writes them in one sweep.
-    """
-    try:
-        import ctypes
-
-        syncfs = ctypes.CDLL(None, use_errno=True).syncfs
-    except (OSError, AttributeError):
-        syncfs = None
-    if syncfs is not None:
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-        try:
-            if syncfs(fd) == 0:
-                return
-        finally:
-            os.close(fd)
-    for name in sorted(os.listdir(folder)):
-        _fsync_file(folder / name)
-
-
-def _fsync_file(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 class Recorder:
@@ -775,6 +803,17 @@ class Recorder:
             rec = Recording(self.store, rid, folder, seconds=seconds, frame_size=(int(w), int(h)),
                             meta=meta or {}, calibration_for=self.calibration_for, on_end=self._ended,
                             started=time.monotonic(), fps_hint=fps, raw_stores=self.raw_stores)
+            try:
+                rec.begin()
+            except OSError as exc:
+                rec.close_files()
+                remove_tree(folder)
+                why = exc.strerror or exc
+                if exc.errno in FULL_ERRNOS:
+                    raise RecordingDiskFull(f"the disk of {self.store.root} is full ({why}): nothing was "
+                                            f"recorded; delete old recordings or captures") from exc
+                raise RecordingError(f"cannot start a recording in {self.store.root} ({why}): nothing was "
+                                     f"recorded") from exc
             holds = contextlib.ExitStack()
             try:
                 holds.enter_context(self.pipeline.raw_wanted())
