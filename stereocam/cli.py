@@ -81,12 +81,14 @@ _ACCESS_AT_DEBUG = _AccessAtDebug()
 
 
 def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = None,
-                  stream: Optional[IO[str]] = None) -> bool:
+                  stream: Optional[IO[str]] = None, secret: Optional[str] = None) -> bool:
     """Log at ``level`` (one of :data:`LOG_LEVELS`) to ``stream`` (stderr); may be called again.
 
     HTTP requests (aiohttp's access log) are logged at DEBUG: at any other level
-    aiohttp does not even format them. Like ``logging.basicConfig``, leaves a
-    logging set up by someone else (pytest, a program embedding us) alone and
+    aiohttp does not even format them. ``secret`` (the daemon's access token, when set)
+    never reaches a line, whichever logger writes it, and neither does any ``token=`` value
+    (:class:`stereocam.server.http.security.TokenRedactor`). Like ``logging.basicConfig``,
+    leaves a logging set up by someone else (pytest, a program embedding us) alone and
     returns False then.
     """
     root = logging.getLogger()
@@ -99,6 +101,10 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
     handler = logging.StreamHandler(out)
     handler.stereocam = True  # type: ignore[attr-defined]  # marks the handler this function owns
     handler.setFormatter(JournalFormatter() if on_journal(env, out) else logging.Formatter(LOG_FORMAT))
+    if secret is not None:
+        from .server.http.security import TokenRedactor
+
+        handler.addFilter(TokenRedactor(secret))
     numeric = logging.getLevelName(level.upper())
     if not isinstance(numeric, int):
         raise UserError(f"log level {level!r} is not one of {', '.join(LOG_LEVELS)}")
@@ -421,7 +427,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                              core_build=args.core_build, core=args.core, rtl_dir=args.rtl_dir,
                              cpu_budget=args.cpu_budget, allow_fault_injection=args.allow_fault_injection,
                              board=args.board, log_level=_cli_log_level(args))
-        setup_logging(config.log_level)
+        setup_logging(config.log_level, secret=config.access_token)
         config = config.replace(board=_check_board(config.board))
         return run(config)
     except (SettingsError, ServeError, BackendError) as exc:

@@ -40,6 +40,7 @@ from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
 from ..frames.virtual_camera import VirtualCamera
 from . import routes_faults
+from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors
 from .metrics import Metrics
 from .metrics import setup_routes as setup_ops_routes
@@ -355,7 +356,9 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
     """Serve ``app`` until ``stop`` is set (or SIGTERM/SIGINT, with ``handle_signals``), then clean up.
 
     ``on_ready(url)`` is called once the socket listens (``config.port`` 0
-    picks a free port; the URL has the real one). Cleaning up stops the
+    picks a free port; the URL has the real one). Connections are bounded by
+    :class:`.connections.BoundedSite` (header and keep-alive timeouts, a cap below the fd
+    limit). Cleaning up stops the
     long checks first (:meth:`.state.Executors.abandon`: a calibration PUT's
     ends in 503), then aiohttp's shutdown (handlers get ``shutdown_timeout``)
     and the app's cleanup (streams, pipeline, fabric).
@@ -366,13 +369,16 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
     runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=0.5)
     await runner.setup()
     try:
-        site = web.TCPSite(runner, config.host, config.port, reuse_address=True)
+        limits = ConnectionLimits(header_timeout_s=config.header_timeout_s,
+                                  keepalive_timeout_s=config.keepalive_timeout_s,
+                                  max_connections=config.max_connections, max_body=config.max_upload_bytes)
+        site = BoundedSite(runner, config.host, config.port, limits=limits)
         try:
             await site.start()
         except OSError as exc:
-            raise ServeError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}; "
+            raise ServeError(f"cannot listen on {config.host}:{config.port}: {exc.strerror or exc}; "
                              "is another stereocam running? choose another --port") from None
-        port = runner.addresses[0][1] if runner.addresses else config.port
+        port = site.port
         host = f"[{config.host}]" if ":" in config.host else config.host
         url = f"http://{host}:{port}/"
         log.info("serving on %s (%s fabric)", url, app[OVERLAY].backend)

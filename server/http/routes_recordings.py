@@ -19,6 +19,7 @@ from ...overlays.interface import Replay
 from ..frames.errors import ApiError
 from ..frames.recordings import MAX_SECONDS, Recorder, RecordingStore
 from .bodies import json_response, read_json
+from .security import refuse_if_gone
 from .state import CALIBRATION, EXECUTORS, FEED, OVERLAY, PIPELINE, SETTINGS, VIRTUAL
 
 __all__ = ["RECORDINGS", "RECORDER", "setup", "open_replay"]
@@ -85,6 +86,7 @@ async def start_recording(request: web.Request) -> web.Response:
     pipeline, overlay = app[PIPELINE], app[OVERLAY]
     fps = pipeline.fabric_fps() or (1.0 / pipeline.period if pipeline.period else None)
     meta: Dict[str, Any] = {"backend": overlay.backend, "core_impl": overlay.core_kind}
+    refuse_if_gone(request)  # an until-stopped recording nobody would know the id of
     rec = await app[EXECUTORS].run(lambda: app[RECORDER].start(
         seconds=seconds, frame_size=overlay.frame_size, fps=fps,
         frame_no=pipeline.last_frame_number or 0, meta=meta))

@@ -35,6 +35,7 @@ from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
 from .bodies import json_response
 from .errors import shutting_down
+from .security import TOKEN_PARAM
 from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
 __all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_scale"]
@@ -171,7 +172,7 @@ def _newest(app: web.Application, frame: Optional[int]) -> Optional[FrameSet]:
 
 async def get_point(request: web.Request) -> web.Response:
     app = request.app
-    unknown = sorted(set(request.query) - set(POINT_QUERY))
+    unknown = sorted(set(request.query) - set(POINT_QUERY) - {TOKEN_PARAM})
     if unknown:
         raise ApiError(f"unknown query parameter {unknown[0][:20]!r}: give x, y and optionally frame",
                        status=400)

@@ -10,8 +10,9 @@ the body:
   those headers (curl, scripts) pass. WebSockets are checked because the
   socket hands camera frames to whatever page opened it.
 - With ``access_token`` set, state-changing requests need
-  ``Authorization: Bearer <token>`` or ``X-Stereocam-Token: <token>`` (401
-  otherwise, compared in constant time). GETs stay open.
+  ``Authorization: Bearer <token>``, ``X-Stereocam-Token: <token>`` or the page's
+  cookie (401 otherwise, compared in constant time; the cookie is ``SameSite=Strict``
+  and a request from another origin is refused before it is looked at). GETs stay open.
 - A declared ``Content-Length`` over ``max_upload_bytes`` gets 413 at once;
   bodies without one are cut by aiohttp's ``client_max_size`` and the
   upload reader. A body that cannot be read as sent (a ``Content-Encoding``
@@ -25,18 +26,31 @@ the body:
 - ``protect="all"`` (the default): with a token, reads need it too: the
   page, its scripts and ``/healthz`` stay open, every stream, snapshot,
   capture, status and ``/ws`` wants the token as a header, the
-  ``stereocam_token`` cookie the page sets, or ``?token=`` (for players
+  ``stereocam_token`` cookie, or ``?token=`` (for players
   that cannot send headers). ``protect="control"``: only changes need it.
+
+The token follows one rule wherever it arrives (:func:`token_given`, :func:`token_matches`):
+the value as sent, or that value percent-decoded (``%2B`` is ``+``, and a ``+`` stays a ``+``:
+no token holds a space), so a token with ``+``, ``/`` or ``=`` works from a header, a cookie
+a script wrote URI-encoded, and a URL. The page's cookie is the server's: ``/?token=<token>``
+answers a redirect to the same URL without the token (out of the address bar and the history)
+that sets it ``HttpOnly; SameSite=Strict`` (:func:`page_token_redirect`). The token never
+reaches a log line: :class:`AccessLog` writes aiohttp's access line with every ``token=``
+value redacted, and :class:`TokenRedactor` takes the token out of any record a handler writes.
 """
 from __future__ import annotations
 
+import errno
 import hmac
 import ipaddress
+import logging
+import re
 import socket
 from typing import TYPE_CHECKING, Awaitable, Callable, FrozenSet, Iterable, Optional
-from urllib.parse import urlsplit
+from urllib.parse import quote, quote_plus, unquote, urlencode, urlsplit
 
 from aiohttp import web
+from aiohttp.abc import AbstractAccessLogger
 from aiohttp.web_protocol import RequestPayloadError
 
 from ..frames.errors import ApiError
@@ -45,11 +59,17 @@ from .errors import too_large
 if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
 
-__all__ = ["guard", "same_origin", "STATE_CHANGING", "allowed_host_names", "PROTECT", "TOKEN_COOKIE"]
+__all__ = ["guard", "same_origin", "STATE_CHANGING", "allowed_host_names", "PROTECT", "TOKEN_COOKIE",
+           "TOKEN_PARAM", "TOKEN_GIVEN_COOKIE", "token_given", "token_matches", "page_token_redirect",
+           "client_gone", "refuse_if_gone", "redact", "AccessLog", "TokenRedactor"]
 
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 PROTECT = ("all", "control")  # what the access token guards
 TOKEN_COOKIE = "stereocam_token"
+TOKEN_GIVEN_COOKIE = "stereocam_has_token"  # "1", readable by the page: a token was given (not which)
+TOKEN_PARAM = "token"  # ?token=: every GET that may need the token accepts it besides its own parameters
+TOKEN_COOKIE_AGE_S = 365 * 24 * 3600
+PAGE_PATHS = frozenset({"/", "/index.html"})
 OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico"})  # no camera data, no settings
 OPEN_PREFIXES = ("/static/",)
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
@@ -111,15 +131,160 @@ def same_origin(request: web.Request) -> bool:
     return theirs is not None and theirs == ours
 
 
-def _token_of(request: web.Request, *, reads: bool = False) -> Optional[str]:
-    """The token a request carries: a header; for reads also the page's cookie or ``?token=``."""
+def _raw_query_token(request: web.Request) -> Optional[str]:
+    """``?token=`` as it is in the URL (``request.query`` reads a ``+`` as a space)."""
+    for item in request.rel_url.raw_query_string.split("&"):
+        name, sep, value = item.partition("=")
+        if sep and unquote(name) == TOKEN_PARAM:
+            return value
+    return None
+
+
+def token_given(request: web.Request, *, query: bool) -> Optional[str]:
+    """The token a request carries, as sent: ``Authorization: Bearer``, ``X-Stereocam-Token``, the
+    ``stereocam_token`` cookie, then (``query``: reads only, a link must not carry a change)
+    ``?token=``; None when there is none."""
     auth = request.headers.get("Authorization", "")
     if auth[:7].lower() == "bearer ":
         return auth[7:].strip()
     header = request.headers.get("X-Stereocam-Token")
-    if header is not None or not reads:
+    if header is not None:
         return header
-    return request.cookies.get(TOKEN_COOKIE) or request.query.get("token")
+    cookie = request.cookies.get(TOKEN_COOKIE)
+    if cookie:
+        return cookie
+    return _raw_query_token(request) if query else None
+
+
+def token_matches(given: str, expected: bytes) -> bool:
+    """The one rule: ``given`` as sent, or percent-decoded, is the token (constant time, both compared).
+
+    Header bytes that are not UTF-8 arrive as surrogates: they are compared as the bytes sent.
+    """
+    candidates = {given, unquote(given, errors="surrogateescape")}
+    ok = False
+    for text in candidates:
+        ok |= hmac.compare_digest(text.encode("utf-8", "surrogateescape"), expected)
+    return ok
+
+
+def page_token_redirect(request: web.Request) -> Optional[web.Response]:
+    """``GET /?token=T``: a 303 to the same URL without ``token`` that sets the page's cookie
+    (``HttpOnly``, ``SameSite=Strict``, a year; ``/?token=`` with nothing forgets it); None for any
+    other request. Set by the server, not by the page's script: the script never holds the token."""
+    if request.method not in ("GET", "HEAD") or request.path not in PAGE_PATHS:
+        return None
+    token = _raw_query_token(request)
+    if token is None:
+        return None
+    kept = [(k, v) for k, v in request.query.items() if k != TOKEN_PARAM]
+    location = request.path + ("?" + urlencode(kept) if kept else "")
+    resp = web.Response(status=303, headers={"Location": location, "Cache-Control": "no-store",
+                                             "Referrer-Policy": "no-referrer"})
+    value = unquote(token, errors="surrogateescape")
+    # Percent-encoded: any token is then a legal cookie value, sent back as it was set.
+    encoded = quote(value.encode("utf-8", "surrogateescape"), safe="")
+    age = TOKEN_COOKIE_AGE_S if value else 0  # 0: forget it
+    cookies = ((TOKEN_COOKIE, encoded, True), (TOKEN_GIVEN_COOKIE, "1" if value else "", False))
+    for name, text, httponly in cookies:
+        resp.set_cookie(name, text, max_age=age, path="/", samesite="Strict", httponly=httponly,
+                        secure=request.secure)
+    return resp
+
+
+# -- a client that went away ------------------------------------------------------------------
+
+def client_gone(request: web.Request) -> bool:
+    """True when the request's client has closed its connection (so nobody reads the answer).
+
+    The transport may not know yet: the client's FIN can still wait in the socket, read after the
+    request (a request that waited for the daemon, whose client gave up). A peek says so
+    without taking a byte. Blocks nothing; False when it cannot tell.
+    """
+    transport = request.transport
+    if transport is None or transport.is_closing():
+        return True
+    sock = transport.get_extra_info("socket")
+    if sock is None:
+        return False
+    try:
+        peek = socket.socket(fileno=socket.dup(sock.fileno()))  # a duplicate: closing it keeps the socket
+    except OSError:
+        return False  # out of fds: cannot tell
+    with peek:
+        try:
+            return peek.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except (BlockingIOError, InterruptedError):
+            return False
+        except OSError as exc:
+            return exc.errno in (errno.ECONNRESET, errno.EPIPE, errno.ENOTCONN, errno.ETIMEDOUT)
+
+
+def refuse_if_gone(request: web.Request) -> None:
+    """Raise a 400 (which nobody reads) instead of acting for a client that has gone away."""
+    if client_gone(request):
+        raise ApiError("the client closed the connection before its request was acted on: nothing was done",
+                       status=400)
+
+
+# -- the token and the log --------------------------------------------------------------------
+
+REDACTED = "<redacted>"
+_TOKEN_IN_TEXT = re.compile(r"(?i)(token=)[^&\s\"';,]+")
+
+
+def redact(text: str, token: Optional[str] = None) -> str:
+    """``text`` with the value of every ``token=`` (a URL's query, a cookie) and every spelling of
+    ``token`` (as is, percent-encoded, form-encoded) replaced by ``<redacted>``."""
+    text = _TOKEN_IN_TEXT.sub(r"\1" + REDACTED, text)
+    if token:
+        for spelling in {token, quote(token, safe=""), quote_plus(token, safe="")}:
+            text = text.replace(spelling, REDACTED)
+    return text
+
+
+class AccessLog(AbstractAccessLogger):
+    """aiohttp's access line (``log_level: debug``), with the token's value redacted from the URL
+    and the Referer (a page opened as ``/?token=`` names itself in its requests' Referer)."""
+
+    def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
+        version = request.version
+        self.logger.info('%s "%s %s HTTP/%d.%d" %d %d %.3fs "%s" "%s"', request.remote or "-",
+                         request.method, redact(request.path_qs), version.major, version.minor,
+                         response.status, response.body_length, time,
+                         redact(request.headers.get("Referer", "-")), request.headers.get("User-Agent", "-"))
+
+    @property
+    def enabled(self) -> bool:
+        return self.logger.isEnabledFor(logging.INFO)  # else aiohttp does not even call log()
+
+
+class TokenRedactor(logging.Filter):
+    """A handler's filter: the record's message, traceback and stack, with :func:`redact` applied.
+
+    Put on the handlers that write the daemon's log (``stereocam serve`` does): whatever logger a
+    record comes from (aiohttp's, a library's, ours), the token does not reach the line.
+    """
+
+    def __init__(self, token: Optional[str]) -> None:
+        super().__init__()
+        self.token = token
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            message = record.getMessage()
+        except Exception:  # a record whose arguments do not fit its format: written as its parts
+            message = f"{record.msg} {record.args}"
+        clean = redact(message, self.token)
+        if clean != message:
+            record.msg, record.args = clean, None
+        if record.exc_info and not record.exc_text:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        if record.exc_text:
+            record.exc_text = redact(record.exc_text, self.token)
+        if record.stack_info:
+            record.stack_info = redact(record.stack_info, self.token)
+        return True
 
 
 def _host_allowed(request: web.Request, names: FrozenSet[str]) -> bool:
@@ -151,12 +316,15 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
             raise ApiError(f"refused: Host '{host}' is not a name of this daemon "
                            "(a page that renamed this address, or a new name: add it to allowed_hosts)",
                            status=421)
+        redirect = page_token_redirect(request)
+        if redirect is not None:
+            return redirect
         changing = request.method in STATE_CHANGING
         upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
         if (expected is not None and protect == "all" and not changing and request.path not in OPEN_PATHS
                 and not request.path.startswith(OPEN_PREFIXES)):
-            given = _token_of(request, reads=True)
-            if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
+            given = token_given(request, query=True)
+            if given is None or not token_matches(given, expected):
                 raise ApiError(f"{request.path} needs the access token: open the page as /?token=<token>, or "
                                "send 'Authorization: Bearer <token>' or add ?token=<token> to the URL"
                                + (" (the token sent is wrong)" if given is not None else ""),
@@ -166,15 +334,17 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
             raise ApiError(f"refused: {request.method} {request.path} from another origin ({origin}); use "
                            "the daemon's own page or a script without an Origin header", status=403)
         if changing and expected is not None:
-            given = _token_of(request)
-            # Header bytes that are not UTF-8 arrive as surrogates: compare them as the bytes sent.
-            if given is None or not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), expected):
+            given = token_given(request, query=False)
+            if given is None or not token_matches(given, expected):
                 raise ApiError(f"{request.method} {request.path} needs the access token: send "
-                               "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>'"
+                               "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>', or open "
+                               "the page as /?token=<token>"
                                + (" (the token sent is wrong)" if given is not None else ""),
                                status=401, headers=CHALLENGE)
         if changing and request.content_length is not None and request.content_length > max_body:
             raise ApiError(too_large(max_body, request.content_length), status=413)
+        if changing:
+            refuse_if_gone(request)  # a client that gave up while the request waited: do nothing for it
         try:
             return await handler(request)
         except RequestPayloadError as exc:  # the body cannot be read as sent (a corrupt gzip body, ...)

@@ -61,7 +61,12 @@ class Settings:
     ``protect: all``, the default, every stream, snapshot, capture and status read too; ``protect: control``
     leaves reads open), ``allowed_hosts`` (names besides loopback, the
     listening host and, on 0.0.0.0, the machine's own, that a request's Host
-    may carry: the DNS-rebinding guard), ``max_upload_bytes``. Board: ``board`` (the board
+    may carry: the DNS-rebinding guard), ``max_upload_bytes``. Connections (see
+    :mod:`.connections`): ``header_timeout_s`` (a request's line and headers must arrive
+    within it, counted from its first byte or from the connection's opening, and a body may not
+    stall for longer), ``keepalive_timeout_s`` (an idle connection between requests is closed
+    after it), ``max_connections`` (open at once; lowered to stay below the fd limit: the oldest
+    idle ones are shed first). Board: ``board`` (the board
     profile's file; default ``/etc/stereocam/board.yaml`` if it exists, else the packaged
     one: see :func:`stereocam.board.profile.find_profile`). Logs: ``log_level`` (one of
     :data:`LOG_LEVELS`; ``debug`` also logs every HTTP request).
@@ -92,6 +97,9 @@ class Settings:
     protect: str = "all"
     allowed_hosts: Tuple[str, ...] = ()
     max_upload_bytes: int = 16 * 1024 * 1024
+    header_timeout_s: float = 10.0
+    keepalive_timeout_s: float = 60.0
+    max_connections: int = 256
     board: Optional[str] = None
     log_level: str = "info"
     allow_fault_injection: bool = False  # the --allow-fault-injection flag only: never from a file
@@ -237,6 +245,9 @@ _RANGES: Dict[str, Tuple[float, float, bool, bool]] = {
     "encode_threads": (1, 64, True, False),
     "cpu_budget": (0.05, 1024, False, False),
     "max_upload_bytes": (1024, 1 << 31, True, False),
+    "header_timeout_s": (0, 3600, False, True),
+    "keepalive_timeout_s": (0, 86400, False, True),
+    "max_connections": (4, 65536, True, False),
 }
 
 

@@ -45,6 +45,9 @@ DEFAULT_CONFIG = Path("/etc/stereocam/stereocam.yaml")
 DEFAULT_CAPTURES = "/var/lib/stereocam/captures"  # StateDirectory=stereocam
 DEFAULT_PORT = 8080
 WATCHDOG_SEC = 10
+# The daemon's fd limit: its connections (max_connections, 256 by default, lowered by the daemon
+# to fit below this) and its own files with room to spare. Said, not left to systemd's default.
+LIMIT_NOFILE = 2048
 RESERVED_PORTS = {80: "the PYNQ image's web server", 9090: "Jupyter on the PYNQ image"}
 # DeviceAllow= of the unit: what pynq and our drivers open (read from pynq 3/4's sources).
 DEVICES = (
@@ -148,6 +151,9 @@ RestartSec=2
 # SIGTERM stops the streams and the VDMA channels and returns the mux to live within 2 s.
 KillSignal=SIGTERM
 TimeoutStopSec=5
+# Open files and sockets: the daemon keeps its connections below this (max_connections, lowered to
+# fit; idle ones shed first), so a flood of idle sockets cannot take the last fd.
+LimitNOFILE={LIMIT_NOFILE}
 # /var/lib/stereocam: captures, calibration.yaml, calibration-pairs/; /run/stereocam: the fabric lock.
 StateDirectory=stereocam
 RuntimeDirectory=stereocam

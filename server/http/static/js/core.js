@@ -10,15 +10,16 @@
 // it shows (tests read them).
 //
 // Access token: when the daemon has `access_token` set, open the page as
-// /?token=SECRET once. The token is stored in localStorage ("stereocam.token") and
-// sent as "Authorization: Bearer SECRET" on POST/PUT/DELETE and as the stereocam_token
-// cookie on everything else; /?token= (empty) forgets it.
+// /?token=SECRET once. The daemon answers with a redirect to the page without the token
+// (it leaves the address bar) and sets the stereocam_token cookie itself (HttpOnly,
+// SameSite=Strict): this script never holds the token, and every request of the page
+// (API calls, the WebSocket, images) carries it as that cookie. /?token= (empty) forgets it.
+// The daemon also sets stereocam_has_token=1, which says only that a token was given.
 //
 // Errors: every failed API call shows a message in plain words in #messages, with the
 // daemon's {"error": ...} text behind a disclosure; nothing is swallowed (see "messages").
 
 export const VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"];
-const TOKEN_KEY = "stereocam.token";
 export const params = new URLSearchParams(window.location.search);
 export const WS_FPS = clampNumber(params.get("fps"), 1, 60, 15);
 export const THUMB_SCALE = 0.5;  // of each view's size, one of the daemon's stream scales
@@ -35,21 +36,10 @@ export function clampNumber(text, lo, hi, fallback) {
 }
 
 // ---- access token ---------------------------------------------------------------
-function readToken() {
-  if (params.has("token")) {
-    const t = params.get("token");
-    try {
-      if (t) localStorage.setItem(TOKEN_KEY, t); else localStorage.removeItem(TOKEN_KEY);
-    } catch (e) { /* storage disabled: the query parameter still works for this page */ }
-    return t || "";
-  }
-  try { return localStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
-}
-export const TOKEN = readToken();
-// Streams, snapshots and the WebSocket cannot carry a header: with `protect: all` the daemon
-// reads the token from this cookie (same site only, so a page of another origin never sends it).
-document.cookie = "stereocam_token=" + (TOKEN ? encodeURIComponent(TOKEN) + "; max-age=31536000"
-                                              : "; max-age=0") + "; path=/; SameSite=Strict";
+// Whether a token was given (the daemon's cookie holds it, out of this script's reach).
+export const TOKEN_GIVEN = document.cookie.split(";").some((c) => c.trim() === "stereocam_has_token=1");
+// Earlier pages kept the token in localStorage: it does not belong there.
+try { localStorage.removeItem("stereocam.token"); } catch (e) { /* storage disabled */ }
 
 // ---- messages -------------------------------------------------------------------
 // Three kinds: "error" stays until dismissed; "success" and "info" fade by themselves after
@@ -219,7 +209,6 @@ export function describeRequest(method, path) {
 // error messages of the same kind of action (actionKey).
 export async function api(method, path, body) {
   const init = { method: method, headers: {} };
-  if (method !== "GET" && TOKEN) init.headers["Authorization"] = "Bearer " + TOKEN;
   if (body instanceof FormData) {
     init.body = body;
   } else if (body !== undefined) {

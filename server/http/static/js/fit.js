@@ -8,8 +8,7 @@
 //   ctx.showError(errOrText)     core.js's showError(): an ApiError or a string
 //   ctx.showInfo(text)           core.js's showInfo(): a message that fades
 //   ctx.$(id)                    document.getElementById
-//   ctx.token                    (optional) core.js's TOKEN: the preview is fetched here (a PNG,
-//                                 not JSON), with "Authorization: Bearer <token>" when set
+//   (the preview is fetched here, a PNG, not JSON; the access token goes as the page's cookie)
 // Returns { fit, fitQuery }: fit() is the chosen mode ("exact" | "crop" | "pad" | "scale"),
 // fitQuery() the "?fit=<mode>" to append to POST /api/virtual-camera ("" for exact). The same
 // two functions are exported for modules that import this one.
@@ -98,12 +97,10 @@ async function preview(explicit) {
     return;
   }
   const mine = ++seq;
-  const headers = {};
-  if (ctx.token) headers["Authorization"] = "Bearer " + ctx.token;
   const path = "/api/virtual-camera/preview" + "?fit=" + encodeURIComponent(fit());
   let resp;
   try {
-    resp = await fetch(path, { method: "POST", body: form, headers: headers });
+    resp = await fetch(path, { method: "POST", body: form });
   } catch (e) {
     if (mine === seq) ctx.showError("Preview: the daemon is unreachable (" + e.message + ").");
     return;

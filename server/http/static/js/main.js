@@ -8,7 +8,7 @@ import { initSource } from "./source.js";
 import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
-import { $, TOKEN, api, showError, showInfo } from "./core.js";
+import { $, api, showError, showInfo } from "./core.js";
 import { init as initFit } from "./fit.js";
 import { init as initRecordings } from "./recordings.js";
 import { setSourceRadios } from "./source.js";
@@ -23,7 +23,7 @@ function init() {
   initCameras();
   initCalibration();
   initShortcuts();
-  const ctx = { api, showError, showInfo, $, token: TOKEN };
+  const ctx = { api, showError, showInfo, $ };
   initFit(ctx);
   initRecordings({ ...ctx, onReplay: (res) => setSourceRadios(res && res.source ? res.source : "virtual") });
   document.body.dataset.ready = "1";

@@ -7,7 +7,7 @@
 // since the last frame (`last_frame.age_s`), and calls the signal intermittent when it came and
 // went over the last seconds (the views then show NO SIGNAL between frames), so it never says
 // "yes" while the views keep showing NO SIGNAL.
-import { $, STATUS_PERIOD_MS, TOKEN, api, showError, fmt, flagsText, hasFlags } from "./core.js";
+import { $, STATUS_PERIOD_MS, TOKEN_GIVEN, api, showError, fmt, flagsText, hasFlags } from "./core.js";
 import { renderViewRates } from "./live.js";
 import { setSourceRadios } from "./source.js";
 
@@ -171,7 +171,7 @@ function renderStatus(st) {
   box.replaceChildren(frag);
   box.dataset.updated = String(Date.now());
   $("backend").textContent = st.backend ? "backend: " + st.backend : "";
-  if (st.access_token === true && !TOKEN && !tokenHintShown) {
+  if (st.access_token === true && !TOKEN_GIVEN && !tokenHintShown) {
     tokenHintShown = true;
     showError("This daemon needs an access token for changes (capture, source, cameras, upload, verify): " +
               "open the page as /?token=YOUR_TOKEN (once; it is remembered).");
