@@ -4,25 +4,37 @@ Its recordings are frames the IP already demosaiced (captures of the
 stream): they are played as they are, not mosaicked again. A stereocam
 recording (``POST /api/recordings``: a folder with ``recording.json``) is
 played frame by frame in order at the rate it was recorded.
+
+Files are read without following a symbolic link (one in their place is
+refused, named), and what is read is bounded: ``recording.json`` at
+:data:`MAX_META_BYTES`, each ``frames.jsonl`` line at :data:`MAX_LINE_BYTES`
+(the file is indexed, never held whole), an image at :data:`MAX_IMAGE_BYTES`.
 """
 from __future__ import annotations
 
 import bisect
+import errno
 import json
 import math
+import os
+import stat
 import threading
+import weakref
+from array import array
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple, Union
+from typing import IO, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import cv2
 import numpy as np
 
 from ...calibration.image_files import (
     CAPTURE_FILES,
+    IMAGE_EXTS,
+    MAX_IMAGE_PIXELS,
     ImageTooLarge,
-    decode_image_file,
+    decode_image_bytes,
     image_size,
     is_image_file,
     natural_key,
@@ -45,6 +57,41 @@ class ReplayEnded(IndexError):
 _RECORDING_FILE = "recording.json"
 _RECORDING_FORMAT = "stereocam-recording/"
 _COUNT_MOD = 1 << 32
+MAX_META_BYTES = 4 << 20  # a recording.json larger than this is not a recording's
+MAX_LINE_BYTES = 64 * 1024  # a frames.jsonl line is a few hundred bytes; longer is damage
+MAX_IMAGE_BYTES = 4 * MAX_IMAGE_PIXELS + (1 << 20)  # the largest image decoded, uncompressed, and its header
+_LINE_FILES = ("left", "right", "left_y", "right_y")  # the keys of a frames.jsonl line naming files
+_SLOT_TYPE = "I" if array("I").itemsize == 4 else "L"  # 4 bytes: a FRAME_COUNT difference
+
+
+def _open_regular(path: Path) -> IO[bytes]:
+    """``path`` opened for reading if it is a regular file, never through a symbolic link.
+
+    FileNotFoundError when it is missing; :class:`ReplayError` naming it when it is a link
+    or not a file.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ReplayError(f"{path} is a symbolic link: a replay reads only the files in its folder; "
+                              f"copy the file there instead of linking it") from None
+        raise
+    fh = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        fh.close()
+        raise ReplayError(f"{path} is not a file: replace or remove it")
+    return fh
+
+
+def _read_regular(path: Path, limit: int) -> bytes:
+    """The bytes of the regular file ``path`` (:func:`_open_regular`); ReplayError past ``limit`` bytes."""
+    with _open_regular(path) as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise ReplayError(f"{path} is larger than {limit / 2**20:g} MiB: not a recording's; replace or "
+                          f"remove it")
+    return data
 
 
 @dataclass(frozen=True)
@@ -101,13 +148,21 @@ class ReplaySource:
         self._lock = threading.Lock()
         self._closed = False
         self.fps: Optional[float] = None  # a recording's frame rate; None for other folders
-        self._slots: Optional[List[int]] = None  # a recording's frames, in frame periods from the first
+        self._frames: Optional[_FramesIndex] = None  # a recording's frames file, indexed
+        self._entries: List[_Entry] = []  # the frames of other folders
         self._recorded_size: Optional[Tuple[int, int]] = None
-        if (self.folder / _RECORDING_FILE).is_file():
-            self._entries = self._discover_recording()
+        if os.path.lexists(self.folder / _RECORDING_FILE):
+            self._frames = self._discover_recording()
         else:
             self._entries = self._discover()
-        self._size = self._check_sizes()
+        try:
+            self._size = self._check_sizes()
+        except BaseException:
+            self.close()
+            raise
+
+    def _entry(self, k: int) -> _Entry:
+        return self._frames.entry(k) if self._frames is not None else self._entries[k]
 
     # -- listing -----------------------------------------------------------
 
@@ -124,7 +179,16 @@ class ReplaySource:
         for path in sorted(folder.iterdir()):
             if path.name.startswith("."):
                 continue  # hidden: e.g. a capture still being written (.incoming-*) or deleted
+            if path.is_symlink():
+                if path.suffix.lower() in IMAGE_EXTS or path.is_dir():
+                    raise ReplayError(f"{path} is a symbolic link: a replay reads only the files in its "
+                                      f"folder; copy it there instead of linking it")
+                continue
             if path.is_dir():
+                for f in CAPTURE_FILES:
+                    if (path / f).is_symlink():
+                        raise ReplayError(f"{path / f} is a symbolic link: a replay reads only the files in "
+                                          f"its folder; copy it there instead of linking it")
                 present = [(path / f).is_file() for f in CAPTURE_FILES]
                 if all(present):
                     captures.append(_Entry(path.name, path / CAPTURE_FILES[0], path / CAPTURE_FILES[1]))
@@ -174,16 +238,18 @@ class ReplaySource:
         return [_Entry(f"{lefts[k].name}+{rights[k].name}", lefts[k], rights[k])
                 for k in sorted(lefts, key=natural_key)]
 
-    def _discover_recording(self) -> List[_Entry]:
-        """A stereocam recording's frames from its ``recording.json`` and frames file."""
+    def _discover_recording(self) -> "_FramesIndex":
+        """A stereocam recording's frames from its ``recording.json`` and frames file (indexed, not held)."""
         folder = self.folder
 
         def bad(what: str) -> ReplayError:
             return ReplayError(f"recording {folder}: {what}; record it again or remove it")
 
         try:
-            doc = json.loads((folder / _RECORDING_FILE).read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
+            doc = json.loads(_read_regular(folder / _RECORDING_FILE, MAX_META_BYTES).decode("utf-8"))
+        except ReplayError as exc:
+            raise bad(f"{_RECORDING_FILE} cannot be read ({exc})") from None
+        except (OSError, ValueError, RecursionError) as exc:
             raise bad(f"{_RECORDING_FILE} cannot be read ({exc})") from None
         if not isinstance(doc, dict) or not str(doc.get("format", "")).startswith(_RECORDING_FORMAT):
             raise bad(f"{_RECORDING_FILE} is not a stereocam recording's")
@@ -197,53 +263,22 @@ class ReplaySource:
         if not isinstance(frames_name, str) or "/" in frames_name or "\\" in frames_name \
                 or frames_name.startswith("."):
             raise bad(f"{_RECORDING_FILE} names a frames file {frames_name!r} outside the recording")
-        frames_file = folder / frames_name
-        entries: List[_Entry] = []
-        counts: List[int] = []
-        try:
-            lines = frames_file.read_text(encoding="utf-8").splitlines()
-        except (OSError, ValueError) as exc:
-            raise bad(f"{frames_file.name} cannot be read ({exc})") from None
-
-        def member(line: Dict[str, object], key: str) -> Optional[Path]:
-            name = line.get(key)
-            if name is None:
-                return None
-            if not isinstance(name, str) or "/" in name or name.startswith("."):
-                raise bad(f"{frames_file.name} names a file {name!r} outside the recording")
-            return folder / name
-
-        for number, text in enumerate(lines, 1):
-            if not text.strip():
-                continue
-            try:
-                line = json.loads(text)
-                fabric_count = int(line["fabric_count"])
-                left, right = member(line, "left"), member(line, "right")
-            except ReplayError:
-                raise
-            except (ValueError, KeyError, TypeError, OverflowError) as exc:  # OverflowError: Infinity
-                raise bad(f"line {number} of {frames_file.name} is damaged ({exc})") from None
-            if left is None or right is None:
-                raise bad(f"line {number} of {frames_file.name} names no left or right file")
-            entries.append(_Entry(left.name, left, right, member(line, "left_y"), member(line, "right_y")))
-            counts.append(fabric_count)
-        if not entries:
-            raise bad("it holds no frames")
-        if isinstance(count, int) and count != len(entries):
-            raise bad(f"{_RECORDING_FILE} says {count} frames but {frames_file.name} lists {len(entries)}")
-        slots = [(c - counts[0]) % _COUNT_MOD for c in counts]
-        if any(b <= a for a, b in zip(slots, slots[1:], strict=False)):
-            raise bad(f"the FRAME_COUNTs in {frames_file.name} do not increase")
+        frames = _FramesIndex(folder, frames_name, count if isinstance(count, int) else None, bad)
+        if not len(frames) or (isinstance(count, int) and count != len(frames)):
+            frames.close()
+            raise bad("it holds no frames" if not len(frames) else
+                      f"{_RECORDING_FILE} says {count} frames but {frames_name} lists {len(frames)}")
         self.fps = float(fps)
-        self._slots = slots
         self._recorded_size = (int(size[0]), int(size[1]))
-        return entries
+        return frames
 
     def _check_sizes(self) -> Tuple[int, int]:
         def size_of(path: Path) -> Tuple[int, int]:
             try:
-                size = image_size(path, str(path)) if path.is_file() else None
+                with _open_regular(path) as fh:
+                    size = image_size(fh, str(path))
+            except FileNotFoundError:
+                size = None
             except ImageTooLarge as exc:
                 raise ReplayError(f"{exc}: replace or remove it") from None
             if size is None:
@@ -253,7 +288,7 @@ class ReplaySource:
 
         first: Optional[Tuple[int, int]] = None
         # A recording: its first frame (recording.json gives the size; every frame is checked on decode).
-        entries = self._entries[:1] if self._slots is not None else self._entries
+        entries = [self._entry(0)] if self._frames is not None else self._entries
         for entry in entries:
             lw, lh = size_of(entry.left)
             if entry.right is None:
@@ -276,7 +311,7 @@ class ReplaySource:
             elif size != first:
                 raise ReplayError(
                     f"{entry.left} is {size[0]}x{size[1]} per camera but the first frame "
-                    f"({self._entries[0].left.name}) is {first[0]}x{first[1]}: every frame of a replay must "
+                    f"({entries[0].left.name}) is {first[0]}x{first[1]}: every frame of a replay must "
                     f"have the same size; move the odd ones to another folder"
                 )
         assert first is not None
@@ -295,30 +330,34 @@ class ReplaySource:
         return self._size
 
     def __len__(self) -> int:
-        return len(self._entries)
+        return len(self._frames) if self._frames is not None else len(self._entries)
 
     @property
     def names(self) -> List[str]:
-        """The recordings in play order (file names, or capture folder names)."""
-        return [e.name for e in self._entries]
+        """The recordings in play order (file names, or capture folder names; a recording's frames file is
+        read for them)."""
+        return [self._entry(k).name for k in range(len(self))]
 
     @property
     def is_recording(self) -> bool:
         """Whether the folder is a stereocam recording (played at its :attr:`fps`)."""
-        return self._slots is not None
+        return self._frames is not None
 
     @property
-    def slots(self) -> List[int]:
+    def slots(self) -> Sequence[int]:
         """When each frame is played, in frame periods (``1 / fps``) from the first: ``[0, 1, 2, ...]``
-        for a recording that missed no frame; ``range(len(self))`` for other folders."""
-        return list(self._slots) if self._slots is not None else list(range(len(self._entries)))
+        for a recording that missed no frame; ``range(len(self))`` for other folders. Read-only, and
+        4 bytes a frame however long the recording."""
+        if self._frames is not None:
+            return memoryview(self._frames.slots).toreadonly()
+        return range(len(self._entries))
 
     @property
     def duration_s(self) -> Optional[float]:
         """A recording's length (the last frame's slot plus one period) in seconds; None for others."""
-        if self._slots is None or self.fps is None:
+        if self._frames is None or self.fps is None:
             return None
-        return (self._slots[-1] + 1) / self.fps
+        return (self._frames.slots[-1] + 1) / self.fps
 
     def read(self, index: int, t: float = 0.0) -> np.ndarray:
         """Recorded stereo frame number ``index`` (a recording: the one at ``t`` s), read-only ``(H, W, 8)``.
@@ -331,13 +370,14 @@ class ReplaySource:
         index = int(index)
         if index < 0:
             raise ValueError(f"frame index must be >= 0, got {index}")
-        if self._slots is not None and self.fps is not None:
-            period = self._slots[-1] + 1
+        if self._frames is not None and self.fps is not None:
+            slots = self._frames.slots
+            period = slots[-1] + 1
             slot = math.floor(max(0.0, float(t)) * self.fps + 1e-6)
             if slot >= period and not self.loop:
                 raise ReplayEnded(f"the recording {self.folder} lasts {period / self.fps:g} s; "
                                   f"t = {t:g} s is past the end")
-            return self.frame(bisect.bisect_right(self._slots, slot % period) - 1)
+            return self.frame(bisect.bisect_right(slots, slot % period) - 1)
         n = len(self._entries)
         if index >= n and not self.loop:
             raise ReplayEnded(f"the replay of {self.folder} has {n} frames; frame {index} is past the end")
@@ -347,7 +387,7 @@ class ReplaySource:
         """Recorded frame ``k`` (0 .. len - 1), read-only ``(H, W, 8)``, whatever the time."""
         if self._closed:
             raise SourceClosedError(f"the ReplaySource of {self.folder} is closed: make a new one")
-        n = len(self._entries)
+        n = len(self)
         if not 0 <= int(k) < n:
             raise IndexError(f"frame {k} of a replay of {n} frames")
         slot = int(k)
@@ -356,7 +396,7 @@ class ReplaySource:
             if frame is not None:
                 self._cache.move_to_end(slot)
                 return frame
-        frame = self._decode(self._entries[slot])
+        frame = self._decode(self._entry(slot))
         frame.setflags(write=False)
         with self._lock:
             self._cache[slot] = frame
@@ -366,10 +406,12 @@ class ReplaySource:
         return frame
 
     def close(self) -> None:
-        """Drop the cache. Idempotent."""
+        """Drop the cache and close a recording's frames file. Idempotent."""
         self._closed = True
         with self._lock:
             self._cache.clear()
+        if self._frames is not None:
+            self._frames.close()
 
     def __enter__(self) -> "ReplaySource":
         return self
@@ -382,7 +424,9 @@ class ReplaySource:
     def _load(self, path: Path) -> np.ndarray:
         """An (H, W) gray or (H, W, 3) RGB uint8 image."""
         try:
-            image = decode_image_file(path, cv2.IMREAD_UNCHANGED)
+            image = decode_image_bytes(_read_regular(path, MAX_IMAGE_BYTES), cv2.IMREAD_UNCHANGED, str(path))
+        except FileNotFoundError:
+            image = None
         except ImageTooLarge as exc:
             raise ReplayError(f"{exc}: replace or remove it") from None
         if image is None:
@@ -429,3 +473,91 @@ class ReplaySource:
                                       f"remove it")
                 side[..., 3] = y
         return pack(sides[0], sides[1])
+
+
+class _FramesIndex:
+    """A recording's frames file, indexed: where each frame's line starts and its slot, 12 bytes a frame.
+
+    The file is read once, a line at a time (each at most :data:`MAX_LINE_BYTES`), and every
+    line checked then; a frame's line is read again, by its offset, when the frame is wanted.
+    It stays open (read with ``pread``: safe from several threads) until :meth:`close`.
+    """
+
+    def __init__(self, folder: Path, name: str, count: Optional[int],
+                 bad: Callable[[str], ReplayError]) -> None:
+        self.folder, self.name, self._bad = folder, name, bad
+        self.offsets = array("Q")
+        self.slots = array(_SLOT_TYPE)
+        try:
+            fh = _open_regular(folder / name)
+        except OSError as exc:
+            raise bad(f"{name} cannot be read ({exc})") from None
+        except ReplayError as exc:
+            raise bad(f"{name} cannot be read ({exc})") from None
+        self._fd = os.dup(fh.fileno())
+        self._closer = weakref.finalize(self, os.close, self._fd)
+        try:
+            with fh:
+                self._scan(fh, count)
+        except BaseException:
+            self.close()
+            raise
+
+    def __len__(self) -> int:
+        return len(self.offsets)
+
+    def _scan(self, fh: IO[bytes], count: Optional[int]) -> None:
+        slots = self.slots
+        offset, number = 0, 0
+        first: Optional[int] = None
+        while True:
+            raw = fh.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                break
+            number += 1
+            start, offset = offset, offset + len(raw)
+            if len(raw) > MAX_LINE_BYTES:
+                raise self._bad(f"line {number} of {self.name} is longer than {MAX_LINE_BYTES // 1024} KiB: "
+                                f"it is damaged")
+            if not raw.strip():
+                continue
+            if count is not None and len(self.offsets) == count:
+                raise self._bad(f"{_RECORDING_FILE} says {count} frames but {self.name} lists more")
+            _, fabric_count = self._parse(raw, f"line {number}")
+            if first is None:
+                first = fabric_count
+            slot = (fabric_count - first) % _COUNT_MOD
+            if slots and slot <= slots[-1]:
+                raise self._bad(f"the FRAME_COUNTs in {self.name} do not increase")
+            self.offsets.append(start)
+            slots.append(slot)
+
+    def _parse(self, raw: bytes, where: str) -> Tuple[List[Optional[str]], int]:
+        """The file names a line gives (left, right, left_y, right_y), checked, and its FRAME_COUNT."""
+        name = self.name
+        try:
+            line = json.loads(raw)
+            fabric_count = int(line["fabric_count"])
+            names = [line.get(key) for key in _LINE_FILES]
+        except (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError) as exc:
+            raise self._bad(f"{where} of {name} is damaged ({exc})") from None  # OverflowError: Infinity
+        for value in names:
+            if value is not None and (not isinstance(value, str) or not value or value.startswith(".")
+                                      or "/" in value or "\\" in value or "\0" in value):
+                raise self._bad(f"{name} names a file {value!r} outside the recording")
+        if names[0] is None or names[1] is None:
+            raise self._bad(f"{where} of {name} names no left or right file")
+        return names, fabric_count
+
+    def entry(self, k: int) -> _Entry:
+        """Frame ``k``'s files, from its line (read again now)."""
+        if not self._closer.alive:
+            raise SourceClosedError(f"the frames file of {self.folder} is closed: make a new ReplaySource")
+        data = os.pread(self._fd, MAX_LINE_BYTES + 1, self.offsets[k])
+        left, right, left_y, right_y = (None if n is None else self.folder / n for n in
+                                        self._parse(data.split(b"\n", 1)[0], f"the line of frame {k}")[0])
+        assert left is not None and right is not None
+        return _Entry(left.name, left, right, left_y, right_y)
+
+    def close(self) -> None:
+        self._closer()

@@ -12,6 +12,7 @@ alpha) live in ``settings.json`` in the same folder.
 """
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import math
@@ -41,6 +42,7 @@ from ...overlays.model.result import CoreOptions
 from ...overlays.spec import pixel
 from .captures import CAPTURE_FILES, CaptureInfo, CaptureStore
 from .errors import ApiError
+from .store_files import read_member
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +54,7 @@ __all__ = [
 
 PAIRS_FOLDER = "calibration-pairs"
 SETTINGS_FILE = "settings.json"
+MAX_SETTINGS_BYTES = 64 * 1024  # three fields; larger is not the panel's file
 PURPOSE = "calibration-pair"
 COVERAGE_GRID = (16, 10)  # cells across and down in which coverage is counted
 SAME_VIEW_PX = 6.0  # a new pair whose corners are this close (mean) to a stored pair's adds nothing
@@ -120,16 +123,21 @@ class PanelSettings:
 
 
 def load_settings(folder: Path) -> PanelSettings:
-    """The settings saved in ``folder``; the defaults (9x6, 25 mm, alpha 0) if none or unreadable."""
+    """The settings saved in ``folder``; the defaults (9x6, 25 mm, alpha 0) if none or unreadable.
+
+    Read without following a symbolic link and at most :data:`MAX_SETTINGS_BYTES`.
+    """
     path = folder / SETTINGS_FILE
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(read_member(folder, SETTINGS_FILE, MAX_SETTINGS_BYTES).decode("utf-8"))
         return PanelSettings.default().updated(doc)
     except FileNotFoundError:
         return PanelSettings.default()
-    except (OSError, ValueError, PanelError, CalibrationError) as exc:
+    except (OSError, ValueError, RecursionError, PanelError, CalibrationError) as exc:
+        why = "it is a symbolic link, not a file" if getattr(exc, "errno", None) == errno.ELOOP else (
+            getattr(exc, "message", None) or exc)
         log.warning("the calibration panel's settings %s cannot be used (%s): using 9x6, 25 mm, alpha 0",
-                    path, getattr(exc, "message", None) or exc)
+                    path, why)
         return PanelSettings.default()
 
 
@@ -270,6 +278,10 @@ def compute(store: CaptureStore, ids: Sequence[str], settings: PanelSettings, re
     :class:`PanelError` (422) with the calibrator's message when it cannot
     calibrate (too few pairs showing the pattern, divergence, registers).
     """
+    for i in ids:  # the listing reports a link as damage, and damaged pairs are left out: one made since
+        linked = [name for name in CAPTURE_FILES if os.path.islink(store.root / i / name)]
+        if linked:
+            raise PanelError(f"pair {i}: {linked[0]} is a symbolic link, not a file; delete that pair")
     pairs = [ImagePair(i, store.root / i / CAPTURE_FILES[0], store.root / i / CAPTURE_FILES[1]) for i in ids]
     if len(pairs) < min_pairs:
         raise PanelError(f"{len(pairs)} pairs are stored and at least {min_pairs} are needed: capture more "

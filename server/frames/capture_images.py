@@ -28,7 +28,7 @@ from ...calibration.image_files import (
 )
 from ...overlays.spec import pixel
 from .capture_errors import CaptureDamaged, CaptureError
-from .store_files import read_member
+from .store_files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["FRAME_NAMES", "read_raw_pair"]
 
@@ -129,9 +129,11 @@ def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
     for name in RAW_FRAMES:
         file, y_file = capture_file(name), capture_file(name, y_plane=True)
         try:
-            data = read_member(folder, file)
+            data = read_member(folder, file, MAX_IMAGE_FILE_BYTES)
         except FileNotFoundError:
             raise CaptureDamaged(f"capture {cid} cannot be replayed: {file} is missing") from None
+        except ValueError as exc:  # larger than any frame
+            raise CaptureDamaged(f"capture {cid} cannot be replayed: {exc}") from None
         except OSError as exc:
             raise CaptureDamaged(
                 f"capture {cid} cannot be replayed: {file} cannot be read ({exc.strerror or exc})"
@@ -143,9 +145,11 @@ def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
             )
         frame = pixel.rgby(image)
         try:
-            y_data: Optional[bytes] = read_member(folder, y_file)
+            y_data: Optional[bytes] = read_member(folder, y_file, MAX_IMAGE_FILE_BYTES)
         except FileNotFoundError:
             y_data = None
+        except ValueError as exc:
+            raise CaptureDamaged(f"capture {cid} cannot be replayed: {exc}") from None
         except OSError as exc:
             raise CaptureDamaged(
                 f"capture {cid} cannot be replayed: {y_file} cannot be read ({exc.strerror or exc})"

@@ -9,7 +9,7 @@ import numpy as np
 
 from ...calibration.image_files import ImageTooLarge, capture_file, check_image_header
 from .capture_errors import CaptureDamaged, CaptureError, not_found
-from .store_files import read_member
+from .store_files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["THUMB_FRAMES", "THUMB_WIDTH", "thumbnail_jpeg"]
 
@@ -26,7 +26,7 @@ def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
     image = None
     for name in map(capture_file, THUMB_FRAMES):
         try:
-            data = read_member(folder, name, 64 << 20)
+            data = read_member(folder, name, MAX_IMAGE_FILE_BYTES)
         except FileNotFoundError:
             continue
         except (OSError, ValueError):

@@ -19,6 +19,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 
 CHUNK = 1 << 20
+MAX_IMAGE_FILE_BYTES = 64 << 20  # a stored frame's PNG is far smaller; larger is not one of ours
 FULL_ERRNOS = frozenset(e for e in (errno.ENOSPC, getattr(errno, "EDQUOT", None)) if e is not None)
 
 # Low-level I/O, module-level so tests can make the disk fail exactly here.

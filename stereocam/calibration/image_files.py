@@ -11,12 +11,13 @@ import re
 import threading
 import warnings
 from pathlib import Path
-from typing import Any, Optional, Tuple, Union
+from typing import IO, Any, Optional, Tuple, Union
 
 import numpy as np
 
 __all__ = ["CAPTURE_FILES", "IMAGE_EXTS", "MAX_IMAGE_PIXELS", "RAW_FRAMES", "ImageTooLarge", "capture_file",
-           "check_image_header", "decode_image_file", "image_size", "is_image_file", "natural_key"]
+           "check_image_header", "decode_image_bytes", "decode_image_file", "image_size", "is_image_file",
+           "natural_key"]
 
 MAX_IMAGE_PIXELS = 4096 * 4096
 """Largest image (width x height) decoded at all, from a file or an upload: a header claiming more is
@@ -62,9 +63,10 @@ class ImageTooLarge(ValueError):
 _HEADER_LOCK = threading.Lock()  # Python's warning filters are process-wide
 
 
-def image_size(source: Union[bytes, Path], where: str,
+def image_size(source: Union[bytes, Path, IO[bytes]], where: str,
                max_pixels: int = MAX_IMAGE_PIXELS) -> Optional[Tuple[int, int]]:
-    """``(width, height)`` from the header of an image (bytes, or a file: only its header is read).
+    """``(width, height)`` from the header of an image (bytes, or a file or an open one: only its header
+    is read).
 
     None when Pillow does not read the format or cannot parse the header (the decoder then
     decides); raises :class:`ImageTooLarge` over ``max_pixels`` pixels, before any pixel is
@@ -114,14 +116,21 @@ def decode_image_file(path: Path, flags: int) -> Optional[np.ndarray]:
     :class:`ImageTooLarge` for a header over :data:`MAX_IMAGE_PIXELS` pixels, which OpenCV would
     otherwise decode (up to a gigapixel) or fail on with an error of its own.
     """
-    import cv2
-
     data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
     if data is None or not data.size:
         return None
-    check_image_header(data.tobytes(), str(path))
+    return decode_image_bytes(data.tobytes(), flags, str(path))
+
+
+def decode_image_bytes(data: bytes, flags: int, where: str) -> Optional[np.ndarray]:
+    """:func:`decode_image_file` of a file's bytes (read by the caller, e.g. without following a link)."""
+    import cv2
+
+    if not data:
+        return None
+    check_image_header(data, where)
     _opencv_errors_only(cv2)
     try:
-        return cv2.imdecode(data, flags)
+        return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     except cv2.error:  # a header Pillow could not read and OpenCV refuses (e.g. over its own limits)
         return None
