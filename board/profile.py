@@ -159,7 +159,8 @@ def profile_from_dict(data: Any, *, source: str = "<dict>") -> BoardProfile:
     width = v.integer(frame["width"], "frame.width", 1, spec.ARRAY_WIDTH)
     height = v.integer(frame["height"], "frame.height", 1, spec.ARRAY_HEIGHT)
     pclk = v.integer(sensors["pixel_clock_hz"], "sensors.pixel_clock_hz", *PIXEL_CLOCK_RANGE)
-    row_us = spec.row_time_us(width, max(spec.HBLANK_DEFAULT, spec.MIN_ROW_TIME - width), pclk)
+    hblank = max(spec.HBLANK_DEFAULT, spec.MIN_ROW_TIME - width)  # as MT9V034.configure_window sets it
+    row_us = spec.row_time_us(width, hblank, pclk)
     fps_lo = spec.frame_rate(height, spec.VBLANK_MAX, row_us)
     fps_hi = spec.frame_rate(height, spec.VBLANK_MIN, row_us)
     fps = v.number(frame["fps"], "frame.fps")
@@ -197,9 +198,17 @@ def profile_from_dict(data: Any, *, source: str = "<dict>") -> BoardProfile:
                        spec.DESIRED_BIN_MAX)
 
     try:
-        SensorSettings.from_dict(controls)
+        defaults = SensorSettings.from_dict(controls)
     except ValueError as exc:
         v.fail("controls", str(exc))
+    if defaults.exposure_us is not None:  # what the sensors take once set up with this window and rate
+        exposures = spec.ExposureRange.at(width=width, hblank=hblank, height=height,
+                                          vblank=spec.vertical_blanking_for(fps, height, row_us),
+                                          pixel_clock_hz=pclk)
+        try:
+            exposures.rows_for(defaults.exposure_us)
+        except ValueError as exc:
+            v.fail("controls.exposure_us", str(exc))
 
     return BoardProfile(
         name=name, overlay=overlay, width=width, height=height, fps=fps, i2c_bus=bus, left_address=left,

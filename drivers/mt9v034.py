@@ -15,8 +15,11 @@ Sequences (the exact transactions are pinned by ``tests/test_mt9v034_driver.py``
                       ``WINDOW_HEIGHT``, ``HORIZONTAL_BLANKING`` (94, or more to keep a row
                       at least 690 pixel clocks)
 ``set_frame_rate``    read width, blanking, height; write ``VERTICAL_BLANKING``
-exposure (µs)         read ``WINDOW_WIDTH`` and ``HORIZONTAL_BLANKING`` (the row time), then
-                      read or write ``COARSE_SHUTTER_WIDTH_TOTAL`` (whole rows, nearest)
+exposure (µs)         read: ``WINDOW_WIDTH`` and ``HORIZONTAL_BLANKING`` (the row time), then
+                      ``COARSE_SHUTTER_WIDTH_TOTAL``; write: those two, ``WINDOW_HEIGHT`` and
+                      ``VERTICAL_BLANKING`` (the frame: the range is one row to one frame,
+                      :class:`~stereocam.overlays.spec.mt9v034.ExposureRange`), then
+                      ``COARSE_SHUTTER_WIDTH_TOTAL`` (whole rows, nearest)
 ``gain``              ``ANALOG_GAIN.GAIN`` = gain x 16 (nearest 1/16)
 ``set_aec``/``set_agc``  limits first (``MAX_COARSE_SHUTTER_WIDTH``, ``AEC_AGC_DESIRED_BIN``,
                       ``MAX_ANALOG_GAIN``), then a read-modify-write of ``AEC_AGC_ENABLE``
@@ -70,9 +73,6 @@ __all__ = [
 CAMERAS = ("left", "right")
 SYNC_MODES = ("master-slave", "snapshot")
 TEST_PATTERN_OFF = "off"
-# A manual exposure in microseconds is > 0 (API.md), so at least one row: the register itself
-# also takes 0 (fine shutter only), which ``exposure_rows`` still writes for whoever asks in rows.
-MANUAL_EXPOSURE_MIN_ROWS = 1
 
 
 class SensorError(DriverError):
@@ -232,19 +232,29 @@ class MT9V034:
         lo, hi = self.map["COARSE_SHUTTER_WIDTH_TOTAL"].limit()
         self.write("COARSE_SHUTTER_WIDTH_TOTAL", self._int_in(rows, "exposure (rows)", lo, hi))
 
-    def exposure_range_us(self, row_us: Optional[float] = None) -> Tuple[float, float]:
-        lo, hi = self.map["COARSE_SHUTTER_WIDTH_TOTAL"].limit()
-        lo = max(lo, MANUAL_EXPOSURE_MIN_ROWS)
-        row_us = self.row_time_us() if row_us is None else row_us
-        return spec.exposure_us_from_rows(lo, row_us), spec.exposure_us_from_rows(hi, row_us)
+    def exposure_range(self) -> spec.ExposureRange:
+        """The manual exposures the sensor takes at its timing now: one row to one frame
+        (reads ``WINDOW_WIDTH``, ``HORIZONTAL_BLANKING``, ``WINDOW_HEIGHT``, ``VERTICAL_BLANKING``)."""
+        width, hblank = self.read("WINDOW_WIDTH"), self.read("HORIZONTAL_BLANKING")
+        height, vblank = self.read("WINDOW_HEIGHT"), self.read("VERTICAL_BLANKING")
+        return spec.ExposureRange.at(width=width, hblank=hblank, height=height, vblank=vblank,
+                                     pixel_clock_hz=self.pixel_clock_hz)
 
-    def exposure_rows_for(self, us: float, *, row_us: Optional[float] = None, limit: str = "exposure") -> int:
-        """Rows (nearest) for ``us`` microseconds at the current row time; refuses what does not fit."""
+    def exposure_rows_for(self, us: float, *, limit: str = "exposure") -> int:
+        """Rows (nearest) for ``us`` microseconds; refuses what does not fit with the range.
+
+        ``limit`` "exposure" (the manual exposure): within :meth:`exposure_range`, so that it never
+        stretches the frame. "max_exposure" (the AEC's ceiling): within ``MAX_COARSE_SHUTTER_WIDTH``'s
+        limits at the current row time.
+        """
         us = _number(us, f"{self.name}: {limit}_us")
-        row_us = self.row_time_us() if row_us is None else row_us
-        reg = "COARSE_SHUTTER_WIDTH_TOTAL" if limit == "exposure" else "MAX_COARSE_SHUTTER_WIDTH"
-        lo, hi = self.map[reg].limit()
-        lo = max(lo, MANUAL_EXPOSURE_MIN_ROWS)
+        if limit == "exposure":
+            try:
+                return self.exposure_range().rows_for(us)
+            except ValueError as exc:
+                raise SensorRangeError(f"{self.name}: {exc}") from None
+        row_us = self.row_time_us()
+        lo, hi = self.map["MAX_COARSE_SHUTTER_WIDTH"].limit()
         rows = spec.exposure_rows_from_us(us, row_us)
         if not lo <= rows <= hi:
             lo_us, hi_us = spec.exposure_us_from_rows(lo, row_us), spec.exposure_us_from_rows(hi, row_us)
@@ -403,7 +413,7 @@ class MT9V034:
 class SensorSettings:
     """Camera controls to apply; a field left None is left as it is.
 
-    ``exposure_us`` (> 0; the sensor's range depends on its row time),
+    ``exposure_us`` (> 0; the sensor's range, one row to one frame, depends on its timing),
     ``gain`` 1.0..4.0, ``aec``/``agc`` booleans, ``flip_h``/``flip_v``
     booleans, ``test_pattern`` one of :data:`spec.TEST_PATTERNS` or ``"off"``
     (:meth:`from_dict` also takes JSON ``null`` for off).
@@ -655,8 +665,9 @@ class StereoSensors:
         """Apply ``settings`` (a :class:`SensorSettings` or a request dict) to ``camera``.
 
         ``camera`` is ``"both"`` (default), ``"left"`` or ``"right"``.
-        Everything is validated (types, ranges against each sensor's row
-        time) before the first write, so a refused request changes nothing.
+        Everything is validated (types, ranges against each sensor's timing:
+        an exposure is one row to one frame) before the first write, so a
+        refused request changes nothing and the previous settings stay.
         Raises :class:`SettingsError`/:class:`SensorRangeError` (both
         ``ValueError``) for a bad request, :class:`SensorUnavailable` if a
         target sensor is not answering (it is then marked in :meth:`health`).

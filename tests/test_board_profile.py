@@ -81,6 +81,9 @@ def break_(raw: Dict[str, Any], path: str, value: Any = KeyError) -> Dict[str, A
      "sensors.pixel_clock_hz: 50000000 is out of range: 13000000..27000000"),
     ("overlay", "stereocam.hwh", "overlay: 'stereocam.hwh' is not a bitstream file name (*.bit)"),
     ("controls.gain", 8, "controls: gain 8 is out of range: 1.0..4.0"),
+    ("controls.exposure_us", 20000,
+     "controls.exposure_us: exposure 20000 us is out of range: 31.8045..16666 us (1..524 rows of 31.80 us: "
+     "at most one frame, 524 rows at 60.0 fps; a longer exposure would lower the frame rate)"),
     ("controls.exposure", 10, "controls: unknown key(s) controls.exposure"),
     ("i2c", [0, 0x48], "i2c: must be a mapping with keys bus, left, right, timeout_s, but is a list"),
 ])

@@ -53,6 +53,11 @@ def row_time_reads(width: int = 752, hblank: int = 94) -> List[Tuple[str, int, i
     return [("r", A, 0x04, width), ("r", A, 0x05, hblank)]
 
 
+def frame_reads(height: int = 480, vblank: int = 44) -> List[Tuple[str, int, int, Any]]:
+    """The reads of a frame's length, WINDOW_HEIGHT and VERTICAL_BLANKING (60 fps: 480 + 44 rows)."""
+    return [("r", A, 0x03, height), ("r", A, 0x06, vblank)]
+
+
 # -- the register table -----------------------------------------------------------------
 
 def test_register_table_matches_the_linux_driver() -> None:
@@ -162,7 +167,7 @@ def test_frame_rate_sets_vertical_blanking() -> None:
 def test_exposure_in_microseconds_is_whole_rows_of_the_row_time() -> None:
     rows = round(10_000 / ROW_US)
     assert rows == 314
-    s, bus = sensor(*row_time_reads(), ("w", A, 0x0B, rows))
+    s, bus = sensor(*row_time_reads(), *frame_reads(), ("w", A, 0x0B, rows))
     s.exposure_us = 10_000
     bus.assert_done()
     s, bus = sensor(*row_time_reads(), ("r", A, 0x0B, 480))
@@ -176,24 +181,49 @@ def test_exposure_in_microseconds_is_whole_rows_of_the_row_time() -> None:
 
 def test_exposure_follows_the_row_time_of_the_window() -> None:
     row_us = 690 / 26.6  # a 320-wide window: 320 + 370 clocks
-    s, bus = sensor(*row_time_reads(320, 370), ("w", A, 0x0B, round(10_000 / row_us)))
+    s, bus = sensor(*row_time_reads(320, 370), *frame_reads(), ("w", A, 0x0B, round(10_000 / row_us)))
     s.exposure_us = 10_000
     bus.assert_done()
 
 
-def test_exposure_out_of_range_names_the_range() -> None:
-    s, bus = sensor(*row_time_reads())
+def test_exposure_is_one_row_to_one_frame_and_beyond_is_refused_naming_the_range() -> None:
+    """At 60 fps a frame is 524 rows (16.67 ms). 999999 us used to be written as 31442 rows, the
+    sensor then running at 1 fps, without a word; an exposure longer than the frame is refused with
+    the range, and nothing is written."""
+    frame_us = 524 * ROW_US
+    for us in (999_999, 2_000_000, frame_us + ROW_US):
+        s, bus = sensor(*row_time_reads(), *frame_reads())
+        with pytest.raises(SensorRangeError) as err:
+            s.exposure_us = us
+        assert str(err.value) == (
+            f"left: exposure {us:g} us is out of range: {ROW_US:g}..{frame_us:.0f} us (1..524 rows of "
+            f"{ROW_US:.2f} us: at most one frame, 524 rows at 60.0 fps; a longer exposure would lower the "
+            "frame rate)")
+        bus.assert_done()  # the timing was read, nothing was written
+    s, bus = sensor(*row_time_reads(), *frame_reads(), ("w", A, 0x0B, 524))
+    s.exposure_us = frame_us  # one frame is the most
+    bus.assert_done()
+    s, bus = sensor(*row_time_reads(), *frame_reads(vblank=32288))  # the slowest frame: R0x0B's own limit
     with pytest.raises(SensorRangeError) as err:
         s.exposure_us = 2_000_000
     assert str(err.value) == (f"left: exposure 2e+06 us is out of range: {ROW_US:g}..{32765 * ROW_US:.0f} us "
                               f"(1..32765 rows of {ROW_US:.2f} us)")
-    bus.assert_done()  # the row time was read, nothing was written
+    bus.assert_done()
     s, bus = sensor()
     with pytest.raises(SensorRangeError, match=r"exposure \(rows\) 40000 is out of range: 0\.\.32765"):
         s.exposure_rows = 40_000
     with pytest.raises(RegisterRangeError, match="whole number"):
         s.exposure_rows = 12.5  # type: ignore[assignment]
     assert not bus.done
+
+
+def test_the_exposure_range_is_the_specs_for_the_timing_read() -> None:
+    s, bus = sensor(*row_time_reads(320, 370), *frame_reads(240, 100))
+    assert s.exposure_range() == spec.ExposureRange.at(width=320, hblank=370, height=240, vblank=100)
+    bus.assert_done()
+    got = spec.ExposureRange.at(width=320, hblank=370, height=240, vblank=100)
+    assert (got.lo, got.hi, got.frame_rows) == (1, 340, 340)
+    assert got.hi_us == pytest.approx(340 * 690 / 26.6) and got.fps == pytest.approx(26.6e6 / (340 * 690))
 
 
 def test_gain_is_sixteenths() -> None:

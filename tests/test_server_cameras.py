@@ -108,6 +108,41 @@ async def test_bad_inputs_are_refused_naming_the_field(start_daemon) -> None:
     assert after["left"] == before["left"] and after["right"] == before["right"]  # nothing changed
 
 
+async def test_an_exposure_beyond_the_sensors_range_is_refused_the_last_good_one_stays(start_daemon) -> None:
+    """At 60 fps the sensor's frame is 524 rows (16.67 ms): an exposure of 999999 us would make it a
+    1 fps camera (it used to be applied as 999,997 us without a word). It is refused with 400 naming
+    the range worked out from the sensor's registers, and the exposure set before stays."""
+    from stereocam.overlays.spec import mt9v034 as spec
+
+    d = await _start(start_daemon)
+    async with d.http.put("/api/cameras", json={"aec": False, "exposure_us": 5000}) as resp:
+        assert resp.status == 200, await resp.text()
+        good = await resp.json()
+    async with d.http.put("/api/cameras", json={"exposure_us": 999_999}) as resp:
+        assert resp.status == 400, await resp.text()
+    sensor = d.app[CAMERA_SERVICE].pair.left
+    timing = {k: sensor.get(r) for k, r in (("width", "WINDOW_WIDTH"), ("hblank", "HORIZONTAL_BLANKING"),
+                                            ("height", "WINDOW_HEIGHT"), ("vblank", "VERTICAL_BLANKING"))}
+    expected = spec.ExposureRange.at(**timing)
+    assert expected.hi == expected.frame_rows and expected.fps == pytest.approx(60, abs=0.1)
+    for body in ({"exposure_us": 999_999}, {"exposure_us": expected.hi_us + expected.row_us, "gain": 2.0},
+                 {"exposure_us": 999_999, "camera": "right"}):
+        async with d.http.put("/api/cameras", json=body) as resp:
+            assert resp.status == 400, (body, await resp.text())
+            error = (await resp.json())["error"]
+        assert "\n" not in error and f"is out of range: {expected.text()}" in error, error
+        assert error.startswith("right: " if body.get("camera") == "right" else "left: "), error
+    assert "16666 us (1..524 rows of 31.80 us: at most one frame, 524 rows at 60.0 fps" in error
+    async with d.http.get("/api/cameras") as resp:
+        now = await resp.json()
+    for c in ("left", "right"):
+        assert now[c]["exposure_rows"] == good[c]["exposure_rows"] and now[c]["gain"] == good[c]["gain"]
+        assert abs(now[c]["exposure_us"] - 5000) < 32  # whole rows
+    async with d.http.put("/api/cameras", json={"exposure_us": expected.hi_us}) as resp:
+        assert resp.status == 200, await resp.text()  # one whole frame is the most
+        assert (await resp.json())["left"]["exposure_rows"] == expected.hi
+
+
 def _mean(png: bytes) -> float:
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert img is not None

@@ -157,6 +157,7 @@ def test_the_emulated_sensors_drive_the_target() -> None:
     assert sensors.start()["ok"]
     fabric = EmulatedFabric(source=target, clock="stepped", sensors=pair, fps=60.0, ddr_size=16 << 20)
     try:
+        sensors.apply({"exposure_us": 6000})  # doubled below, still within a frame (16.7 ms at 60 fps)
         fabric.step(3)
         dim = target.read(3, 3 / 60)
         sensors.apply({"exposure_us": 2 * sensors.read()["left"]["exposure_us"]})

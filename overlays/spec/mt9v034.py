@@ -38,6 +38,10 @@ of rows (R0x0B), and a frame takes ``WINDOW_HEIGHT + VERTICAL_BLANKING``
 rows; an exposure longer than that stretches the frame (lower frame rate).
 With the reset values (752 + 94 clocks at 26.6 MHz) a row lasts 31.80 us,
 480 rows of exposure are 15.27 ms and a frame is 16.70 ms (59.9 fps).
+So the manual exposures the sensor takes at the timing it was set up with
+(:class:`ExposureRange`, the one place that range is worked out) are one row
+to one frame, within R0x0B's limits: a longer one would silently lower the
+frame rate the daemon was configured for.
 """
 from __future__ import annotations
 
@@ -68,6 +72,7 @@ __all__ = [
     "gain_from_code",
     "vertical_blanking_for",
     "frame_rate",
+    "ExposureRange",
 ]
 
 # -- identity and bus ------------------------------------------------------------------
@@ -91,6 +96,9 @@ HBLANK_MIN, HBLANK_MAX, HBLANK_DEFAULT = 61, 1023, 94  # [linux MT9V034_HORIZONT
 VBLANK_MIN, VBLANK_MAX, VBLANK_DEFAULT = 2, 32288, 45  # [linux MT9V034_VERTICAL_BLANKING_MIN/MAX]
 SHUTTER_MIN, SHUTTER_MAX, SHUTTER_DEFAULT = 0, 32765, 480  # rows [linux MT9V034_TOTAL_SHUTTER_WIDTH_*]
 AEC_MAX_SHUTTER_MIN = 1  # rows; AEC never goes below one row [ds, AEC/AGC]
+# A manual exposure in microseconds is > 0 (API.md), so at least one row: the register itself also
+# takes 0 (fine shutter only), which the driver's ``exposure_rows`` still writes for whoever asks in rows.
+MANUAL_EXPOSURE_MIN_ROWS = 1
 
 # -- gain ---------------------------------------------------------------------------------
 
@@ -313,3 +321,53 @@ def vertical_blanking_for(fps: float, height: int, row_us: float) -> int:
     """R0x06 that gives ``fps`` (never below the MT9V034's minimum; the caller checks the maximum)."""
     rows = int(math.floor(1e6 / (float(fps) * row_us) + 0.5))
     return max(rows - int(height), VBLANK_MIN)
+
+
+@dataclass(frozen=True)
+class ExposureRange:
+    """The manual exposures (R0x0B, whole rows) the sensor takes at one timing, and what they last.
+
+    From one row (:data:`MANUAL_EXPOSURE_MIN_ROWS`) to one frame (``height + vblank`` rows),
+    within R0x0B's limits: beyond a frame the sensor stretches the frame and the frame rate
+    drops below the one it was set up for. Built by :meth:`at` from the registers that set the
+    timing; the driver refuses what is outside and the board profile checks its defaults with it.
+    """
+
+    row_us: float  # one row, microseconds
+    frame_rows: int  # WINDOW_HEIGHT + VERTICAL_BLANKING
+    lo: int  # rows
+    hi: int  # rows
+
+    @classmethod
+    def at(cls, *, width: int, hblank: int, height: int, vblank: int,
+           pixel_clock_hz: float = PIXEL_CLOCK_HZ) -> "ExposureRange":
+        frame = int(height) + int(vblank)
+        return cls(row_time_us(width, hblank, pixel_clock_hz), frame,
+                   max(SHUTTER_MIN, MANUAL_EXPOSURE_MIN_ROWS), min(SHUTTER_MAX, frame))
+
+    @property
+    def lo_us(self) -> float:
+        return exposure_us_from_rows(self.lo, self.row_us)
+
+    @property
+    def hi_us(self) -> float:
+        return exposure_us_from_rows(self.hi, self.row_us)
+
+    @property
+    def fps(self) -> float:
+        """The frame rate this timing gives (an exposure within the range keeps it)."""
+        return 1e6 / (self.frame_rows * self.row_us)
+
+    def rows_for(self, us: float) -> int:
+        """Rows (nearest) for ``us`` microseconds, or :class:`ValueError` naming the range (message
+        without the sensor's name; the caller adds it)."""
+        rows = exposure_rows_from_us(us, self.row_us)
+        if not self.lo <= rows <= self.hi:
+            raise ValueError(f"exposure {float(us):g} us is out of range: {self.text()}")
+        return rows
+
+    def text(self) -> str:
+        """The range as a user reads it, e.g. ``31.8045..16666 us (1..524 rows of 31.80 us: ...)``."""
+        why = (f": at most one frame, {self.frame_rows} rows at {self.fps:.1f} fps; a longer exposure "
+               "would lower the frame rate" if self.hi == self.frame_rows else "")
+        return f"{self.lo_us:g}..{self.hi_us:.0f} us ({self.lo}..{self.hi} rows of {self.row_us:.2f} us{why})"
