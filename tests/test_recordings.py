@@ -6,6 +6,7 @@ import asyncio
 import errno
 import io
 import json
+import logging
 import os
 import re
 import time
@@ -540,3 +541,71 @@ async def test_a_damaged_recording_json_with_nan_is_listed_as_standard_json(star
         entry = body["recordings"][0] if "recordings" in body else body
         assert entry["id"] == rid and entry["fps"] is None and entry["seconds"] is None
         assert entry["frames"] >= 1
+
+
+# -- a playing that fails, and downloads cut short -------------------------------------------------------
+
+async def test_a_playing_that_fails_is_reported_until_the_next_input(start_daemon) -> None:
+    """A damaged frame stops the playing; before, GET /api/virtual-camera then said ``playing: null``."""
+    d = await start_daemon(overlay=counting_overlay())
+    await wait_for_frames(d, 3)
+    rid = (await record(d, {"seconds": 1.5}))["id"]
+    assert (await finished(d, rid))["frames"] >= 4
+    folder = d.app[RECORDINGS].root / rid
+    whole = (folder / "left_000002.png").read_bytes()
+    (folder / "left_000002.png").write_bytes(whole[:100])  # its header is whole, its pixels are not
+    async with d.http.post("/api/virtual-camera", json={"recording": rid}) as resp:
+        assert resp.status == 200, await resp.text()
+    player = d.app[VIRTUAL].player
+    await wait_until("the playing stopped at the damaged frame", lambda: player.error)
+    for url in ("/api/virtual-camera", "/api/status"):
+        async with d.http.get(url) as resp:
+            body = await resp.json()
+        playing = body["playing"] if "playing" in body else body["virtual_camera"]["playing"]
+        assert playing is not None and playing["recording"] == rid and playing["running"] is False
+        assert f"playing recording {rid} stopped at frame 2" in playing["error"]
+        assert "left_000002.png" in playing["error"] and "\n" not in playing["error"]
+    async with d.http.get("/api/virtual-camera") as resp:  # still there: until the next input
+        assert (await resp.json())["playing"]["error"] == playing["error"]
+    async with d.http.put("/api/source", json={"source": "live"}) as resp:
+        assert resp.status == 200
+    async with d.http.get("/api/virtual-camera") as resp:
+        assert (await resp.json())["playing"] is None
+
+    (folder / "left_000000.png").write_bytes((folder / "left_000001.png").read_bytes()[:100])
+    async with d.http.post("/api/virtual-camera", json={"recording": rid}) as resp:  # before: a 500
+        assert resp.status == 422, await resp.text()
+        error = (await resp.json())["error"]
+    assert error.startswith(f"recording {rid} cannot be replayed: ") and "left_000000.png" in error
+
+
+async def test_a_download_the_client_gives_up_ends_quietly(start_daemon, monkeypatch, caplog) -> None:
+    """A cancelled zip download: ``drain()`` raises a ConnectionError, which logged an ERROR traceback."""
+    from aiohttp import ClientError, web
+
+    d = await start_daemon(overlay=counting_overlay())
+    await wait_for_frames(d, 3)
+    rid = (await record(d, {"seconds": 0.5}))["id"]
+    await finished(d, rid)
+    async with d.http.post("/api/captures") as resp:
+        cid = (await resp.json())["id"]
+    real_write = web.StreamResponse.write
+    gone: List[str] = []
+
+    async def client_gone(self: web.StreamResponse, data: bytes) -> None:
+        if self.content_type == "application/zip":  # what drain() raises once the client is gone
+            gone.append(self.headers["Content-Disposition"])
+            raise ConnectionError("Connection lost") if len(gone) % 2 else BrokenPipeError(32, "Broken pipe")
+        await real_write(self, data)
+
+    monkeypatch.setattr(web.StreamResponse, "write", client_gone)
+    with caplog.at_level(logging.DEBUG):
+        for url in (f"/api/recordings/{rid}.zip", f"/api/captures/{cid}.zip") * 2:
+            with pytest.raises(ClientError):  # the connection closes: never a whole, shorter zip
+                async with d.http.get(url) as resp:
+                    await resp.read()
+    assert len(gone) == 4
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
+    monkeypatch.setattr(web.StreamResponse, "write", real_write)
+    async with d.http.get(f"/api/recordings/{rid}.zip") as resp:  # the next download is whole
+        assert resp.status == 200 and zipfile.ZipFile(io.BytesIO(await resp.read())).testzip() is None

@@ -884,7 +884,8 @@ class RecordingPlayer:
 
     def to_json(self) -> Dict[str, Any]:
         return {"recording": self.id, "frame": self.position, "frames": self.frames,
-                "fps": round(self.fps, 3), "loops": self.loops, "shown": self.shown, "error": self.error}
+                "fps": round(self.fps, 3), "loops": self.loops, "shown": self.shown, "running": self.running,
+                "error": self.error}
 
     @property
     def running(self) -> bool:

@@ -105,7 +105,9 @@ class VirtualCamera:
         return {"source": self.source, "input": self.origin,
                 "frame": self.result.frame if self.result is not None else None,
                 "width": w, "height": h,
-                "playing": player.to_json() if player is not None and player.running else None}
+                # A playing that failed stays reported (its error) until the next input replaces it.
+                "playing": player.to_json() if player is not None and (player.running or player.error)
+                else None}
 
     def _frames(self, n: float) -> float:
         """Seconds for ``n`` frame periods at the rate the fabric runs (1/60 s before one is known)."""

@@ -29,6 +29,7 @@ from ..frames.pipeline import FrameSet
 from ..frames.verify import compare, difference_image
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from .bodies import json_response, read_json
+from .downloads import stream_download
 from .errors import shutting_down
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
@@ -485,21 +486,8 @@ async def capture_zip(request: web.Request) -> web.StreamResponse:
     store: CaptureStore = request.app[CAPTURES]
     cid = request.match_info["id"]
     chunks = await _run(request, store.zip_stream, cid)
-    resp = web.StreamResponse(headers={"Content-Type": "application/zip",
-                                       "Content-Disposition": f'attachment; filename="{cid}.zip"'})
-    try:
-        await resp.prepare(request)
-        while True:
-            chunk = await _run(request, next, chunks, b"")
-            if not chunk:
-                break
-            await resp.write(chunk)
-        await resp.write_eof()
-    finally:
-        close = getattr(chunks, "close", None)  # a generator: closing it closes the files
-        if close is not None:
-            close()
-    return resp
+    return await stream_download(request, chunks, filename=f"{cid}.zip", content_type="application/zip",
+                                 run=request.app[EXECUTORS].run)
 
 
 class _NoSuchFile(CaptureError):

@@ -19,6 +19,7 @@ from ...overlays.interface import Replay
 from ..frames.errors import ApiError
 from ..frames.recordings import MAX_SECONDS, Recorder, RecordingStore
 from .bodies import json_response, read_json
+from .downloads import stream_download
 from .security import refuse_if_gone
 from .state import CALIBRATION, EXECUTORS, FEED, OVERLAY, PIPELINE, SETTINGS, VIRTUAL
 
@@ -138,21 +139,9 @@ async def recording_zip(request: web.Request) -> web.StreamResponse:
     if app[RECORDER].get(rid) is not None:
         raise ApiError(f"recording {rid} is still running: stop it or wait for it to end, then download it",
                        status=409)
-    store = app[RECORDINGS]
-    chunks = await app[EXECUTORS].run(store.zip_stream, rid)
-    resp = web.StreamResponse(headers={"Content-Type": "application/zip",
-                                       "Content-Disposition": f'attachment; filename="{rid}.zip"'})
-    try:
-        await resp.prepare(request)
-        while True:
-            chunk = await app[EXECUTORS].run(next, chunks, b"")
-            if not chunk:
-                break
-            await resp.write(chunk)
-        await resp.write_eof()
-    finally:
-        chunks.close()  # type: ignore[attr-defined]  # a generator: closing it closes the files
-    return resp
+    chunks = await app[EXECUTORS].run(app[RECORDINGS].zip_stream, rid)
+    return await stream_download(request, chunks, filename=f"{rid}.zip", content_type="application/zip",
+                                 run=app[EXECUTORS].run)
 
 
 async def delete_recording(request: web.Request) -> web.Response:
@@ -192,6 +181,11 @@ async def open_replay(app: web.Application, rid: str) -> Replay:
             rw, rh = source.frame_size
             source.close()
             raise ApiError(f"recording {rid} is {rw}x{rh}, the fabric takes {w}x{h}", status=422)
+        try:
+            source.frame(0)  # decoded (and kept) now: a damaged first frame is a 422, not a failed request
+        except ValueError as exc:
+            source.close()
+            raise ApiError(f"recording {rid} cannot be replayed: {exc}", status=422) from None
         return source
 
     return await app[EXECUTORS].run(open_it)
