@@ -35,6 +35,7 @@ import pytest
 from stereocam.bench.serve import wait_healthy
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.server.frames import recording_files
+from stereocam.server.frames import recordings as recordings_module
 from stereocam.server.frames.pipeline import FrameSet
 from stereocam.server.frames.recordings import Recorder, Recording, RecordingDiskFull, RecordingStore
 
@@ -322,6 +323,26 @@ def test_a_frame_is_kept_only_when_its_images_and_its_line_are_whole(tmp_path: P
     meta = assert_whole(store, rid, counts[:2])  # frames 2 and 3 are not kept (3 comes after a gap)
     assert meta["frame_size"] == list(SMALL) and meta["end"] == "interrupted"
     assert meta["created"].startswith(f"{rid[:4]}-{rid[4:6]}-{rid[6:8]}T")
+
+
+def test_a_recovery_reads_only_the_files_written_since_the_last_sync(tmp_path: Path, monkeypatch) -> None:
+    """The writer notes in recording.json the frames a sync put on the disk: a long recording is
+    recovered in the time its lines take to read, not the time its thousands of files take."""
+    monkeypatch.setattr(recordings_module, "SYNC_FRAMES", 2)  # a sync after every second frame written
+    monkeypatch.setattr(recordings_module, "SYNC_S", 1e9)  # and never because time passed
+    root, rid = interrupted(tmp_path, monkeypatch, [1, 2, 3, 4, 5])
+    assert json.loads((root / f".incoming-{rid}" / "recording.json").read_text())["synced_frames"] == 4
+    read: List[str] = []
+    real = recording_files._whole_png
+
+    def reads(folder: Path, name: str) -> Optional[int]:
+        read.append(name)
+        return real(folder, name)
+
+    monkeypatch.setattr(recording_files, "_whole_png", reads)
+    store = RecordingStore(root)
+    assert sorted(read) == ["left_000004.png", "right_000004.png"]
+    assert_whole(store, rid, [1, 2, 3, 4, 5])
 
 
 def test_an_interrupted_recording_without_a_whole_frame_is_removed_with_a_log_line(

@@ -15,7 +15,11 @@ and each file is a regular file that ends as a PNG ends, the sizes adding up
 to the line's ``bytes``. The first frame that is not whole ends what is
 kept; its files and those after it are removed, ``frames.jsonl`` is cut
 after the last whole line, and ``recording.json`` is written (``end``
-``interrupted``, ``complete`` false) before the folder is published.
+``interrupted``, ``complete`` false) before the folder is published. After
+each sync the writer notes in ``recording.json`` how many frames are on the
+disk (``synced_frames``, itself on the disk with the next sync): those frames'
+files are not read again, so a long recording is recovered in the time its
+lines take to read, not its files.
 
 Every file is opened without following a symbolic link; ``_os_write``,
 ``_os_pwrite``, ``_os_fsync`` and ``_syncfs`` are module-level so that tests
@@ -347,9 +351,12 @@ def _png_size(folder: Path, name: str) -> Optional[List[int]]:
     return list(struct.unpack(">II", head[16:24]))
 
 
-def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int,
-                 first_count: Optional[int]) -> Optional[Tuple[Dict[str, Any], int]]:
-    """The line ``raw`` of frame ``index`` and its slot, when the frame is whole; else None."""
+def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int, first_count: Optional[int],
+                 synced: bool) -> Optional[Tuple[Dict[str, Any], int]]:
+    """The line ``raw`` of frame ``index`` and its slot, when the frame is whole; else None.
+
+    ``synced``: the writer said the frame was on the disk; its files are not read.
+    """
     if not raw.endswith(b"\n"):
         return None  # torn: the write of the line did not finish
     try:
@@ -369,6 +376,8 @@ def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int,
     slot = 0 if first_count is None else (count - first_count) % COUNT_MOD
     if index and slot <= slot_after:
         return None  # FRAME_COUNTs must increase
+    if synced:
+        return line, slot
     total = 0
     for name in (left, right, line["left_y"], line["right_y"]):
         if name is not None:
@@ -384,11 +393,12 @@ def _frame_file_index(name: str) -> Optional[int]:
     return int(m.group(1)) if m else None
 
 
-def _keep_whole_frames(folder: Path) -> Tuple[FrameStats, int]:
+def _keep_whole_frames(folder: Path, synced: int) -> Tuple[FrameStats, int]:
     """Cut ``frames.jsonl`` after its last whole frame and remove the files of frames not kept.
 
-    Streams the file (a line at a time, each at most :data:`MAX_LINE_BYTES`). Returns the
-    kept frames' stats and how many lines were dropped.
+    Streams the file (a line at a time, each at most :data:`MAX_LINE_BYTES`); the files of the
+    first ``synced`` frames are not read. Returns the kept frames' stats and how many lines
+    were dropped.
     """
     stats = FrameStats()
     dropped = 0
@@ -403,7 +413,8 @@ def _keep_whole_frames(folder: Path) -> Tuple[FrameStats, int]:
                 raw = fh.readline(MAX_LINE_BYTES + 1)
                 if not raw:
                     break
-                whole = None if dropped else _whole_frame(folder, raw, stats.frames, slot, first_count)
+                whole = None if dropped else _whole_frame(folder, raw, stats.frames, slot, first_count,
+                                                          stats.frames < synced)
                 if whole is None:
                     dropped += 1
                     continue
@@ -457,7 +468,8 @@ def recover(root: Path, folder: Path, rid: str) -> Recovered:
         os.rename(folder, root / rid)
         fsync_dir(root)
         return Recovered(rid, int(start["frames"]), 0, _number(start.get("duration_s")) or 0.0, True)
-    stats, dropped = _keep_whole_frames(folder)
+    synced = start.get("synced_frames")
+    stats, dropped = _keep_whole_frames(folder, synced if isinstance(synced, int) else 0)
     if not stats.frames:
         remove_tree(folder)
         return Recovered(rid, 0, dropped, 0.0, False)

@@ -510,6 +510,7 @@ class Recording:
         self._first_calibration: Optional[Dict[str, Any]] = None
         self._lines: Optional[FramesFile] = None
         self._unsynced = 0
+        self._synced = 0  # frames known to be on the disk (recording.json says so, for a recovery)
         self._synced_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"stereocam-recording-{rid}", daemon=True)
 
@@ -567,7 +568,8 @@ class Recording:
         return meta_dumps({
             "format": FORMAT, "state": "recording", "id": self.id, "created": self.created,
             "seconds": self.seconds, "frame_size": list(self.frame_size), "fps_hint": self.fps_hint,
-            "calibration": self._first_calibration, "frames_file": FRAMES_FILE, "meta": self.meta})
+            "calibration": self._first_calibration, "frames_file": FRAMES_FILE, "meta": self.meta,
+            "synced_frames": self._synced})
 
     def begin(self) -> None:
         """Create ``recording.json`` (with the room finishing needs) and ``frames.jsonl`` (blocks).
@@ -645,7 +647,12 @@ class Recording:
                 self._end("error", f"syncing the recording failed after {self.frames} frames "
                                    f"({exc.strerror or exc}): they were kept")
             return False
-        self._unsynced, self._synced_at = 0, time.monotonic()
+        self._unsynced, self._synced_at, self._synced = 0, time.monotonic(), self.frames
+        try:  # noted in place (no new space), on the disk with the next sync: a recovery trusts these frames
+            rewrite_meta(self.folder / META_FILE, self._doc(), final=False, sync=False)
+        except OSError as exc:
+            log.warning("recording %s: cannot note the frames synced in %s (%s)", self.id, META_FILE,
+                        exc.strerror or exc)
         return True
 
     def _write(self, fs: FrameSet, calibration: Optional[Dict[str, Any]]) -> bool:
