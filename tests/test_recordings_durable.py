@@ -32,7 +32,7 @@ from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
 import numpy as np
 import pytest
 
-from stereocam.bench.serve import wait_healthy
+from stereocam.bench.serve import running_daemon
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.server.frames import recording_files
 from stereocam.server.frames import recordings as recordings_module
@@ -41,7 +41,6 @@ from stereocam.server.frames.recordings import Recorder, Recording, RecordingDis
 
 from .server_fixtures import SMALL, WAIT_S
 from .test_recordings import CountingSource, stamp_of
-from .test_server_service import free_port, stereocam
 
 REC_FPS = 10.0
 
@@ -379,51 +378,34 @@ def _get(url: str) -> Any:
 
 
 def test_kill_9_while_recording_then_a_restart_lists_the_recording_with_its_whole_frames(tmp_path) -> None:
-    state = tmp_path / "state"
-    port = free_port()
-    base = f"http://127.0.0.1:{port}"
-    args = ("serve", "--backend", "emulated", "--port", str(port), "--fps", "20",
-            "--captures", str(tmp_path / "captures"), "--state-dir", str(state))
+    state, captures = tmp_path / "state", tmp_path / "captures"
     first_log, second_log = tmp_path / "first.log", tmp_path / "second.log"
-    with open(first_log, "w") as err, stereocam(*args, stderr=err) as proc:
-        try:
-            wait_healthy(base, proc, timeout=WAIT_S)
-            post = urllib.request.Request(base + "/api/recordings", method="POST")
-            with urllib.request.urlopen(post, timeout=30) as resp:
-                assert resp.status == 201
-                rid = json.loads(resp.read())["id"]
+    started = {"fps": 20.0, "captures": captures, "extra_args": ["--state-dir", str(state)],
+               "health_timeout": WAIT_S}
+    with running_daemon(log_path=first_log, **started) as (proc, base):
+        post = urllib.request.Request(base + "/api/recordings", method="POST")
+        with urllib.request.urlopen(post, timeout=30) as resp:
+            assert resp.status == 201
+            rid = json.loads(resp.read())["id"]
 
-            def recorded() -> int:
-                frames = int(_get(base + "/api/recordings")["recordings"][0]["frames"])
-                return frames if frames >= 10 else 0
+        def recorded() -> int:
+            frames = int(_get(base + "/api/recordings")["recordings"][0]["frames"])
+            return frames if frames >= 10 else 0
 
-            seen = wait_for("10 frames recorded", recorded)
-            proc.send_signal(signal.SIGKILL)
-            proc.wait(timeout=WAIT_S)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        seen = wait_for("10 frames recorded", recorded)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=WAIT_S)
     assert (state / "recordings" / f".incoming-{rid}").is_dir(), first_log.read_text()
 
-    with open(second_log, "w") as err, stereocam(*args, stderr=err) as proc:
-        try:
-            wait_healthy(base, proc, timeout=WAIT_S)
-            listing = _get(base + "/api/recordings")
-            with urllib.request.urlopen(f"{base}/api/recordings/{rid}.zip", timeout=60) as resp:
-                archive = resp.read()
-            play = urllib.request.Request(base + "/api/virtual-camera", method="POST",
-                                          data=json.dumps({"recording": rid}).encode(),
-                                          headers={"Content-Type": "application/json"})
-            with urllib.request.urlopen(play, timeout=60) as resp:
-                assert resp.status == 200 and json.loads(resp.read())["input"] == f"recording {rid}"
-        finally:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=WAIT_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+    with running_daemon(log_path=second_log, **started) as (proc, base):
+        listing = _get(base + "/api/recordings")
+        with urllib.request.urlopen(f"{base}/api/recordings/{rid}.zip", timeout=60) as resp:
+            archive = resp.read()
+        play = urllib.request.Request(base + "/api/virtual-camera", method="POST",
+                                      data=json.dumps({"recording": rid}).encode(),
+                                      headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(play, timeout=60) as resp:
+            assert resp.status == 200 and json.loads(resp.read())["input"] == f"recording {rid}"
     log = second_log.read_text()
     [entry] = listing["recordings"]
     frames = entry["frames"]
