@@ -67,6 +67,8 @@ COUNT_MOD = 1 << 32  # FRAME_COUNT wraps here
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk every whole PNG ends with
+_LINE_KEYS = frozenset(("index", "frame", "fabric_count", "time", "t", "source", "calibration_id", "left",
+                        "right", "left_y", "right_y", "color", "bytes"))  # a frames.jsonl line's, all there
 _FRAME_FILE_RE = re.compile(r"(?:y_)?(?:left|right)_([0-9]{6,})\.png")
 _INCOMING_ID_RE = re.compile(ID_PATTERN)
 
@@ -361,7 +363,7 @@ def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int, first_co
         return None  # torn: the write of the line did not finish
     try:
         line = json.loads(raw)
-        if not isinstance(line, dict):
+        if not isinstance(line, dict) or not _LINE_KEYS <= line.keys():
             return None
         left, right = frame_names(index)
         count = line["fabric_count"]

@@ -277,6 +277,10 @@ class RecordingStore:
                           "is kept for the next start; make room or check the disk", rid,
                           exc.strerror or exc, path)
                 continue
+            except Exception:  # a bug must not keep the daemon from starting, nor lose the frames
+                log.exception("recording %s was interrupted and its recovery failed: its folder %s is kept",
+                              rid, path)
+                continue
             if done.finished:
                 log.warning("recording %s had been finished but not published when the daemon stopped: "
                             "published (%d frames)", rid, done.frames)
