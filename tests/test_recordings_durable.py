@@ -324,13 +324,18 @@ def test_a_frame_is_kept_only_when_its_images_and_its_line_are_whole(tmp_path: P
     assert meta["created"].startswith(f"{rid[:4]}-{rid[4:6]}-{rid[6:8]}T")
 
 
-def test_a_line_not_as_the_writer_writes_it_is_not_whole(tmp_path: Path, monkeypatch) -> None:
-    """A hand-edited line (a key missing) ends what is kept, instead of failing the daemon's start."""
+@pytest.mark.parametrize("key, value", [("calibration_id", None), ("time", 1e300), ("t", float("nan"))])
+def test_a_line_not_as_the_writer_writes_it_is_not_whole(tmp_path: Path, monkeypatch, key, value) -> None:
+    """A hand-edited line (a key missing, a time no date has) ends what is kept, instead of failing the
+    daemon's start with a traceback."""
     root, rid = interrupted(tmp_path, monkeypatch, [1, 2, 3])
     frames_file = root / f".incoming-{rid}" / "frames.jsonl"
     lines = frames_file.read_text().splitlines()
     edited = json.loads(lines[1])
-    del edited["calibration_id"]
+    if value is None:
+        del edited[key]  # missing
+    else:
+        edited[key] = value
     frames_file.write_text("\n".join([lines[0], json.dumps(edited), lines[2]]) + "\n")
     assert_whole(RecordingStore(root), rid, [1])
 

@@ -353,6 +353,12 @@ def _png_size(folder: Path, name: str) -> Optional[List[int]]:
     return list(struct.unpack(">II", head[16:24]))
 
 
+def _plausible(seconds: Any) -> bool:
+    """A time of a line (since the epoch, or since the first frame) a date can be made of."""
+    value = _number(seconds)
+    return value is not None and 0 <= value < 1e11
+
+
 def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int, first_count: Optional[int],
                  synced: bool) -> Optional[Tuple[Dict[str, Any], int]]:
     """The line ``raw`` of frame ``index`` and its slot, when the frame is whole; else None.
@@ -369,8 +375,8 @@ def _whole_frame(folder: Path, raw: bytes, index: int, slot_after: int, first_co
         count = line["fabric_count"]
         if (line["index"] != index or line["left"] != left or line["right"] != right
                 or line["left_y"] not in (None, f"y_{left}") or line["right_y"] not in (None, f"y_{right}")
-                or not isinstance(count, int) or isinstance(count, bool) or _number(line["time"]) is None
-                or _number(line["t"]) is None or not isinstance(line["bytes"], int)
+                or not isinstance(count, int) or isinstance(count, bool) or not _plausible(line["time"])
+                or not _plausible(line["t"]) or not isinstance(line["bytes"], int)
                 or not isinstance(line["source"], str)):
             return None
     except (ValueError, KeyError, TypeError, RecursionError):
