@@ -247,9 +247,7 @@ class ReplaySource:
 
         try:
             doc = json.loads(_read_regular(folder / _RECORDING_FILE, MAX_META_BYTES).decode("utf-8"))
-        except ReplayError as exc:
-            raise bad(f"{_RECORDING_FILE} cannot be read ({exc})") from None
-        except (OSError, ValueError, RecursionError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:  # ValueError: a ReplayError too
             raise bad(f"{_RECORDING_FILE} cannot be read ({exc})") from None
         if not isinstance(doc, dict) or not str(doc.get("format", "")).startswith(_RECORDING_FORMAT):
             raise bad(f"{_RECORDING_FILE} is not a stereocam recording's")
@@ -490,9 +488,7 @@ class _FramesIndex:
         self.slots = array(_SLOT_TYPE)
         try:
             fh = _open_regular(folder / name)
-        except OSError as exc:
-            raise bad(f"{name} cannot be read ({exc})") from None
-        except ReplayError as exc:
+        except (OSError, ReplayError) as exc:
             raise bad(f"{name} cannot be read ({exc})") from None
         self._fd = os.dup(fh.fileno())
         self._closer = weakref.finalize(self, os.close, self._fd)
