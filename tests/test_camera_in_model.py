@@ -192,13 +192,11 @@ def test_demosaic_is_fast_enough_for_the_live_path() -> None:
 
 def test_generated_camera_header_is_up_to_date() -> None:
     """Regenerate with `python -m stereocam.overlays.spec.verilog` after changing spec/camera_in.py."""
-    assert verilog.camera_header_path().read_text() == verilog.camera_header()
+    assert verilog.CAMERA_HEADER_NAME not in verilog.stale()
     header = verilog.camera_header()
     assert f"`define CI_BAYER_PHASE {spec.phase_code(spec.BAYER_PHASE)}" in header
     assert f"`define CI_OUT_SHIFT {spec.OUT_SHIFT}" in header
     assert f"`define CI_TAG_W {spec.TAG_BITS}" in header
-    # the rectify header is still what it was
-    assert verilog.header_path().read_text() == verilog.header()
 
 
 def test_line_fifo_depth_holds_two_lines() -> None:

@@ -487,11 +487,13 @@ def test_camera_rtl_when_present_has_the_spec_ports() -> None:
 
 
 def test_the_packaged_rtl_is_every_file_of_the_core() -> None:
-    """package_ip.tcl globs rc_*.v: a module file named otherwise would be left out of the IP."""
+    """package_ip.tcl globs rc_*.v and *.vh: a module file named otherwise would be left out of the IP."""
     text = read_script("package_ip.tcl")
-    assert "rectify_core.v" in text and "rectify_spec.vh" in text and "rc_*.v" in text
+    assert "rectify_core.v" in text and "*.vh" in text and "rc_*.v" in text
     names = {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh", ".sv")}
-    assert names == {"rectify_core.v", "rectify_spec.vh"} | {p.name for p in RTL_DIR.glob("rc_*.v")}
+    assert "rectify_spec.vh" in names and "rc_regs_decode.vh" in names
+    assert names == ({"rectify_core.v"} | {p.name for p in RTL_DIR.glob("rc_*.v")}
+                     | {p.name for p in RTL_DIR.glob("*.vh")})
 
 
 # ---- VDMAs, mux, broadcaster ------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from stereocam.overlays.spec.rectify import (
     RECTIFY_MAP,
     param_offset,
 )
+from stereocam.overlays.spec.regs import Access
 
 ROOT = Path(__file__).parents[1]
 DOC = (ROOT / "overlays" / "RECTIFY_CORE.md").read_text()
@@ -65,10 +66,32 @@ def test_builds_table_matches_the_spec() -> None:
         assert row in DOC, row
 
 
-def test_generated_verilog_header_is_up_to_date() -> None:
+def test_generated_files_are_up_to_date() -> None:
     """Regenerate with `python -m stereocam.overlays.spec.verilog` after changing the spec."""
-    assert verilog.header_path().read_text() == verilog.header()
+    assert verilog.stale() == []
     header = verilog.header()
     for name in PARAM_NAMES:
         assert f"`define RC_{name}_W {PARAM_FORMAT[name].bits}" in header
     assert f"`define RC_REG_CONTROL {RECTIFY_MAP['CONTROL'].offset}" in header
+    assert f"`define RC_ADDR_W {RECTIFY_MAP.size.bit_length() - 1}" in header
+
+
+def test_register_decode_and_harness_offsets_come_from_the_map() -> None:
+    """rc_regs's decode of every control register, and the harness's offsets, are generated from RECTIFY_MAP.
+
+    tests/hdl/test_rc_regs.py then reads and writes every word of the window in simulation.
+    """
+    decode = verilog.regs_decode()
+    harness = verilog.harness_header()
+    for reg in verilog.control_registers():
+        word = f"10'h{reg.offset >> 2:03x}"
+        assert f"{word}: rd_word = rd_{reg.name.lower()};" in decode, reg.name
+        strobe = f"assign wr_{reg.name.lower()} = do_write && aw_addr_reg == {word};"
+        assert (strobe in decode) == (reg.access is not Access.RO), reg.name
+        assert f"constexpr uint32_t RC_REG_{reg.name} = {reg.offset:#05x};" in harness, reg.name
+    rtl = verilog.path("rc_regs.v").read_text()
+    assert f'`include "{verilog.DECODE_NAME}"' in rtl
+    assert "`RC_REG_" not in rtl, "rc_regs.v decodes a control register by hand"
+    cpp = verilog.path("sim/harness.cpp").read_text()
+    assert '#include "rectify_regs.h"' in cpp
+    assert not re.search(r"\b0x0[0-9a-f]{2}\b", cpp), "harness.cpp types a register offset"

@@ -137,6 +137,11 @@ def harness_source() -> Path:
     return hdl.rtl_dir() / "sim" / "harness.cpp"
 
 
+def harness_headers(harness: Path) -> List[Path]:
+    """The C++ headers beside the harness (``rectify_regs.h``, generated from RECTIFY_MAP)."""
+    return sorted(harness.parent.glob("*.h"))
+
+
 def rtl_sources() -> List[Path]:
     """The core's Verilog sources and headers (every ``*.v`` and ``*.vh`` of ``overlays/rtl``)."""
     rtl = hdl.rtl_dir()
@@ -174,13 +179,14 @@ def build_harness(build: Build = DEFAULT_BUILD, *, sources: Optional[Sequence[Pa
     verilator = hdl.check_tools("verilator")
     files = [Path(p) for p in (sources if sources is not None else rtl_sources())]
     cpp = Path(harness) if harness is not None else harness_source()
+    headers = harness_headers(cpp)
     for path in [*files, cpp]:
         if not path.is_file():
             raise FileNotFoundError(f"{path} does not exist")
-    names = [p.name for p in files]
+    names = [p.name for p in [*files, *headers]]
     if len(set(names)) != len(names):
         raise ValueError(f"two sources share a file name: {names}")
-    contents = {p.name: p.read_bytes() for p in files}
+    contents = {p.name: p.read_bytes() for p in [*files, *headers]}
     harness_bytes = cpp.read_bytes()
     parameters = build_parameters(build)
     cxx, cxx_args = compiler()
@@ -245,6 +251,12 @@ def _compile(bdir: Path, contents: Dict[str, bytes], harness_name: str, harness_
                     f"end of {log_path}:\n{_tail(log_path.read_text(errors='replace'))}")
     for pch in obj.glob("*.gch"):  # precompiled headers: 136 MB of the folder's 138, needed no more
         pch.unlink()
+
+
+def _check_offset(offset: int) -> None:
+    if not 0 <= offset < RECTIFY_MAP.size or offset % 4:
+        size = RECTIFY_MAP.size
+        raise ValueError(f"register offset {offset:#x} is not a word in the {size:#x}-byte window")
 
 
 @dataclass
@@ -354,8 +366,7 @@ class RtlCore:
 
     def write(self, offset: int, value: int) -> None:
         """An AXI4-Lite write of the 32-bit ``value`` at byte ``offset``."""
-        if not 0 <= offset < 0x1000 or offset % 4:
-            raise ValueError(f"register offset {offset:#x} is not a word in the 4 KiB window")
+        _check_offset(offset)
         if not 0 <= value <= 0xFFFFFFFF:
             raise ValueError(f"register value {value} does not fit 32 bits")
         with self._lock:
@@ -365,8 +376,7 @@ class RtlCore:
 
     def read(self, offset: int) -> int:
         """An AXI4-Lite read at byte ``offset``."""
-        if not 0 <= offset < 0x1000 or offset % 4:
-            raise ValueError(f"register offset {offset:#x} is not a word in the 4 KiB window")
+        _check_offset(offset)
         with self._lock:
             value, rresp = struct.unpack("<II", self._request(struct.pack("<cI", b"r", offset), 8))
         if rresp:

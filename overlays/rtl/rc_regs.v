@@ -11,7 +11,8 @@
  * "Behaviour"; offsets, fields and formats are RECTIFY_MAP's, through
  * rectify_spec.vh).
  *
- * AXI4-Lite slave, 12-bit byte address, 32-bit data, every AXI output straight
+ * AXI4-Lite slave, RC_ADDR_W-bit byte address (the 4 KiB window of RECTIFY_MAP),
+ * 32-bit data, every AXI output straight
  * from a register. AW and W are taken independently, in either order, one of
  * each held at a time; the write is done on the clock edge after both are
  * held (and B is free), byte by byte as WSTRB says, and BVALID rises on that
@@ -78,9 +79,9 @@ module rc_regs #
     input  wire                      rst,
 
     /*
-     * AXI4-Lite slave, 12-bit byte address, 32-bit data
+     * AXI4-Lite slave, RC_ADDR_W-bit byte address, 32-bit data
      */
-    input  wire [11:0]               s_axil_awaddr,
+    input  wire [`RC_ADDR_W-1:0]     s_axil_awaddr,
     input  wire                      s_axil_awvalid,
     output wire                      s_axil_awready,
     input  wire [31:0]               s_axil_wdata,
@@ -90,7 +91,7 @@ module rc_regs #
     output wire [1:0]                s_axil_bresp,
     output wire                      s_axil_bvalid,
     input  wire                      s_axil_bready,
-    input  wire [11:0]               s_axil_araddr,
+    input  wire [`RC_ADDR_W-1:0]     s_axil_araddr,
     input  wire                      s_axil_arvalid,
     output wire                      s_axil_arready,
     output wire [31:0]               s_axil_rdata,
@@ -127,14 +128,15 @@ module rc_regs #
 /*
  * Constants, all from rectify_spec.vh
  */
+localparam AW = `RC_ADDR_W;                 // byte address bits
 localparam NP = `RC_NPARAMS;                // parameters per camera
 localparam SET_W = 64 * NP;                 // one camera's flat parameter vector
 localparam NW = 2 * NP;                     // 32-bit words per camera block
 localparam BLK_LSB = $clog2(8 * NP);        // a block's words are addressed by addr[BLK_LSB-1:2]
 localparam IDX_W = BLK_LSB - 2;
 localparam NW_PAD = 1 << IDX_W;             // words addressable in a block (the rest read 0)
-localparam [11:0] BLOCK_L = `RC_BLOCK_L;
-localparam [11:0] BLOCK_R = `RC_BLOCK_R;
+localparam [AW-1:0] BLOCK_L = `RC_BLOCK_L;
+localparam [AW-1:0] BLOCK_R = `RC_BLOCK_R;
 
 localparam [31:0] MAX_WIDTH_V = MAX_WIDTH;
 localparam [31:0] MAX_HEIGHT_V = MAX_HEIGHT;
@@ -152,22 +154,6 @@ localparam [31:0] LB_DELAY_MASK = ((32'd1 << `RC_LB_DELAY_VALUE_W) - 1) << `RC_L
 localparam [31:0] DEBUG_ROW_MASK = ((32'd1 << `RC_DEBUG_ROW_VALUE_W) - 1) << `RC_DEBUG_ROW_VALUE;
 localparam [31:0] WIDTH_RESET = `RC_WIDTH_RESET << `RC_WIDTH_VALUE;
 localparam [31:0] HEIGHT_RESET = `RC_HEIGHT_RESET << `RC_HEIGHT_VALUE;
-
-// word addresses (byte offset / 4) of the control registers
-localparam [9:0] A_ID = `RC_REG_ID >> 2;
-localparam [9:0] A_VERSION = `RC_REG_VERSION >> 2;
-localparam [9:0] A_MAX_WIDTH = `RC_REG_MAX_WIDTH >> 2;
-localparam [9:0] A_MAX_HEIGHT = `RC_REG_MAX_HEIGHT >> 2;
-localparam [9:0] A_LB_ROWS = `RC_REG_LB_ROWS >> 2;
-localparam [9:0] A_CAPS = `RC_REG_CAPS >> 2;
-localparam [9:0] A_CONTROL = `RC_REG_CONTROL >> 2;
-localparam [9:0] A_STATUS = `RC_REG_STATUS >> 2;
-localparam [9:0] A_FLAGS = `RC_REG_FLAGS >> 2;
-localparam [9:0] A_FRAME_COUNT = `RC_REG_FRAME_COUNT >> 2;
-localparam [9:0] A_WIDTH = `RC_REG_WIDTH >> 2;
-localparam [9:0] A_HEIGHT = `RC_REG_HEIGHT >> 2;
-localparam [9:0] A_LB_DELAY = `RC_REG_LB_DELAY >> 2;
-localparam [9:0] A_DEBUG_ROW = `RC_REG_DEBUG_ROW >> 2;
 
 // Signed width of parameter i (RC_P_* order)
 function integer param_width;
@@ -296,7 +282,7 @@ end
 /*
  * AXI4-Lite write channels: AW and W held independently, write done when both are held
  */
-reg [11:2] aw_addr_reg = 10'd0;
+reg [AW-1:2] aw_addr_reg = {(AW-2){1'b0}};
 reg        aw_full_reg = 1'b0, aw_full_next;
 reg [31:0] w_data_reg = 32'd0;
 reg [3:0]  w_strb_reg = 4'hf;
@@ -350,7 +336,7 @@ end
 // held address and data; in reset the data becomes a full zero word, which the sweep writes
 always @(posedge clk) begin
     if (s_axil_awvalid && s_axil_awready_reg) begin
-        aw_addr_reg <= s_axil_awaddr[11:2];
+        aw_addr_reg <= s_axil_awaddr[AW-1:2];
     end
     if (s_axil_wvalid && s_axil_wready_reg) begin
         w_data_reg <= s_axil_wdata;
@@ -363,17 +349,13 @@ always @(posedge clk) begin
     end
 end
 
-// write decode
+// write decode: the parameter blocks here; the control registers' strobes wr_<name> are
+// generated from RECTIFY_MAP (rc_regs_decode.vh, included below with the read multiplexer)
 wire [IDX_W-1:0] wr_idx = aw_addr_reg[BLK_LSB-1:2];
 wire wr_in_block = wr_idx < NW;
-wire wr_l = do_write && aw_addr_reg[11:BLK_LSB] == BLOCK_L[11:BLK_LSB] && wr_in_block;
-wire wr_r = do_write && aw_addr_reg[11:BLK_LSB] == BLOCK_R[11:BLK_LSB] && wr_in_block;
-wire wr_control = do_write && aw_addr_reg == A_CONTROL;
-wire wr_flags = do_write && aw_addr_reg == A_FLAGS;
-wire wr_width = do_write && aw_addr_reg == A_WIDTH;
-wire wr_height = do_write && aw_addr_reg == A_HEIGHT;
-wire wr_lb_delay = do_write && aw_addr_reg == A_LB_DELAY;
-wire wr_debug_row = do_write && aw_addr_reg == A_DEBUG_ROW;
+wire wr_l = do_write && aw_addr_reg[AW-1:BLK_LSB] == BLOCK_L[AW-1:BLK_LSB] && wr_in_block;
+wire wr_r = do_write && aw_addr_reg[AW-1:BLK_LSB] == BLOCK_R[AW-1:BLK_LSB] && wr_in_block;
+wire wr_control, wr_flags, wr_width, wr_height, wr_lb_delay, wr_debug_row;  // driven by rc_regs_decode.vh
 // a write to the shadow set (the check pipeline must see it before a latch)
 wire wr_shadow = wr_l || wr_r || wr_width || wr_height || wr_lb_delay;
 
@@ -635,7 +617,7 @@ assign apply_pending = apply_reg;
 /*
  * AXI4-Lite read channels: address registered, then decoded into registered data
  */
-reg [11:2] ar_addr_reg = 10'd0;
+reg [AW-1:2] ar_addr_reg = {(AW-2){1'b0}};
 reg        ar_full_reg = 1'b0, ar_full_next;
 reg        s_axil_arready_reg = 1'b0;
 reg [31:0] s_axil_rdata_reg = 32'd0;
@@ -673,42 +655,40 @@ always @(posedge clk) begin
     end
 end
 
-// read decode: control registers by word address, parameter words from the read-back copy
+// read decode: parameter words from the read-back copy
 wire [IDX_W-1:0] rd_idx = ar_addr_reg[BLK_LSB-1:2];
-wire rd_l = ar_addr_reg[11:BLK_LSB] == BLOCK_L[11:BLK_LSB];
-wire rd_r = ar_addr_reg[11:BLK_LSB] == BLOCK_R[11:BLK_LSB];
+wire rd_l = ar_addr_reg[AW-1:BLK_LSB] == BLOCK_L[AW-1:BLK_LSB];
+wire rd_r = ar_addr_reg[AW-1:BLK_LSB] == BLOCK_R[AW-1:BLK_LSB];
 assign mirror_raddr = {rd_r, rd_idx};
 wire [31:0] rd_param = rd_l || rd_r ? rd_mirror : 32'd0;
-reg  [31:0] rd_control;
 
-always @* begin
-    rd_control = 32'd0;
-    case (ar_addr_reg)
-        A_ID: rd_control = `RC_CORE_ID;
-        A_VERSION: rd_control = `RC_CORE_VERSION;
-        A_MAX_WIDTH: rd_control = MAX_WIDTH_V;
-        A_MAX_HEIGHT: rd_control = MAX_HEIGHT_V;
-        A_LB_ROWS: rd_control = LB_ROWS_V;
-        A_CAPS: rd_control = {31'd0, COLOUR != 0} << `RC_CAPS_COLOUR;
-        A_CONTROL: rd_control = control_reg | ({31'd0, apply_reg} << `RC_CONTROL_APPLY);
-        A_STATUS: rd_control = ({31'd0, busy} << `RC_STATUS_BUSY)
-                             | ({31'd0, apply_reg} << `RC_STATUS_APPLY_PENDING);
-        A_FLAGS: rd_control = flags_reg;
-        A_FRAME_COUNT: rd_control = frame_count_reg;
-        A_WIDTH: rd_control = width_reg;
-        A_HEIGHT: rd_control = height_reg;
-        A_LB_DELAY: rd_control = lb_delay_reg;
-        A_DEBUG_ROW: rd_control = debug_row_reg;
-        default: rd_control = 32'd0;
-    endcase
-end
+// what each control register reads (rd_<name>, one per register of RECTIFY_MAP: the
+// generated multiplexer below takes them by name)
+wire [31:0] rd_id = `RC_CORE_ID;
+wire [31:0] rd_version = `RC_CORE_VERSION;
+wire [31:0] rd_max_width = MAX_WIDTH_V;
+wire [31:0] rd_max_height = MAX_HEIGHT_V;
+wire [31:0] rd_lb_rows = LB_ROWS_V;
+wire [31:0] rd_caps = {31'd0, COLOUR != 0} << `RC_CAPS_COLOUR;
+wire [31:0] rd_control = control_reg | ({31'd0, apply_reg} << `RC_CONTROL_APPLY);
+wire [31:0] rd_status = ({31'd0, busy} << `RC_STATUS_BUSY) | ({31'd0, apply_reg} << `RC_STATUS_APPLY_PENDING);
+wire [31:0] rd_flags = flags_reg;
+wire [31:0] rd_frame_count = frame_count_reg;
+wire [31:0] rd_width = width_reg;
+wire [31:0] rd_height = height_reg;
+wire [31:0] rd_lb_delay = lb_delay_reg;
+wire [31:0] rd_debug_row = debug_row_reg;
+reg  [31:0] rd_word;  // the control register at ar_addr_reg, 0 elsewhere
+
+// the control registers' write strobes and read multiplexer, generated from RECTIFY_MAP
+`include "rc_regs_decode.vh"
 
 always @(posedge clk) begin
     if (s_axil_arvalid && s_axil_arready_reg) begin
-        ar_addr_reg <= s_axil_araddr[11:2];
+        ar_addr_reg <= s_axil_araddr[AW-1:2];
     end
     if (rd_load) begin
-        s_axil_rdata_reg <= rd_control | rd_param;
+        s_axil_rdata_reg <= rd_word | rd_param;
     end
 end
 

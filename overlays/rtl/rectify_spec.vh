@@ -7,6 +7,9 @@
 `define RC_CORE_ID 1380270932               // 'RECT'
 `define RC_CORE_VERSION 131072
 
+// Register window: byte address bits (AXI4-Lite)
+`define RC_ADDR_W 12                        // 0x1000 bytes
+
 // Control registers: byte offsets, and bit positions of their fields
 `define RC_REG_ID 0                         // ro
 `define RC_ID_RESET 1380270932              // reset value

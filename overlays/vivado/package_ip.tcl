@@ -1,6 +1,6 @@
 # package_ip.tcl: package the stereocam RTL as Vivado IP (IP-XACT, with the ipx:: commands of UG1118).
 #
-#   stereocam:user:rectify:2.0     overlays/rtl/rectify_core.v, rc_*.v, rectify_spec.vh
+#   stereocam:user:rectify:2.0     overlays/rtl/rectify_core.v, rc_*.v, *.vh (rectify_spec.vh, rc_regs_decode.vh)
 #                                  (overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
 #   stereocam:user:camera_in:1.0   overlays/rtl/camera/camera_in.v, ci_*.v, *.vh (overlays/spec/camera_in.py:
 #                                  VLNV, TOP, PORTS, PARAMETERS)
@@ -121,7 +121,7 @@ proc stereocam_save_core {core} {
 set rectify_sources [concat \
     [list [file join $STEREOCAM_RTL_DIR rectify_core.v]] \
     [lsort [glob -nocomplain -directory $STEREOCAM_RTL_DIR rc_*.v]] \
-    [list [file join $STEREOCAM_RTL_DIR rectify_spec.vh]]]
+    [lsort [glob -nocomplain -directory $STEREOCAM_RTL_DIR *.vh]]]
 
 stereocam_packaging_project pkg_rectify rectify_core $rectify_sources
 ipx::package_project -root_dir [file join $STEREOCAM_IP_REPO rectify] -vendor stereocam -library user \

@@ -70,13 +70,13 @@
 #include <vector>
 #include <unistd.h>
 
+#include "rectify_regs.h"  // generated from RECTIFY_MAP (python -m stereocam.overlays.spec.verilog)
 #include "Vrectify_core.h"
 #include "Vrectify_core___024root.h"
 #include "verilated.h"
 
 namespace {
 
-constexpr uint32_t STATUS_OFFSET = 0x024;  // RECTIFY_MAP STATUS; BUSY is bit 0
 constexpr uint64_t AXIL_TIMEOUT = 100000;  // clocks a register access may wait
 enum End : uint32_t { END_IDLE = 0, END_WAITING = 1, END_STALLED = 2, END_LIMIT = 3 };
 
@@ -221,7 +221,7 @@ class Harness {
             if (quiet >= next_check) {
                 size_t before = out_data_.size();
                 uint64_t c0 = clock_;
-                bool busy = read(STATUS_OFFSET, nullptr) & 1;
+                bool busy = (read(RC_REG_STATUS, nullptr) >> RC_STATUS_BUSY) & 1;
                 if (out_data_.size() != before) {
                     quiet = 0;
                     next_check = quiet_;
