@@ -83,6 +83,16 @@ def test_unit_is_hardened_for_what_pynq_and_the_drivers_open() -> None:
     assert Path(systemd.DEFAULT_CAPTURES).parent == Path("/var/lib", one["StateDirectory"])
 
 
+def test_unit_sets_an_fd_limit_the_daemons_connections_fit_below() -> None:
+    """Issue 20 item 4: a limit said in the unit, with room for max_connections and the daemon's own
+    files (the daemon lowers its connection cap to fit a smaller one: connections.py)."""
+    from stereocam.server.http.connections import FD_RESERVE
+
+    limit = unit_settings(systemd.unit_text())["LimitNOFILE"]
+    assert len(limit) == 1 and limit[0].isdigit(), limit
+    assert int(limit[0]) >= config_module.Settings().max_connections + FD_RESERVE + 256
+
+
 def test_pynq_writes_its_state_where_the_unit_lets_it() -> None:
     """pynq records the loaded bitstream inside its own package, in the venv: the unit lets it write there."""
     settings = unit_settings(systemd.unit_text(venv=sys.prefix))

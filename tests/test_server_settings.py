@@ -105,3 +105,19 @@ def test_config_is_keyword_only_and_frozen() -> None:
         c.port = 1  # type: ignore[misc]
     with pytest.raises(SettingsError, match="max_streams must be"):
         Settings(max_streams=0)
+
+
+def test_connection_bounds_are_settings_checked_at_the_door(tmp_path) -> None:
+    """Issue 20 item 4: the header and keep-alive timeouts and the connection cap, from a file."""
+    c = Settings()
+    assert (c.header_timeout_s, c.keepalive_timeout_s, c.max_connections) == (10.0, 60.0, 256)
+    path = tmp_path / "s.yaml"
+    path.write_text("header_timeout_s: 2\nkeepalive_timeout_s: 5\nmax_connections: 64\n")
+    c = Settings.from_file(path)
+    assert (c.header_timeout_s, c.keepalive_timeout_s, c.max_connections) == (2.0, 5.0, 64)
+    for key, value, words in (("header_timeout_s", 0, "header_timeout_s must be > 0"),
+                              ("keepalive_timeout_s", "long", "keepalive_timeout_s must be a number"),
+                              ("max_connections", 2, "max_connections must be >= 4"),
+                              ("max_connections", 1.5, "max_connections must be a whole number")):
+        with pytest.raises(SettingsError, match=words):
+            Settings(**{key: value})

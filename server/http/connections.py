@@ -110,8 +110,9 @@ class Tally:
         self.counts[what] += 1
         self.flush(now)
 
-    def flush(self, now: float) -> None:
-        if not self.counts or now - self.logged_at < LOG_INTERVAL_S:
+    def flush(self, now: float, *, last: bool = False) -> None:
+        """Log the counts if the interval has passed (``last``: whatever the interval, at the end)."""
+        if not self.counts or (now - self.logged_at < LOG_INTERVAL_S and not last):
             return
         first = self.logged_at == float("-inf")
         since = "" if first else f" in the last {now - self.logged_at:.0f} s"
@@ -138,7 +139,7 @@ class Connections:
         self.handlers.pop(handler, None)
 
     def oldest_idle(self) -> Optional["BoundedRequestHandler"]:
-        idle = [h for h in self.handlers if h.idle_since is not None]
+        idle = [h for h in self.handlers if h.idle_since is not None and h.transport is not None]
         return min(idle, key=lambda h: h.idle_since or 0.0) if idle else None
 
 
@@ -161,10 +162,6 @@ class BoundedRequestHandler(RequestHandler):
         self.head_since: Optional[float] = now
         self.last_data = now
         self.request: Optional[BaseRequest] = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        super().connection_made(transport)
-        self.table.add(self)
 
     def connection_lost(self, exc: Optional[BaseException]) -> None:
         self.table.discard(self)
@@ -278,6 +275,7 @@ class BoundedSite(web.BaseSite):
         if self._sweeper is not None:
             self._sweeper.cancel()
             await asyncio.gather(self._sweeper, return_exceptions=True)
+        self.tally.flush(asyncio.get_running_loop().time(), last=True)
         await super().stop()
 
     # -- accepting ----------------------------------------------------------------------------------
@@ -350,16 +348,24 @@ class BoundedSite(web.BaseSite):
         server = self._runner.server
         assert server is not None
 
-        def handler() -> BoundedRequestHandler:
-            return BoundedRequestHandler(server, loop=loop, table=self.table, limits=self.limits,
-                                         **self._handler_kwargs)
+        made: List[BoundedRequestHandler] = []
+
+        def handler() -> BoundedRequestHandler:  # from pending to the table: counted once all along
+            h = BoundedRequestHandler(server, loop=loop, table=self.table, limits=self.limits,
+                                      **self._handler_kwargs)
+            made.append(h)
+            self.table.add(h)
+            self.table.pending -= 1
+            return h
 
         try:
             await loop.connect_accepted_socket(handler, conn)
         except OSError:
             conn.close()
-        finally:
-            self.table.pending -= 1
+            if made:
+                self.table.discard(made[0])
+            else:
+                self.table.pending -= 1
 
     # -- timeouts -----------------------------------------------------------------------------------
 
