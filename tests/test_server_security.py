@@ -259,6 +259,7 @@ async def test_expect_continue_over_the_limit_gets_413_before_any_100(start_daem
 
 async def test_the_access_log_redacts_every_token(start_daemon, caplog) -> None:
     caplog.set_level(logging.DEBUG)
+    caplog.set_level(logging.DEBUG, logger="aiohttp.access")
     d = await start_daemon(access_token=ODD_TOKEN)
     encoded = quote(ODD_TOKEN, safe="")
     for target in (f"/?token={encoded}", f"/snapshot/rect_left.jpg?token={encoded}&scale=0.5",
