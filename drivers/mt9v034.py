@@ -385,17 +385,19 @@ class MT9V034:
     def settings(self) -> Dict[str, Any]:
         """The values in use now: the AEC's exposure and the AGC's gain when those are on.
 
-        Keys: ``exposure_us``, ``exposure_rows``, ``gain``, ``aec``, ``agc``,
+        Keys: ``exposure_us``, ``exposure_rows``, ``exposure_range_us`` (the manual exposures the
+        timing takes, ``[lo, hi]``: a page's slider ends there), ``gain``, ``aec``, ``agc``,
         ``flip_h``, ``flip_v``, ``test_pattern`` (None when off).
         """
         aec, agc = self.auto()
-        row_us = self.row_time_us()
+        exposures = self.exposure_range()
         rows = self.read("AEC_OUTPUT") if aec else self.exposure_rows
         gain = spec.gain_from_code(self.read("AGC_OUTPUT")) if agc else self.gain
         flip_h, flip_v = self.flips()
         return {
-            "exposure_us": round(spec.exposure_us_from_rows(rows, row_us), 3),
+            "exposure_us": round(spec.exposure_us_from_rows(rows, exposures.row_us), 3),
             "exposure_rows": rows,
+            "exposure_range_us": [round(exposures.lo_us, 3), round(exposures.hi_us, 3)],
             "gain": gain,
             "aec": aec,
             "agc": agc,

@@ -11,6 +11,7 @@ message area. A screenshot goes to the artifacts folder, also when the test fail
 from __future__ import annotations
 
 import json
+import math
 import time
 import urllib.request
 from pathlib import Path
@@ -79,8 +80,10 @@ def _set_exposure(page: Page, base: str, us: int) -> None:
             break
         assert time.monotonic() < deadline, f"exposure never became {us} µs: {left}"
         time.sleep(0.2)
-    # The range slider follows the number input.
-    assert abs(float(page.get_by_test_id("camera-exposure-range").input_value()) - us) < 1
+    # The range slider follows the number input, and both come to show the exposure in use (whole rows).
+    in_use = round(float(left["exposure_us"]))
+    expect(page.get_by_test_id("camera-exposure")).to_have_value(str(in_use))
+    expect(page.get_by_test_id("camera-exposure-range")).to_have_value(str(in_use))
 
 
 def test_camera_controls_change_the_picture(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
@@ -98,6 +101,11 @@ def _drive(page: Page, base: str, artifacts_dir: Path) -> None:
 
     # The controls show what GET /api/cameras says.
     page.wait_for_function("() => document.getElementById('camera-form').dataset.exposure !== undefined")
+    # The exposure inputs end where the sensor's timing does (PUT refuses beyond it).
+    lo, hi = get_json(base + "/api/cameras")["left"]["exposure_range_us"]
+    for testid in ("camera-exposure", "camera-exposure-range"):
+        assert page.get_by_test_id(testid).get_attribute("max") == str(math.floor(hi))
+        assert page.get_by_test_id(testid).get_attribute("min") == str(math.ceil(lo))
     state = get_json(base + "/api/cameras")
     left = state["left"]
     assert left is not None, state

@@ -87,8 +87,18 @@ def test_a_recording_is_made_listed_replayed_and_deleted(tmp_path: Path, artifac
             item.get_by_test_id("recording-replay").click()
             _wait_status_source(page, "virtual")
             expect(page.get_by_test_id("source-virtual")).to_be_checked()
+            expect(page.get_by_test_id("status-playing")).to_contain_text(f"recording {listed['id']}")
             page.get_by_test_id("source-live").check()
             _wait_status_source(page, "live")
+            # A damaged frame stops a replay: the status says so, and why, until the next input.
+            damaged = tmp_path / "recordings" / listed["id"] / "left_000001.png"
+            damaged.write_bytes(damaged.read_bytes()[:100])
+            item.get_by_test_id("recording-replay").click()
+            expect(page.get_by_test_id("status-playing")).to_contain_text("stopped: ")
+            expect(page.get_by_test_id("status-playing")).to_contain_text("left_000001.png")
+            page.get_by_test_id("source-live").check()
+            _wait_status_source(page, "live")
+            expect(page.get_by_test_id("status-playing")).to_have_count(0)
             item.get_by_test_id("recording-delete").click()
             expect(page.locator("[data-testid=recording]")).to_have_count(0)
             assert get_json(base + "/api/recordings")["recordings"] == []

@@ -90,6 +90,8 @@ def test_the_pair_is_set_up_from_the_profile(started: Tuple[EmulatedSensorPair, 
     assert pair.left.get("VERTICAL_BLANKING") == 44  # 60 fps
     assert pair.left.get("AEC_AGC_DESIRED_BIN") == 32
     assert sensors.read()["left"] == {"exposure_us": round(480 * spec.row_time_us(), 3), "exposure_rows": 480,
+                                      "exposure_range_us": [round(spec.row_time_us(), 3),
+                                                            round(524 * spec.row_time_us(), 3)],
                                       "gain": 1.0, "aec": False, "agc": False, "flip_h": False,
                                       "flip_v": False, "test_pattern": None}
 

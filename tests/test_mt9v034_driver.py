@@ -325,13 +325,15 @@ def test_sync_modes(mode: str, before: int, after: int) -> None:
 
 
 def test_settings_report_the_auto_values_when_auto_is_on() -> None:
-    s, bus = sensor(("r", A, 0xAF, 0x0301), *row_time_reads(), ("r", A, 0xBB, 300), ("r", A, 0x35, 32),
-                    ("r", A, 0x0D, 0x0310), ("r", A, 0x7F, 0x3000))
-    assert s.settings() == {"exposure_us": round(300 * ROW_US, 3), "exposure_rows": 300, "gain": 2.0,
+    s, bus = sensor(("r", A, 0xAF, 0x0301), *row_time_reads(), *frame_reads(), ("r", A, 0xBB, 300),
+                    ("r", A, 0x35, 32), ("r", A, 0x0D, 0x0310), ("r", A, 0x7F, 0x3000))
+    assert s.settings() == {"exposure_us": round(300 * ROW_US, 3), "exposure_rows": 300,
+                            "exposure_range_us": [round(ROW_US, 3), round(524 * ROW_US, 3)], "gain": 2.0,
                             "aec": True, "agc": False, "flip_h": False, "flip_v": True,
                             "test_pattern": "gray_horizontal"}
     bus.assert_done()
-    s, bus = sensor(("r", A, 0xAF, 0x0002), *row_time_reads(), ("r", A, 0x0B, 100), ("r", A, 0xBA, 24),
+    s, bus = sensor(("r", A, 0xAF, 0x0002), *row_time_reads(), *frame_reads(), ("r", A, 0x0B, 100),
+                    ("r", A, 0xBA, 24),
                     ("r", A, 0x0D, 0x0320), ("r", A, 0x7F, 0))
     got = s.settings()
     assert (got["exposure_rows"], got["gain"], got["aec"], got["agc"]) == (100, 1.5, False, True)

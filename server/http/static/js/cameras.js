@@ -37,6 +37,14 @@ function renderCameras(state) {
   const form = $("camera-form");
   form.dataset.updated = String(Date.now());
   if (!v) return;
+  // The exposures the sensor's timing takes (one row to one frame): the inputs end where PUT would refuse.
+  if (Array.isArray(v.exposure_range_us) && v.exposure_range_us.length === 2) {
+    const [lo, hi] = v.exposure_range_us;
+    for (const id of ["camera-exposure", "camera-exposure-range"]) {
+      $(id).min = String(Math.ceil(lo));
+      $(id).max = String(Math.floor(hi));
+    }
+  }
   // Do not overwrite a value the user is still editing (pending debounce).
   if (!("exposure_us" in cameraPending) && typeof v.exposure_us === "number") {
     const us = Math.round(v.exposure_us);

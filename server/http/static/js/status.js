@@ -95,6 +95,13 @@ function renderStatus(st) {
   add("fabric", "faults", "faults", faults.length ? faults.map((f) => f.what + ": " + f.text).join("; ") : "none",
       faults.length ? "bad" : "");
   if (st.virtual_camera && st.virtual_camera.input) add("fabric", "virtual_input", "virtual input", fmt(st.virtual_camera.input));
+  // A recording playing through the virtual camera; one that stopped on an error says why until the next input.
+  const playing = st.virtual_camera && st.virtual_camera.playing;
+  if (playing && typeof playing === "object") {
+    const where = "recording " + fmt(playing.recording) + ", frame " + fmt(playing.frame) + " of " + fmt(playing.frames);
+    if (playing.error) add("fabric", "playing", "playback", "stopped: " + playing.error + " (" + where + ")", "bad");
+    else add("fabric", "playing", "playback", "playing " + where);
+  }
 
   // cameras
   const sensors = st.sensors;
