@@ -139,18 +139,18 @@ async def test_silent_half_sent_and_dribbling_requests_are_closed_while_streams_
 
 async def test_a_body_that_keeps_coming_is_read_whole(start_daemon) -> None:
     """Slower than the header timeout in all, but never stalled: the upload is answered. (The timeout
-    is 4 s against 4 bytes every 0.2 s: only a 4 s stall of this very process could close it.)"""
-    d = await start_daemon(header_timeout_s=4.0)
-    body = json.dumps({"source": "live"}).encode() + b" " * 80
+    is 8 s against 4 bytes every 0.2 s: only an 8 s stall of this very process could close it.)"""
+    d = await start_daemon(header_timeout_s=8.0)
+    body = json.dumps({"source": "live"}).encode() + b" " * 180
     conn = await connect(d)
     conn[1].write(request("/api/source", "PUT", "Content-Type: application/json\r\n", body)[:-len(body)])
     t0 = time.monotonic()
-    for i in range(0, len(body), 4):  # 25 pieces: 5 s of body, 4 bytes every 0.2 s
+    for i in range(0, len(body), 4):  # 50 pieces: 10 s of body, 4 bytes every 0.2 s
         conn[1].write(body[i:i + 4])
         await asyncio.sleep(0.2)
     status, text = await answer(conn)
     assert status == 200, text
-    assert time.monotonic() - t0 > 4.0  # it did take longer than the header timeout
+    assert time.monotonic() - t0 > 8.0  # it did take longer than the header timeout
     close([conn])
 
 
