@@ -8,19 +8,9 @@ from dataclasses import dataclass
 from typing import Dict, Optional, Union
 
 from ..overlays.model.core_params import plan
+from ..overlays.model.core_regs import CoreControl, config_words, read_config
 from ..overlays.model.linebuffer import LineBufferFit
-from ..overlays.spec.rectify import (
-    CAMERAS,
-    CORE_ID,
-    CORE_VERSION,
-    PARAM_NAMES,
-    RECTIFY_MAP,
-    CameraParams,
-    CameraRegs,
-    CoreConfig,
-    i64_to_words,
-    words_to_i64,
-)
+from ..overlays.spec.rectify import CORE_ID, CORE_VERSION, RECTIFY_MAP, CameraParams, CameraRegs, CoreConfig
 from .mmio import DriverError, Registers, RegisterWindow, UnsupportedIP
 
 
@@ -86,14 +76,8 @@ class RectifyCore:
         it returns after setting APPLY (for a clock the caller steps itself);
         :meth:`check_applied` then confirms. Between frames the core latches at once.
         """
-        self.regs.write("WIDTH", RECTIFY_MAP["WIDTH"].encode(VALUE=config.width))
-        self.regs.write("HEIGHT", RECTIFY_MAP["HEIGHT"].encode(VALUE=config.height))
-        self.regs.write("LB_DELAY", RECTIFY_MAP["LB_DELAY"].encode(VALUE=config.lb_delay))
-        for cam in CAMERAS:
-            for name, value in config.camera(cam).values().items():
-                lo, hi = i64_to_words(value)
-                self.regs.write(f"{cam}_{name}_LO", lo)
-                self.regs.write(f"{cam}_{name}_HI", hi)
+        for name, word in config_words(config).items():
+            self.regs.write(name, word)
         self.clear_flags("CONFIG_ERROR")
         self.regs.modify("CONTROL", APPLY=1)
         if wait:
@@ -109,13 +93,11 @@ class RectifyCore:
 
     def read_config(self) -> CoreConfig:
         """The shadow parameter set as the registers hold it."""
-        cams = {}
-        for cam in CAMERAS:
-            values = {n: words_to_i64(self.regs.read(f"{cam}_{n}_LO"), self.regs.read(f"{cam}_{n}_HI"))
-                      for n in PARAM_NAMES}
-            cams[cam] = CameraRegs.from_values(values)
-        return CoreConfig(cams["L"], cams["R"], self.regs.field("WIDTH", "VALUE"),
-                          self.regs.field("HEIGHT", "VALUE"), self.regs.field("LB_DELAY", "VALUE"))
+        return read_config(self.regs.read)
+
+    def read_control(self) -> CoreControl:
+        """CONTROL and DEBUG_ROW as the registers hold them."""
+        return CoreControl.read(self.regs.read)
 
     def set_mode(self, *, enable: Optional[bool] = None, bypass: Optional[bool] = None,
                  gray: Optional[bool] = None, debug_row: Optional[int] = None,

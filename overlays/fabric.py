@@ -26,7 +26,7 @@ from .interface import COMMIT_TIMEOUT_S, Channel, ChannelStatus, Choice, StoredF
 from .model.result import CoreOptions
 from .spec.axis_switch import INPUT_NAMES, LIVE, VIRTUAL
 from .spec.overlay import INSTANCES
-from .spec.rectify import RECTIFY_MAP, CoreConfig
+from .spec.rectify import CoreConfig
 
 log = logging.getLogger(__name__)
 
@@ -145,10 +145,8 @@ class StereoFabric:
         """``(CoreConfig, CoreOptions)`` the core runs with, read back from its registers (blocks)."""
         rectify = self.rectify
         config = rectify.read_config()
-        control = RECTIFY_MAP["CONTROL"].decode(rectify.regs.read("CONTROL"))
-        debug_row = rectify.regs.field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None
-        options = CoreOptions(lb_rows=rectify.lb_rows, lb_delay=config.lb_delay, gray=bool(control["GRAY"]),
-                              bypass=bool(control["BYPASS"]), debug_row=debug_row, colour=rectify.colour)
+        options = rectify.read_control().options(lb_rows=rectify.lb_rows, lb_delay=config.lb_delay,
+                                                 colour=rectify.colour)
         return config, options
 
     # -- health -------------------------------------------------------------------------

@@ -9,24 +9,17 @@ size. The co-simulation uses it as the oracle for the RTL.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Dict, Optional, Tuple
 
 import numpy as np
 
 from ..model.core_params import CoreParamsError, check_frame_size
+from ..model.core_regs import CoreControl, read_config
 from ..model.fast import RectifyModel
 from ..model.frames import fit_frame, padded
 from ..model.result import CoreOptions
-from ..spec.rectify import (
-    CAMERAS,
-    DEFAULT_BUILD,
-    PARAM_NAMES,
-    RECTIFY_MAP,
-    CameraRegs,
-    CoreConfig,
-    identity_registers,
-    words_to_i64,
-)
+from ..spec.rectify import DEFAULT_BUILD, RECTIFY_MAP, CoreConfig, identity_registers
 from ..spec.regs import Register
 from .regblock import RegisterBlock
 
@@ -71,16 +64,7 @@ class EmulatedRectifyCore(RegisterBlock):
 
     def shadow_config(self) -> CoreConfig:
         """The parameter set software has written, whether or not applied."""
-        cams = {}
-        for cam in CAMERAS:
-            values = {n: words_to_i64(self.get(f"{cam}_{n}_LO"), self.get(f"{cam}_{n}_HI"))
-                      for n in PARAM_NAMES}
-            cams[cam] = CameraRegs.from_values(values)
-        return CoreConfig(
-            cams["L"], cams["R"],
-            self.get_field("WIDTH", "VALUE"), self.get_field("HEIGHT", "VALUE"),
-            self.get_field("LB_DELAY", "VALUE"),
-        )
+        return read_config(self.get)
 
     def _latch(self) -> None:
         """APPLY: take the shadow set if it is valid, else keep the old one and flag CONFIG_ERROR."""
@@ -106,30 +90,24 @@ class EmulatedRectifyCore(RegisterBlock):
         updates happen under the register lock; the pixel work does not.
         """
         with self.lock:
-            control = RECTIFY_MAP["CONTROL"].decode(self.get("CONTROL"))
-            if not control["ENABLE"]:
+            control = CoreControl.read(self.get)
+            if not control.enable:
                 return None
-            if control["APPLY"]:
+            if control.apply:
                 self._latch()
             cfg = self.active
+            if cfg is None:  # never applied: frames pass through
+                control = replace(control, bypass=True)
             width = cfg.width if cfg else RECTIFY_MAP["WIDTH"].reset
             height = cfg.height if cfg else RECTIFY_MAP["HEIGHT"].reset
-            bypass = bool(control["BYPASS"]) or cfg is None
             lb_delay = cfg.lb_delay if cfg else 0
-            fit = fit_frame(frame.shape, width, height, lb_delay, bypass)
+            fit = fit_frame(frame.shape, width, height, lb_delay, control.bypass)
             if fit.size_error:
                 self.raise_bits("FLAGS", RECTIFY_MAP["FLAGS"].bit("SIZE_ERROR"))
             if fit.dropped:
                 self.frames_dropped += 1
                 return None
-            options = CoreOptions(
-                lb_rows=self.lb_rows,
-                lb_delay=lb_delay,
-                gray=bool(control["GRAY"]),
-                bypass=bypass,
-                debug_row=self.get_field("DEBUG_ROW", "VALUE") if control["DEBUG_LINE"] else None,
-                colour=self.colour,
-            )
+            options = control.options(lb_rows=self.lb_rows, lb_delay=lb_delay, colour=self.colour)
             model = self._model(cfg, width, height, options)
             self.set_field("STATUS", "BUSY", 1)
         try:
