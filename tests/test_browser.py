@@ -33,6 +33,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from stereocam.bench.serve import running_daemon
+from stereocam.server.frames import views
 
 from .browser import (
     BROWSER_TEST_TIMEOUT,
@@ -46,7 +47,7 @@ from .browser import (
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
-VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"]
+VIEWS = list(views.VIEWS)  # the registry, never a list of its own
 DAEMON_FPS = 15.0
 # Chromium logs every non-2xx fetch; the one the test provokes on purpose (verify before upload) is fine.
 EXPECTED_409 = "status of 409"

@@ -29,12 +29,14 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
+from stereocam.server.frames import views
+
 from .browser import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
 from .rig_truth import static_depth
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
-VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"]
+VIEWS = list(views.VIEWS)  # the registry, never a list of its own
 DAEMON_FPS = 10.0
 # Pixels on the rig's back wall, never reached by its moving planes (rig_truth.static_depth says so).
 WALL = [(615, 381), (644, 350), (612, 404)]

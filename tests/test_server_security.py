@@ -88,7 +88,8 @@ async def test_origin_matching(start_daemon, origin, expected) -> None:
 
 
 async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> None:
-    """The default: a token guards streams, snapshots, captures, status and /ws, not the page or /healthz."""
+    """The default: a token guards streams, snapshots, captures, status and /ws, not the page (nor the
+    view registry it is built from) or /healthz."""
     d = await start_daemon(access_token=TOKEN)
     async with d.http.post("/api/captures", headers={"X-Stereocam-Token": TOKEN}) as resp:
         assert resp.status == 201
@@ -111,7 +112,7 @@ async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> 
             assert resp.status == 200, how
     async with d.http.ws_connect("/ws", headers={"Cookie": f"stereocam_token={TOKEN}"}) as ws:
         assert not ws.closed
-    for path in ("/", "/healthz", "/static/js/main.js"):
+    for path in ("/", "/healthz", "/static/js/main.js", "/api/views"):
         async with d.http.get(path) as resp:
             assert resp.status in (200, 503), path  # healthz: 503 before the first frame, never 401
 
@@ -232,7 +233,7 @@ async def test_every_get_accepts_the_token_in_the_url(start_daemon) -> None:
             error = (await resp.json())["error"] if resp.status >= 400 else ""
             assert resp.status != 401 and "token" not in error, (path, resp.status, error)
         async with d.http.get(path) as resp:
-            if path not in ("/", "/healthz") and not path.startswith("/static/"):
+            if path not in ("/", "/healthz", "/api/views") and not path.startswith("/static/"):
                 assert resp.status == 401, (path, resp.status)
     async with d.http.get("/api/point", params={"x": "3", "y": "4", "token": TOKEN}) as resp:
         assert resp.status == 200, await resp.text()

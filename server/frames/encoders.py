@@ -45,6 +45,7 @@ from .views import (
     no_signal_detail,
     no_signal_image,
     render,
+    uses_disparity_worker,
     view_size,
 )
 
@@ -309,7 +310,7 @@ class Encoders:
 
     def _start(self, key: EncoderKey) -> Encoder:
         source = self.feed.frames
-        if key.view == "disparity":
+        if uses_disparity_worker(key.view):
             self.disparity.acquire()
             source = self.disparity_output
         elif key.view in RAW_VIEWS and self.pipeline is not None:
@@ -329,7 +330,7 @@ class Encoders:
     def _stop(self, key: EncoderKey) -> None:
         encoder = self._encoders.pop(key)
         encoder.stop()
-        if key.view == "disparity":
+        if uses_disparity_worker(key.view):
             self.disparity.release()
         hold = self._raw_holds.pop(key, None)
         if hold is not None:
@@ -345,7 +346,7 @@ class Encoders:
             asked = encoder.fps
             target = min(asked, fabric_fps) if fabric_fps > 0 else asked
             match = 0.0
-            if key.view == "disparity":
+            if uses_disparity_worker(key.view):
                 target = min(target, self.disparity.fps)
                 w, h = frame_size
                 match = budget.cost("match", PRIOR_MATCH_S_PER_PIXEL * w * h)
@@ -361,7 +362,7 @@ class Encoders:
         for key, encoder in self._encoders.items():
             plan = plans.get(key)
             encoder.limit = None if plan is None or not plan.limited else plan.planned
-            if key.view == "disparity" and plan is not None:
+            if uses_disparity_worker(key.view) and plan is not None:
                 disparity = max(disparity or 0.0, plan.planned)
         self.disparity.limit = disparity
 

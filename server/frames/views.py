@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import dataclasses
 import logging
 import threading
 import time
-from typing import Any, Callable, Optional, Protocol, Tuple
+from typing import Any, Callable, Dict, Optional, Protocol, Tuple
 
 import cv2
 import numpy as np
@@ -35,13 +36,60 @@ from .pipeline import FrameSet, RateMeter
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "VIEWS", "GRAY_VIEWS", "RAW_VIEWS", "ViewUnavailable", "render", "view_size", "disparity_map",
-    "disparity_raw", "no_signal_image", "DisparityWorker", "STEREO_BM",
+    "View", "REGISTRY", "VIEWS", "DISPARITY_WORKER", "uses_disparity_worker", "GRAY_VIEWS", "RAW_VIEWS",
+    "ViewUnavailable", "render", "view_size", "disparity_map", "disparity_raw", "no_signal_image",
+    "DisparityWorker", "STEREO_BM",
 ]
 
-VIEWS = ("raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity")
-GRAY_VIEWS = frozenset({"raw_left", "raw_right", "rect_left", "rect_right", "sbs"})
-RAW_VIEWS = frozenset({"raw_left", "raw_right"})
+
+@dataclasses.dataclass(frozen=True)
+class View:
+    """One view of the registry: everything the daemon, the page (``GET /api/views``), the bench
+    and the tests know of it. ``renders`` says how (``camera`` (a camera of the raw or the
+    rectified pair), ``hconcat`` (rectified left | right), ``anaglyph``, ``disparity``); ``gray``:
+    ``gray=1`` gives its gray channel; ``raw``: it needs the raw pair copied out of the frame
+    stores; ``worker``: the background worker that computes it (None: rendered per frame);
+    ``wide``: twice the frame's width; ``readout``: the page's point readout (depth.js) works over
+    it, its pixels being the rectified frame's; ``caption`` and ``alt``: the page's words for it."""
+
+    name: str
+    caption: str
+    alt: str
+    renders: str
+    gray: bool = False
+    raw: bool = False
+    worker: Optional[str] = None
+    wide: bool = False
+    readout: bool = False
+
+    def as_json(self) -> Dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+DISPARITY_WORKER = "disparity"  # the one worker: DisparityWorker, held while such a view is watched
+
+# The one list of views, in the page's order (its figures, the 1..N shortcuts). A new view is a
+# line here (and, for a new ``renders``, a branch of _render): the page (GET /api/views), the
+# bench and the tests read this; tests/test_view_registry.py fails on a list of views elsewhere.
+REGISTRY: Tuple[View, ...] = (
+    View("raw_left", "raw left", "raw left camera", "camera", gray=True, raw=True),
+    View("raw_right", "raw right", "raw right camera", "camera", gray=True, raw=True),
+    View("rect_left", "rectified left", "rectified left", "camera", gray=True, readout=True),
+    View("rect_right", "rectified right", "rectified right", "camera", gray=True, readout=True),
+    View("sbs", "side by side (rectified)", "rectified side by side", "hconcat", gray=True, wide=True,
+         readout=True),
+    View("anaglyph", "anaglyph", "anaglyph", "anaglyph"),
+    View("disparity", "disparity", "disparity", "disparity", worker=DISPARITY_WORKER, readout=True),
+)
+VIEWS = tuple(v.name for v in REGISTRY)
+GRAY_VIEWS = frozenset(v.name for v in REGISTRY if v.gray)
+RAW_VIEWS = frozenset(v.name for v in REGISTRY if v.raw)
+_BY_NAME = {v.name: v for v in REGISTRY}
+
+
+def uses_disparity_worker(view: str) -> bool:
+    """Whether ``view`` is computed by the :class:`DisparityWorker` (its registry entry says so)."""
+    return _BY_NAME[view].worker == DISPARITY_WORKER
 
 # The paper's block-matching parameters.
 STEREO_BM = {"min_disparity": 0, "num_disparities": 128, "block_size": 19, "uniqueness_ratio": 15}
@@ -58,7 +106,7 @@ class ViewUnavailable(LookupError):
 def view_size(view: str, frame_size: Tuple[int, int], scale: float = 1.0) -> Tuple[int, int]:
     """``(width, height)`` of ``view`` for frames of ``frame_size``, scaled by ``scale`` (at least 1 px)."""
     w, h = frame_size
-    w = 2 * w if view == "sbs" else w
+    w = 2 * w if _BY_NAME[view].wide else w
     if scale == 1.0:
         return w, h
     return max(1, round(w * scale)), max(1, round(h * scale))
@@ -94,22 +142,26 @@ def _camera(frame: np.ndarray, side: str, gray: bool) -> np.ndarray:
 
 
 def _render(fs: FrameSet, view: str, gray: bool) -> np.ndarray:
-    if view in RAW_VIEWS:
-        if fs.raw is None:
-            raise ViewUnavailable(f"frame {fs.frame} was read without its raw pair")
-        return _camera(fs.raw, "left" if view == "raw_left" else "right", gray)
-    if view in ("rect_left", "rect_right"):
-        return _camera(fs.processed, "left" if view == "rect_left" else "right", gray)
-    if view == "sbs":
+    renders = _BY_NAME[view].renders
+    if renders == "camera":
+        side = "left" if view.endswith("_left") else "right"
+        if view in RAW_VIEWS:
+            if fs.raw is None:
+                raise ViewUnavailable(f"frame {fs.frame} was read without its raw pair")
+            return _camera(fs.raw, side, gray)
+        return _camera(fs.processed, side, gray)
+    if renders == "hconcat":
         out = cv2.hconcat([render(fs, "rect_left", gray), render(fs, "rect_right", gray)])
-    elif view == "anaglyph":
+    elif renders == "anaglyph":
         p = fs.processed
         out = np.empty(p.shape[:2] + (3,), dtype=np.uint8)
         out[..., 0] = p[..., _Y["right"]]
         out[..., 1] = p[..., _Y["right"]]
         out[..., 2] = p[..., _Y["left"]]
-    else:
+    elif renders == "disparity":
         out = disparity_view(fs)
+    else:  # a registry entry whose kind has no branch here
+        raise KeyError(f"view {view!r} renders as {renders!r}, which _render does not know")
     out.flags.writeable = False
     return out
 

@@ -27,6 +27,7 @@ from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.verify import compare, difference_image
+from ..frames.views import REGISTRY
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from .bodies import json_response, read_json
 from .downloads import stream_download
@@ -123,6 +124,11 @@ async def status_handler(request: web.Request) -> web.Response:
                       for f in app[EXTENSIONS].active_faults()]
     body.update(app[EXTENSIONS].status_sections())
     return json_response(body, headers={"Cache-Control": "no-store"})
+
+
+async def get_views(request: web.Request) -> web.Response:
+    """``GET /api/views``: the view registry (server/frames/views.py), in the page's order."""
+    return json_response({"views": [v.as_json() for v in REGISTRY]})
 
 
 async def get_source(request: web.Request) -> web.Response:
@@ -529,6 +535,7 @@ async def delete_capture(request: web.Request) -> web.Response:
 def setup_routes(app: web.Application) -> None:
     r = app.router
     r.add_get("/api/status", status_handler)
+    r.add_get("/api/views", get_views)
     r.add_get("/api/source", get_source)
     r.add_put("/api/source", put_source)
     r.add_get("/api/virtual-camera", get_virtual_camera)

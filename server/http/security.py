@@ -24,7 +24,7 @@ the body:
   the browser sends the attacker's name; an IP literal cannot be rebound
   and is always accepted. See :func:`allowed_host_names`.
 - ``protect="all"`` (the default): with a token, reads need it too: the
-  page, its scripts and ``/healthz`` stay open, every stream, snapshot,
+  page, its scripts, ``/api/views`` and ``/healthz`` stay open, every stream, snapshot,
   capture, status and ``/ws`` wants the token as a header, the
   ``stereocam_token`` cookie, or ``?token=`` (for players
   that cannot send headers). ``protect="control"``: only changes need it.
@@ -70,7 +70,8 @@ TOKEN_GIVEN_COOKIE = "stereocam_has_token"  # "1", readable by the page: a token
 TOKEN_PARAM = "token"  # ?token=: every GET that may need the token accepts it besides its own parameters
 TOKEN_COOKIE_AGE_S = 365 * 24 * 3600
 PAGE_PATHS = frozenset({"/", "/index.html"})
-OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico"})  # no camera data, no settings
+# No camera data, no settings (/api/views: the view registry the page builds its figures from).
+OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico", "/api/views"})
 OPEN_PREFIXES = ("/static/",)
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
 WILDCARDS = frozenset({"0.0.0.0", "::", ""})

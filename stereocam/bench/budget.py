@@ -9,9 +9,9 @@ the page does, and counts the frames of each view it receives.
 
 Two phases, each after ``warmup`` seconds for the plan to settle:
 
-- ``all``: the seven views for ``seconds``: ``daemon_cores`` (mean over the
-  window), ``daemon_cores_max_10s`` (the worst 10-s stretch), each view's
-  ``delivered_fps``;
+- ``all``: every view of the registry (``server/frames/views.py``) for
+  ``seconds``: ``daemon_cores`` (mean over the window), ``daemon_cores_max_10s``
+  (the worst 10-s stretch), each view's ``delivered_fps``;
 - ``one``: ``rect_left`` alone for ``one_seconds``: its ``delivered_fps``
   against ``camera_fps``, the fabric's rate (``/api/status``).
 
@@ -30,9 +30,10 @@ import sys
 import time
 from typing import Any, Dict, List, Sequence, Tuple
 
+from ..server.frames import views
 from .serve import ServeBenchError, running_daemon
 
-VIEWS = ("raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity")
+VIEWS = views.VIEWS  # the daemon's view registry: every view is watched in the "all" phase
 FABRIC_THREAD = "emulated-fabric"
 FLOOR_OVER_CORES = 0.05
 FLOOR_VIEW_FPS = 2.0

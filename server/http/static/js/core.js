@@ -19,7 +19,7 @@
 // Errors: every failed API call shows a message in plain words in #messages, with the
 // daemon's {"error": ...} text behind a disclosure; nothing is swallowed (see "messages").
 
-export const VIEWS = ["raw_left", "raw_right", "rect_left", "rect_right", "sbs", "anaglyph", "disparity"];
+export { VIEWS, VIEW_INFO } from "./views.js";  // the daemon's view registry (GET /api/views)
 export const params = new URLSearchParams(window.location.search);
 export const WS_FPS = clampNumber(params.get("fps"), 1, 60, 15);
 export const THUMB_SCALE = 0.5;  // of each view's size, one of the daemon's stream scales

@@ -4,7 +4,7 @@
 // Each shortcut clicks the page's own control, so it does exactly what the click does (errors,
 // messages, disabled buttons included). The calibration panel's Space / C (calibration.js) and
 // the views' Enter / Escape (live.js) are listed here too, handled where they are.
-import { $ } from "./core.js";
+import { $, VIEWS, VIEW_INFO } from "./core.js";
 import { chooseSource } from "./source.js";
 
 function click(id) {
@@ -23,14 +23,17 @@ function toggleFullscreen() {
 
 function viewFigure(n) { return document.querySelectorAll("#views figure.view")[n - 1] || null; }
 
+const VIEW_KEYS = VIEWS.slice(0, 9).map((v, i) => String(i + 1));
+
 // [keys shown, what it does, key values that trigger it, handler or null (handled elsewhere)]
 export const SHORTCUTS = [
   [["p"], "Capture (store raw and rectified pairs)", ["p", "P"], () => click("btn-capture")],
   [["v"], "Verify the fabric against the model", ["v", "V"], () => click("btn-verify")],
   [["l"], "Source: live cameras", ["l", "L"], () => chooseSource("live")],
   [["u"], "Source: virtual camera (the uploaded pair)", ["u", "U"], () => chooseSource("virtual")],
-  [["1", "…", "7"], "Enlarge view 1 to 7 (again: back to the thumbnail)", ["1", "2", "3", "4", "5", "6", "7"],
-   (ev) => { const fig = viewFigure(Number(ev.key)); if (fig) { fig.click(); fig.focus(); } }],
+  // One digit per view of the registry, in its order (the page's figures): 1 to 9 at most.
+  [["1", "…", String(VIEW_KEYS.length)], "Enlarge view 1 to " + VIEW_KEYS.length + " (again: back to the thumbnail)",
+   VIEW_KEYS, (ev) => { const fig = viewFigure(Number(ev.key)); if (fig) { fig.click(); fig.focus(); } }],
   [["f"], "Fullscreen the enlarged view (again: leave)", ["f", "F"], () => toggleFullscreen()],
   [["Enter"], "On a focused view: enlarge it", [], null],
   [["Esc"], "Back to the thumbnails; close this list", [], null],
@@ -82,8 +85,8 @@ function buildOverlay() {
   table.append(tbody);
   const note = document.createElement("p");
   note.className = "muted";
-  note.textContent = "Not while typing in a field. Views are numbered as on the page: raw left, raw right, " +
-                     "rectified left, rectified right, side by side, anaglyph, disparity.";
+  note.textContent = "Not while typing in a field. Views are numbered as on the page: " +
+                     VIEW_INFO.map((v) => v.caption.replace(/ \(.*\)$/, "")).join(", ") + ".";
   dialog.append(head, table, note);
   // A click on the backdrop (outside the box) closes it.
   dialog.addEventListener("click", (ev) => { if (ev.target === dialog) dialog.close(); });
