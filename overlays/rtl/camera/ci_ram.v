@@ -1,0 +1,54 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * ci_ram: simple dual-port RAM on one clock, inferred as block RAM (depth need not be a power
+ * of two). Read data 2 clocks after the address (the array's registered read, then an output
+ * register: a block RAM's DO_REG), each loaded only for a read, so it holds until the next read.
+ * A read of the address written in the same clock returns the old data (the line buffer never
+ * does that). One write and one read per clock. No reset.
+ */
+module ci_ram #
+(
+    parameter WIDTH = 40,
+    parameter DEPTH = 752,
+    parameter AW = $clog2(DEPTH)
+)
+(
+    input  wire             clk,
+    input  wire             we,
+    input  wire [AW-1:0]    waddr,
+    input  wire [WIDTH-1:0] wdata,
+    input  wire             re,
+    input  wire [AW-1:0]    raddr,
+    output reg  [WIDTH-1:0] rdata
+);
+
+(* ram_style = "block" *)
+reg [WIDTH-1:0] mem [0:DEPTH-1];
+
+always @(posedge clk) begin
+    if (we) begin
+        mem[waddr] <= wdata;
+    end
+end
+
+reg [WIDTH-1:0] read_reg;
+reg             re_reg = 1'b0;
+
+always @(posedge clk) begin
+    if (re) begin
+        read_reg <= mem[raddr];
+    end
+    re_reg <= re;
+    if (re_reg) begin
+        rdata <= read_reg;
+    end
+end
+
+endmodule
+
+`resetall
