@@ -158,3 +158,29 @@ def test_stop_times_out_on_a_blocked_tick_and_can_wait_again() -> None:
     release.set()
     clock.stop()
     assert not clock.running and clock.frames == 1
+
+
+def test_stop_waits_as_long_as_the_clocks_ticks_take() -> None:
+    """A tick is a whole emulated frame: on a slow or busy CPU (qemu, an A9) it can take longer than
+    the least wait (2 s), and stopping then must wait for it (four times the longest tick so far),
+    not call it a hang: the daemon's shutdown raised ClockStopTimeout in the armhf env."""
+    second = threading.Event()
+    release = threading.Event()
+
+    def tick(index: int, t: float) -> None:
+        if index == 0:
+            time.sleep(1.5)  # the longest tick: stop() then waits 6 s for one
+        else:
+            second.set()
+            release.wait(60.0)
+
+    clock = FrameClock(100, tick).start()
+    assert second.wait(60.0)
+    releaser = threading.Timer(2.5, release.set)  # the tick in progress ends 2.5 s into the stop
+    releaser.start()
+    try:
+        clock.stop()  # before: ClockStopTimeout after 2 s
+    finally:
+        release.set()
+        releaser.cancel()
+    assert not clock.running

@@ -27,6 +27,8 @@ log = logging.getLogger(__name__)
 __all__ = ["FrameClock", "ClockError", "ClockStopTimeout", "Tick"]
 
 Tick = Callable[[int, float], None]
+STOP_WAIT_S = 2.0  # the least time stop() waits for a tick to end
+STOP_WAIT_TICKS = 4.0  # ... or this many times the longest tick so far, when that is longer
 MODES = ("realtime", "stepped")
 
 
@@ -80,6 +82,7 @@ class FrameClock:
         self._skipped = 0
         self._errors = 0
         self._times: Deque[float] = collections.deque(maxlen=max(2, min(int(rate) + 1, 121)))
+        self._longest_tick = 0.0  # seconds, of the realtime ticks so far
 
     # -- counters ------------------------------------------------------------
 
@@ -143,9 +146,13 @@ class FrameClock:
             self._thread.start()
         return self
 
-    def stop(self, timeout: float = 2.0) -> None:
+    def stop(self, timeout: Optional[float] = None) -> None:
         """Stop ticking and wait up to ``timeout`` s for the thread. Idempotent; no-op in stepped mode.
 
+        ``timeout`` None: :data:`STOP_WAIT_S`, or :data:`STOP_WAIT_TICKS` times the longest tick
+        so far when that is longer. A tick is a whole frame of the emulated fabric, and a slow or
+        busy CPU (a Cortex-A9 emulating the fabric, qemu, a machine shared with other work) can
+        take seconds over one: stopping must wait for it, not call it a hang.
         Called from inside ``tick`` it only asks the thread to stop (the
         thread cannot wait for itself). Raises :class:`ClockStopTimeout` if
         ``tick`` is still running after ``timeout``; the thread stops after
@@ -157,6 +164,8 @@ class FrameClock:
         self._stop.set()
         if thread is threading.current_thread():
             return
+        if timeout is None:
+            timeout = max(STOP_WAIT_S, STOP_WAIT_TICKS * self._longest_tick)
         thread.join(timeout)
         if thread.is_alive():
             raise ClockStopTimeout(
@@ -214,6 +223,7 @@ class FrameClock:
                 if self._errors <= 3 or self._errors % 100 == 0:
                     log.exception("%s: tick(%d) raised (error %d; the clock keeps running)", self.name, n,
                                   self._errors)
+            self._longest_tick = max(self._longest_tick, time.monotonic() - now)
             n += 1
 
 
