@@ -42,6 +42,7 @@ from ..frames.virtual_camera import VirtualCamera
 from . import routes_faults
 from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors
+from .heap import give_back_memory, limit_arenas
 from .metrics import Metrics
 from .metrics import setup_routes as setup_ops_routes
 from .routes_api import setup_routes as setup_api_routes
@@ -202,7 +203,7 @@ async def _fabric_ctx(app: web.Application) -> AsyncIterator[None]:
     tasks = [loop.create_task(feed.watch(), name="stereocam-no-signal"),
              loop.create_task(_plan_budget(app), name="stereocam-cpu-budget"),
              loop.create_task(streams.sweep(), name="stereocam-sweeper"),
-             loop.create_task(_give_back_memory(), name="stereocam-malloc-trim")]
+             loop.create_task(give_back_memory(), name="stereocam-malloc-trim")]
     interval = watchdog_interval()
     if interval is not None:
         tasks.append(loop.create_task(_watchdog(pipeline, interval), name="stereocam-watchdog"))
@@ -237,29 +238,6 @@ async def _close_streams(app: web.Application) -> None:
     app[FEED].close()
     await app[ENCODERS].close()
     await app[STREAMS].close_all()
-
-
-TRIM_S = 2.0
-
-
-async def _give_back_memory() -> None:
-    """Return freed heap to the system every :data:`TRIM_S` (glibc keeps it after large requests).
-
-    Without it the daemon's resident memory stays tens of MB above its working set after a burst
-    of big uploads: memory a 512 MB board needs back. A fixed mmap threshold would do it too, but
-    doubles the CPU per frame. Nothing happens where the C library has no ``malloc_trim``.
-    """
-    import ctypes
-    import ctypes.util
-
-    try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return
-    loop = asyncio.get_running_loop()
-    while True:
-        await asyncio.sleep(TRIM_S)
-        await loop.run_in_executor(None, trim, 0)  # a heap walk: off the loop (ctypes drops the GIL)
 
 
 async def _plan_budget(app: web.Application) -> None:
@@ -407,6 +385,7 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
 
 def run(config: Settings, *, extensions: Optional[Sequence[Setup]] = None) -> int:
     """``stereocam serve``: blocks until SIGTERM/SIGINT; returns the exit code."""
+    limit_arenas()  # before the overlay's and the pipeline's threads exist
     overlay = open_configured_overlay(config)
     try:
         reason = overlay.choice.reason if overlay.choice is not None else ""
