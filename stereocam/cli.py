@@ -483,7 +483,7 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--port", type=int, help="port (default 8080)")
     s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
     s.add_argument("--config", metavar="FILE",
-                   help="settings file (YAML or JSON; keys as in server/http/settings.py)")
+                   help="settings file (YAML or JSON; keys as in stereocam/server/http/settings.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
     s.add_argument("--state-dir", metavar="DIR",
                    help="where the page's calibration.yaml and calibration-pairs/ live "
@@ -504,7 +504,8 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                    help="what computes the emulated fabric's rectify core: model (default, numpy) or rtl "
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
     s.add_argument("--rtl-dir", metavar="DIR",
-                   help="with --core rtl: build this copy of overlays/rtl instead (e.g. one being changed)")
+                   help="with --core rtl: build this copy of stereocam/overlays/rtl instead "
+                        "(e.g. one being changed)")
     s.add_argument("--cpu-budget", metavar="CORES", type=float,
                    help="cores the daemon may spend on the views; over it, views get lower frame rates "
                         "(default: 1 on the board, all of the machine's off it)")
@@ -515,7 +516,7 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                    help="debug, info (default), warning or error; debug also logs every HTTP request")
     s.add_argument("--allow-fault-injection", action="store_true", default=None,
                    help="emulated fabric only, for testing: /api/faults stalls cameras, faults DMA channels, "
-                        "hangs resets, silences sensors, makes the mux refuse (see server/API.md)")
+                        "hangs resets, silences sensors, makes the mux refuse (see stereocam/server/API.md)")
     s.set_defaults(func=cmd_serve)
 
     i = sub.add_parser(
@@ -651,11 +652,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_robustness_parser(suites)
     add_budget_parser(suites)
 
-    # stereocam hw ...: the rectify core's RTL (overlays/rtl/); each action adds itself to hsub.
+    # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
     from .overlays.rtl.synth import add_synth_parser
 
     h = sub.add_parser("hw", help="the rectify core's HDL: synthesis with yosys",
-                       description="Tools for the rectify core's Verilog in overlays/rtl/.")
+                       description="Tools for the rectify core's Verilog in stereocam/overlays/rtl/.")
     hsub = h.add_subparsers(dest="action", metavar="ACTION")
     hsub.required = True
     add_synth_parser(hsub)

@@ -36,7 +36,8 @@ BROWSER_TEST_TIMEOUT = pytest.mark.timeout(900)
 # frame and answers 503 "no signal: no frame came within 1 s" (the daemon waits max(1 s,
 # 2 * no_signal_s)), and the streams show the no-signal frame between frames. 15 s: they wait up
 # to 30 s, a last resort that only a stopped fabric reaches (what the daemon itself does for its
-# slow simulated core: server/http/app.py, RTL_NO_SIGNAL_S). No browser test is about no-signal timing.
+# slow simulated core: stereocam/server/http/app.py, RTL_NO_SIGNAL_S). No browser test is about no-signal
+# timing.
 DAEMON_SETTINGS: Dict[str, Any] = {"no_signal_s": 15.0}
 
 

@@ -195,7 +195,7 @@ ARMHF_SUBSET = (
     "tests/test_uploads.py",
     "tests/test_captures.py",
     "tests/test_verify.py",
-    # a Python start there imports the checkout's finder (scripts/_stereocam_checkout.py)
+    # a Python start there finds the package on PYTHONPATH, every module at its path in git
     "tests/test_python_start.py",
 )
 # Tests of those modules that cannot pass in the armhf env, by node id, with the reason.

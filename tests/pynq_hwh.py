@@ -58,7 +58,7 @@ def vdma_parameters(num_fstores: int = NUM_FSTORES) -> Dict[str, str]:
 
 
 def rectify_parameters(build: Build = DEFAULT_BUILD, *, lb_rows: Optional[int] = None) -> Dict[str, str]:
-    """The rectify core's Verilog parameters (``overlays/rtl/rectify_core.v``), as the IP packager
+    """The rectify core's Verilog parameters (``stereocam/overlays/rtl/rectify_core.v``), as the IP packager
     records them."""
     return {"MAX_WIDTH": str(build.max_width), "MAX_HEIGHT": str(build.max_height),
             "LB_ROWS": str(build.lb_rows if lb_rows is None else lb_rows), "COLOUR": str(int(build.colour))}

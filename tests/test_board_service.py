@@ -237,7 +237,7 @@ class Daemon:
         self.log = tmp_path / f"serve-{self.port}.log"
         etc = tmp_path / "etc"  # the machine's settings folder, never the real /etc/stereocam
         etc.mkdir(exist_ok=True)
-        profile = (REPO / "board" / "zynq-stereo.yaml").read_text()
+        profile = (REPO / "stereocam" / "board" / "zynq-stereo.yaml").read_text()
         profile = profile.replace("name: zynq-stereo", "name: etc-board")
         (etc / "board.yaml").write_text(profile)
         self.stderr = open(self.log, "w")
@@ -343,4 +343,4 @@ def test_a_start_error_is_an_error_for_the_journal(tmp_path: Path) -> None:
     assert err.read_text() == (f"<3>stereocam serve: error: board profile {tmp_path / 'nope.yaml'} does not "
                                "exist: give the path of a profile (--board FILE or the settings' board key; "
                                f"without one, {tmp_path / 'board.yaml'} if it exists, else "
-                               f"{REPO / 'board' / 'zynq-stereo.yaml'})\n")
+                               f"{REPO / 'stereocam' / 'board' / 'zynq-stereo.yaml'})\n")

@@ -1,5 +1,5 @@
 """Issue 21, item 4: the page's live-view figures are built from ``GET /api/views`` (the view
-registry, ``server/frames/views.py``), in its order, and its 1..N shortcuts follow that order.
+registry, ``stereocam/server/frames/views.py``), in its order, and its 1..N shortcuts follow that order.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The camera input IP's numpy model (overlays/model/camera_in.py) against its specification.
+"""The camera input IP's numpy model (stereocam/overlays/model/camera_in.py) against its specification.
 
 The RTL is co-simulated against this model in tests/hdl/test_camera_in_rtl.py; here the model is
 checked against a per-pixel reference written from the words of spec/camera_in.py (not from its

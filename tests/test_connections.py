@@ -1,4 +1,4 @@
-"""Connections are bounded (server/http/connections.py): what idle, slow and departed clients get.
+"""Connections are bounded (stereocam/server/http/connections.py): what idle, slow and departed clients get.
 
 - A socket that sends nothing, half a header, a header a byte at a time, or half a body is closed
   after ``header_timeout_s``, while an MJPEG stream and a WebSocket that send nothing go on

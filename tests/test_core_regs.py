@@ -3,7 +3,7 @@
 Writable means every register and field software sets (RW, or self-clearing
 like CONTROL.APPLY): CONTROL, DEBUG_ROW and the shadow registers. The field
 list comes from the spec's table, so a field or register added there without
-a decoder in ``overlays/model/core_regs.py`` fails here.
+a decoder in ``stereocam/overlays/model/core_regs.py`` fails here.
 """
 from __future__ import annotations
 

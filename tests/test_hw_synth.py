@@ -207,7 +207,8 @@ def test_builds_come_from_the_spec_when_it_has_them() -> None:
     assert table["gray"].parameters() == {"MAX_WIDTH": table["gray"].max_width,
                                           "MAX_HEIGHT": table["gray"].max_height,
                                           "LB_ROWS": table["gray"].lb_rows, "COLOUR": 0}
-    assert source in ("overlays/spec/rectify.py BUILDS", "overlays/rtl/synth.py FALLBACK_BUILDS")
+    assert source in ("stereocam/overlays/spec/rectify.py BUILDS",
+                      "stereocam/overlays/rtl/synth.py FALLBACK_BUILDS")
     assert hw_synth.FALLBACK_BUILDS["gray"] == BuildParams("gray", 752, 1024, 80, False)
     assert hw_synth.FALLBACK_BUILDS["colour"] == BuildParams("colour", 752, 1024, 80, True)
 
@@ -268,7 +269,7 @@ def test_missing_rtl_is_one_clear_line_exit_2(tmp_path: Path, capsys: pytest.Cap
     err = capsys.readouterr().err
     assert err.startswith("stereocam hw synth: error: ") and err.count("\n") == 1 and message in err
     if "no module" not in message:
-        assert "overlays/rtl/" in err
+        assert "stereocam/overlays/rtl/" in err
 
 
 def test_missing_yosys_says_how_to_install_it(fake_core: Path, capsys: pytest.CaptureFixture[str],

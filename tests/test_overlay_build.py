@@ -1,10 +1,11 @@
-"""The Vivado scripts of ``overlays/vivado/`` against the spec the drivers and the emulated fabric read.
+"""The Vivado scripts of ``stereocam/overlays/vivado/`` against the spec the drivers and the emulated fabric
+read.
 
 Vivado is not installed where the tests run, so no bitstream is built here. Instead:
 
 * the scripts are read as text: a small Tcl word splitter (they are written in the regular style of
   Vivado's ``write_bd_tcl``) gives their commands, whose cell names, VLNVs, parameters, connections
-  and addresses are checked against ``overlays/spec/``, the RTL's module headers and the drivers;
+  and addresses are checked against ``stereocam/overlays/spec/``, the RTL's module headers and the drivers;
 * each script is then run in a plain Tcl interpreter (Python's ``tkinter.Tcl``, else ``tclsh``) with
   every Vivado command replaced by a recorder: that proves the scripts are valid Tcl, that their
   control flow (options, placeholder checks, output names) works, and that what they hand Vivado is
@@ -32,8 +33,8 @@ from stereocam.overlays.fabric import bind
 from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-VIVADO_DIR = REPO_ROOT / "overlays" / "vivado"
-RTL_DIR = REPO_ROOT / "overlays" / "rtl"
+VIVADO_DIR = REPO_ROOT / "stereocam" / "overlays" / "vivado"
+RTL_DIR = REPO_ROOT / "stereocam" / "overlays" / "rtl"
 SCRIPTS = ("settings.tcl", "package_ip.tcl", "block_design.tcl", "build.tcl")
 PS7 = "processing_system7_0"
 PS7_DATA = f"{PS7}/Data"  # the PS7's address space: GP0's register windows
@@ -1012,10 +1013,11 @@ def test_build_tcl_writes_into_the_checkouts_overlays_folder(tmp_path: Path, rtl
     run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=["-to", "package", "-proj", str(tmp_path / "p")],
                   preset={"STEREOCAM_RTL_DIR": str(rtl_copy)}, read=["stereocam_out"])
     assert run.error == ""
-    assert Path(run.variables["stereocam_out"]) == REPO_ROOT / "overlays"
-    # backend.py's first folder is its own (the installed overlays/ package, this folder in a checkout)
+    assert Path(run.variables["stereocam_out"]) == REPO_ROOT / "stereocam" / "overlays"
+    # backend.py's first folder is its own (the installed stereocam/overlays/ package, this folder in a
+    # checkout)
     assert backend.DEFAULT_BITSTREAM_DIRS[0] == Path(backend.__file__).parent
-    assert (REPO_ROOT / "overlays" / Path(backend.__file__).name).is_file()
+    assert (REPO_ROOT / "stereocam" / "overlays" / Path(backend.__file__).name).is_file()
     assert "launch_runs" not in [c[0] for c in run.calls], "-to package stops after packaging"
 
 

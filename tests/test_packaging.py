@@ -32,9 +32,7 @@ from stereocam.server.http import systemd
 REPO = Path(__file__).resolve().parent.parent
 VERSION = stereocam.__version__
 README = (REPO / "README.md").read_text(encoding="utf-8")
-# The folders the package maps (pyproject.toml, [tool.setuptools.package-dir]).
-FOLDERS = {"stereocam": "stereocam", "board": "stereocam/board", "drivers": "stereocam/drivers",
-           "server": "stereocam/server", "overlays": "stereocam/overlays"}
+PACKAGE = REPO / "stereocam"  # the package as it is in git: no links, no folder map
 NOT_SOURCES = shutil.ignore_patterns(".venv*", ".git", "build", "dist", "*.egg-info", "test-artifacts",
                                      "__pycache__", ".*_cache", "*.pyc")
 OFFLINE = {"PIP_NO_INDEX": "1", "PIP_DISABLE_PIP_VERSION_CHECK": "1", "PIP_NO_INPUT": "1"}
@@ -59,7 +57,7 @@ def dists(tmp_path_factory: pytest.TempPathFactory) -> Dists:
     """An sdist of a copy of this tree, and the wheel pip builds from that sdist offline."""
     root = tmp_path_factory.mktemp("packaging")
     src = root / "src"
-    shutil.copytree(REPO, src, ignore=NOT_SOURCES, symlinks=True)  # stereocam/ links as in a checkout
+    shutil.copytree(REPO, src, ignore=NOT_SOURCES)
     hook = "import sys; from setuptools import build_meta; print(build_meta.build_sdist(sys.argv[1]))"
     name = run([sys.executable, "-c", hook, str(root / "sdist")], cwd=src).stdout.strip().splitlines()[-1]
     sdist = root / "sdist" / name
@@ -96,9 +94,9 @@ def test_sdist_ships_the_package_and_no_tests(dists: Dists) -> None:
         names = {n.split("/", 1)[1] for n in tar.getnames() if "/" in n}
         pkg_info = tar.extractfile(f"stereocam-{VERSION}/PKG-INFO").read().decode()  # type: ignore[union-attr]
     assert not any(n == "tests" or n.startswith("tests/") for n in names), "its tests need the repository"
-    assert {"LICENSE", "README.md", "pyproject.toml", "setup.py", "board/stereocam.service",
-            "board/zynq-stereo.yaml", "server/http/static/index.html", "overlays/rtl/rectify_core.v",
-            "stereocam/cli.py"} <= names
+    assert {"LICENSE", "README.md", "pyproject.toml", "setup.py", "stereocam/board/stereocam.service",
+            "stereocam/board/zynq-stereo.yaml", "stereocam/server/http/static/index.html",
+            "stereocam/overlays/rtl/rectify_core.v", "stereocam/cli.py"} <= names
     assert not any(n.endswith((".pyc", ".egg-info/")) or "__pycache__" in n for n in names)
     meta = email.message_from_string(pkg_info)
     assert (meta["Name"], meta["Version"]) == ("stereocam", VERSION)
@@ -108,20 +106,19 @@ def test_sdist_ships_the_package_and_no_tests(dists: Dists) -> None:
 
 
 def expected_files() -> Set[str]:
-    """Every module of the mapped folders and the package data, as installed paths."""
+    """Every module of the package and its package data, as installed paths."""
     out: Set[str] = set()
-    for folder, installed in FOLDERS.items():
-        for path in (REPO / folder).rglob("*.py"):
-            rel = path.relative_to(REPO / folder)
-            if rel.parts[0] == "vivado" or "__pycache__" in rel.parts:
-                continue  # not a package: the overlay's build scripts are data
-            if (path.parent / "__init__.py").exists():
-                out.add(f"{installed}/{rel}")
-    out |= {f"stereocam/board/{p.name}" for p in (REPO / "board").glob("*.service")}
-    out |= {f"stereocam/board/{p.name}" for p in (REPO / "board").glob("*.yaml")}
-    out |= {f"stereocam/server/http/static/{p.name}" for p in (REPO / "server" / "http" / "static").iterdir()
-            if p.is_file()}
-    out |= {f"stereocam/overlays/rtl/{p.name}" for p in (REPO / "overlays" / "rtl").glob("*.v")}
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(REPO)
+        if "vivado" in rel.parts or "__pycache__" in rel.parts:
+            continue  # not a package: the overlay's build scripts are data
+        if (path.parent / "__init__.py").exists():
+            out.add(str(rel))
+    out |= {f"stereocam/board/{p.name}" for p in (PACKAGE / "board").glob("*.service")}
+    out |= {f"stereocam/board/{p.name}" for p in (PACKAGE / "board").glob("*.yaml")}
+    static = PACKAGE / "server" / "http" / "static"
+    out |= {f"stereocam/server/http/static/{p.name}" for p in static.iterdir() if p.is_file()}
+    out |= {f"stereocam/overlays/rtl/{p.name}" for p in (PACKAGE / "overlays" / "rtl").glob("*.v")}
     return out
 
 
@@ -148,15 +145,14 @@ PROVIDERS = {"numpy": "numpy", "cv2": "opencv-python-headless", "aiohttp": "aioh
 
 def test_every_third_party_import_is_a_declared_dependency(dists: Dists) -> None:
     imported: Set[str] = set()
-    for folder in FOLDERS:
-        for path in (REPO / folder).rglob("*.py"):
-            if {"rtl", "vivado", "__pycache__"} & set(path.relative_to(REPO).parts):
-                continue
-            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-                if isinstance(node, ast.Import):
-                    imported |= {a.name.split(".")[0] for a in node.names}
-                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                    imported.add(node.module.split(".")[0])
+    for path in PACKAGE.rglob("*.py"):
+        if {"rtl", "vivado", "__pycache__"} & set(path.relative_to(REPO).parts):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                imported |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imported.add(node.module.split(".")[0])
     third_party = imported - set(sys.stdlib_module_names) - {"stereocam"}
     assert third_party <= set(PROVIDERS), f"say which distribution provides {third_party - set(PROVIDERS)}"
     declared = {re.split(r"[<>=!~;\[ ]", r, maxsplit=1)[0].lower()
@@ -219,3 +215,20 @@ def test_an_old_setuptools_is_told_to_install_the_wheel(tmp_path: Path) -> None:
     assert done.stderr == ("building stereocam from source needs setuptools >= 77 (this one is 59.6.0): "
                            "install a stereocam wheel instead (README, 'On the board'), or pip install "
                            "'setuptools>=77' first\n")
+
+
+def test_every_module_is_a_file_git_knows() -> None:
+    """One path per file: what a traceback names (the module's origin) is what ``git ls-files`` lists
+    (tests/test_python_start.py: and no link under stereocam/ gives one a second path)."""
+    import importlib.util
+    import pkgutil
+
+    names = ["stereocam"] + [m.name for m in pkgutil.walk_packages(stereocam.__path__, "stereocam.")]
+    origins = {Path(str(importlib.util.find_spec(n).origin)).relative_to(REPO).as_posix()  # type: ignore[union-attr]
+               for n in names}
+    tracked = set(subprocess.run(["git", "ls-files", "stereocam"], cwd=REPO, capture_output=True, text=True,
+                                 check=True).stdout.split())
+    assert origins <= tracked, sorted(origins - tracked)
+    tracked_modules = {p for p in tracked
+                       if p.endswith(".py") and (REPO / p).parent.joinpath("__init__.py").exists()}
+    assert origins == tracked_modules

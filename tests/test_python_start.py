@@ -1,9 +1,10 @@
-"""A Python process of the test environment starts and imports stereocam without a word on stderr.
+"""A Python process of the test environment starts and imports stereocam without a word on stderr,
+and every module of the package is read from the one path git knows it by.
 
-In the armhf env the package is not installed: a ``.pth`` file in the rootfs imports
-``scripts/_stereocam_checkout.py`` at every start, which reads setup.py's folder map. When that
-broke, every Python start there printed a traceback while the tests still passed (they import
-through ``stereocam/``'s symbolic links): this module runs in every environment, armhf included.
+In the armhf env the package is not installed: the checkout is on ``PYTHONPATH`` there. In the
+others it is an editable install. Either way ``stereocam/`` is the package as it is in git (no
+links, no folder map): a traceback, mypy, import-linter, ruff, an IDE and ``git blame`` all name
+a file the same way. This module runs in every environment, armhf included.
 """
 from __future__ import annotations
 
@@ -12,6 +13,15 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
+PACKAGE = REPO / "stereocam"
+
+_ORIGINS = """
+import importlib.util, pkgutil, stereocam
+names = ["stereocam"] + [m.name for m in pkgutil.walk_packages(stereocam.__path__, "stereocam.",
+                                                                  onerror=lambda name: None)]
+for name in names:
+    print(name, importlib.util.find_spec(name).origin)
+"""
 
 
 def _python(code: str) -> subprocess.CompletedProcess:
@@ -26,21 +36,19 @@ def test_a_bare_python_start_prints_nothing() -> None:
 
 def test_importing_the_package_prints_nothing_and_finds_every_top_level_folder() -> None:
     done = _python("import stereocam.board, stereocam.drivers, stereocam.overlays\n"
-                   "import os, stereocam.server, stereocam.server.frames.pipeline\n"
-                   "print(os.path.realpath(stereocam.server.__file__))")
+                   "import stereocam.server, stereocam.server.frames.pipeline\n"
+                   "print(stereocam.server.frames.pipeline.__file__)")
     assert (done.returncode, done.stderr) == (0, "")
-    assert Path(done.stdout.strip()) == REPO / "server" / "__init__.py"
+    assert Path(done.stdout.strip()) == PACKAGE / "server" / "frames" / "pipeline.py"
 
 
-def test_the_checkout_finder_reads_setup_pys_folder_map() -> None:
-    """The armhf rootfs's finder maps each package of setup.py's map to its folder."""
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        import _stereocam_checkout as checkout
-    finally:
-        sys.path.remove(str(REPO / "scripts"))
-    folders = checkout._folders(str(REPO))
-    assert folders["stereocam.server"] == str(REPO / "server")
-    assert folders["stereocam"] == str(REPO / "stereocam")
-    spec = checkout.CheckoutFinder(folders).find_spec("stereocam.drivers")
-    assert spec is not None and spec.origin == str(REPO / "drivers" / "__init__.py")
+def test_every_module_is_imported_from_its_file_in_the_tree() -> None:
+    """The path a traceback shows for each module is the file under ``stereocam/``, not a link."""
+    done = _python(_ORIGINS)
+    assert done.returncode == 0, done.stderr
+    origins = dict(line.split(" ", 1) for line in done.stdout.splitlines())
+    files = {p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts
+             and (p.parent / "__init__.py").exists()}
+    assert {Path(o) for o in origins.values()} == files
+    assert not any(p.is_symlink() for p in PACKAGE.rglob("*")), "a link gives a file a second path"
+    assert len(origins) > 100

@@ -155,7 +155,7 @@ def test_unit_runs_the_daemon_as_a_notify_service_in_the_pynq_venv() -> None:
 
 
 def test_board_unit_is_the_generated_one() -> None:
-    assert (REPO / "board" / "stereocam.service").read_text() == systemd.unit_text()
+    assert (REPO / "stereocam" / "board" / "stereocam.service").read_text() == systemd.unit_text()
 
 
 def test_unit_passes_systemd_analyze(tmp_path) -> None:

@@ -1,6 +1,7 @@
 """SIGTERM while a ``PUT /api/calibration`` is being worked on.
 
-``server/API.md``, ``server/http/app.py`` and ``board/stereocam.service`` promise: SIGTERM stops the
+``stereocam/server/API.md``, ``stereocam/server/http/app.py`` and ``stereocam/board/stereocam.service``
+promise: SIGTERM stops the
 streams and the VDMA channels and returns the mux to live within 2 s. A valid calibration file
 with a large ``quality`` section (figures for people: parsed, not checked) takes the daemon
 seconds to check; SIGTERM during that check took up to 8.8 s, because the exit waited for the
@@ -32,7 +33,7 @@ from stereocam.server.http.state import Executors
 from .server_fixtures import start_daemon_fixture  # noqa: F401
 from .test_server_service import free_port, stereocam
 
-STOP_BOUND_S = 2.0  # server/API.md: "SIGTERM stops the streams ... within 2 s"
+STOP_BOUND_S = 2.0  # stereocam/server/API.md: "SIGTERM stops the streams ... within 2 s"
 NESTING = 16  # levels of the quality section's lists: each level adds parser events per character
 WAIT_S = 60.0  # last-resort bound of a wait for something that does happen (a busy machine is slow)
 YAML = {"Content-Type": "application/yaml"}

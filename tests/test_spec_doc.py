@@ -1,4 +1,5 @@
-"""overlays/RECTIFY_CORE.md, overlays/spec/rectify.py and overlays/rtl/rectify_spec.vh describe the
+"""stereocam/overlays/RECTIFY_CORE.md, stereocam/overlays/spec/rectify.py and
+stereocam/overlays/rtl/rectify_spec.vh describe the
 same core."""
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from stereocam.overlays.spec.rectify import (
 from stereocam.overlays.spec.regs import Access
 
 ROOT = Path(__file__).parents[1]
-DOC = (ROOT / "overlays" / "RECTIFY_CORE.md").read_text()
+DOC = (ROOT / "stereocam" / "overlays" / "RECTIFY_CORE.md").read_text()
 
 
 def test_every_control_register_is_documented_with_offset_access_and_reset() -> None:

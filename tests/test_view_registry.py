@@ -1,4 +1,4 @@
-"""Issue 21, item 4 ("Each fact once"): the views are listed once, in ``server/frames/views.py``.
+"""Issue 21, item 4 ("Each fact once"): the views are listed once, in ``stereocam/server/frames/views.py``.
 
 The page (its figures, the 1..N shortcuts, the WebSocket subscription), the bench and the browser
 tests read that registry (the page through ``GET /api/views``); a view added in one place only
@@ -21,7 +21,7 @@ from stereocam.server.frames.pipeline import FrameSet
 from .server_fixtures import start_daemon_fixture  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
-STATIC = ROOT / "server" / "http" / "static"
+STATIC = ROOT / "stereocam" / "server" / "http" / "static"
 RENDERS = {"camera", "hconcat", "anaglyph", "disparity"}  # what views._render knows
 # Quoted literals with nothing but commas, whitespace and comments between them.
 _LITERAL = re.compile(r"""(["'])([A-Za-z0-9_]+)\1""")

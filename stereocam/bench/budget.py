@@ -9,7 +9,7 @@ the page does, and counts the frames of each view it receives.
 
 Two phases, each after ``warmup`` seconds for the plan to settle:
 
-- ``all``: every view of the registry (``server/frames/views.py``) for
+- ``all``: every view of the registry (``stereocam/server/frames/views.py``) for
   ``seconds``: ``daemon_cores`` (mean over the window), ``daemon_cores_max_10s``
   (the worst 10-s stretch), each view's ``delivered_fps``;
 - ``one``: ``rect_left`` alone for ``one_seconds``: its ``delivered_fps``

@@ -18,7 +18,7 @@ The steps, as pure functions a daemon can call in a worker thread:
 
 The rectified row error is measured through the core's own mapping, not
 OpenCV's: each detected raw corner is carried to the rectified position
-whose core source position (steps 1-4 of ``overlays/RECTIFY_CORE.md``, the
+whose core source position (steps 1-4 of ``stereocam/overlays/RECTIFY_CORE.md``, the
 real-number mapping of :mod:`~stereocam.overlays.model.ideal` that the fixed-point
 core approximates) is that corner, by Newton's method started from
 ``cv2.undistortPoints``; the forward mapping used is checked against the

@@ -404,8 +404,8 @@ def _emit(cal: Calibration) -> str:
     lines = [
         "# stereocam calibration. Written by stereocam; read by `stereocam rectify --calibration` and",
         "# `stereocam serve --calibration`. `model` and `rectification` are the calibration; `core` is",
-        "# derived from them (the rectify core's registers, overlays/RECTIFY_CORE.md) and checked on",
-        "# load: edit the model, and the file is refused until `core` and `id` are made again",
+        "# derived from them (the rectify core's registers, stereocam/overlays/RECTIFY_CORE.md) and",
+        "# checked on load: edit the model, and the file is refused until `core` and `id` are made again",
         "# (delete both, then `stereocam calibration import FILE -o NEW`).",
         f"schema_version: {SCHEMA_VERSION}",
         f"id: {json.dumps(cal.id)}  # sha256 of model + rectification, first {ID_LENGTH} hex digits",

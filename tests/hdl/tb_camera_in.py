@@ -1,10 +1,11 @@
-"""cocotb testbench for overlays/rtl/camera/camera_in.v, the camera input IP, against its numpy model.
+"""cocotb testbench for stereocam/overlays/rtl/camera/camera_in.v, the camera input IP, against its numpy
+model.
 
 Run by ``tests/hdl/test_camera_in_rtl.py`` through ``run_cocotb``; not a pytest module. Two
 sensor models play random 10-bit Bayer frames on their own pixel clocks (MT9V034 bus timing from
-``overlays/model/camera_in.py: pixel_bus``; frame k starts on both at the same moment, as with
+``stereocam/overlays/model/camera_in.py: pixel_bus``; frame k starts on both at the same moment, as with
 hardware-synchronised sensors), aclk runs at another, unrelated frequency, and a sink takes the
-AXI4-Stream with random TREADY pauses. The oracle is ``overlays/model/camera_in.py``
+AXI4-Stream with random TREADY pauses. The oracle is ``stereocam/overlays/model/camera_in.py``
 (``expected_frames``, ``demosaic``): every output beat (TDATA, TUSER, TLAST) is compared with it
 bit for bit. Where the test makes a receiver's FIFO overflow, each output frame must be the model
 of a prefix of the frame sent (the spec's rule for a frame cut short), in order.

@@ -1,13 +1,13 @@
-"""cocotb testbench for overlays/rtl/camera/frame_gate.v against its model, clock by clock.
+"""cocotb testbench for stereocam/overlays/rtl/camera/frame_gate.v against its model, clock by clock.
 
 Run by ``tests/hdl/test_frame_gate_rtl.py`` through ``run_cocotb``; not a pytest module. Each case
 builds a schedule: the beat offered on ``s_axis`` in every clock (random 64-bit TDATA, TUSER on a
 frame's first beat, TLAST ending each line, idle clocks between) and ``m_axis_tready`` in every
-clock. The oracle is ``overlays/model/frame_gate.py``: every beat that leaves ``m_axis`` (the clock it
-leaves in, TDATA, TUSER, TLAST) and the frame counters must equal the model's. Each case also states
-what the policy (``overlays/spec/frame_gate.py``) makes of its schedule, frame by frame, and checks the
-model against that, so the model is tested too. In every clock after reset ``s_axis_tready`` must be
-high, and an offered beat must hold until it is taken (AXI4-Stream).
+clock. The oracle is ``stereocam/overlays/model/frame_gate.py``: every beat that leaves ``m_axis``
+(the clock it leaves in, TDATA, TUSER, TLAST) and the frame counters must equal the model's. Each case
+also states what the policy (``stereocam/overlays/spec/frame_gate.py``) makes of its schedule, frame by
+frame, and checks the model against that, so the model is tested too. In every clock after reset
+``s_axis_tready`` must be high, and an offered beat must hold until it is taken (AXI4-Stream).
 
 The build's DEPTH comes in ``STEREOCAM_FG_DEPTH``: the small cases need a small one (64), the
 camera-rate case the default (1024).

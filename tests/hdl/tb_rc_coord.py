@@ -1,4 +1,4 @@
-"""cocotb testbench for overlays/rtl/rc_coord.v, the coordinate engine (steps 1-4, both cameras).
+"""cocotb testbench for stereocam/overlays/rtl/rc_coord.v, the coordinate engine (steps 1-4, both cameras).
 
 Run by ``tests/hdl/test_rc_coord.py`` through ``run_cocotb`` under Verilator and Icarus; it
 is not a pytest module (cocotb imports it inside the simulator). The pytest side writes
@@ -7,7 +7,7 @@ the parameter sets to a JSON file named by ``RC_COORD_CASES``:
 "ready": probability of out_ready per clock, "seed"}]}`` (``COCOTB_TEST_FILTER`` picks the
 cocotb tests to run).
 Every output word of every frame is compared with ``positions()`` of the integer model
-(``overlays/model/fixed.py``); a case passes only with 0 differing words, exactly
+(``stereocam/overlays/model/fixed.py``); a case passes only with 0 differing words, exactly
 ``width * height`` words and nothing after them. Timing figures (clocks from start to the
 first word, clocks per word, simulated positions per second) go to ``RC_COORD_REPORT``
 when it is set.

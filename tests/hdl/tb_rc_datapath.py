@@ -1,10 +1,10 @@
-"""cocotb testbench for overlays/rtl/rc_datapath.v, the rectify core's pixel side, on its own.
+"""cocotb testbench for stereocam/overlays/rtl/rc_datapath.v, the rectify core's pixel side, on its own.
 
 Run by ``tests/hdl/test_rc_datapath.py`` through ``run_cocotb``; not a pytest module. The
 testbench stands in for the two other parts of the core: it drives the active set and the
 control bits that ``rc_regs`` would, and it is the coordinate engine, answering each
 ``coord_start`` with one position word per output pixel over a valid/ready handshake with
-random gaps. Positions come from ``overlays/model/fixed.py`` (random calibrations) or are
+random gaps. Positions come from ``stereocam/overlays/model/fixed.py`` (random calibrations) or are
 drawn at random around the window and the image's edges to reach every case of the tap
 logic. The oracle is :func:`model_stream`, a small numpy model written from
 RECTIFY_CORE.md ("Malformed input", step 5, "Gray of a tap", edges, "The line buffer"),
@@ -286,7 +286,8 @@ def random_positions(rng: np.random.Generator, options: FrameOptions, lb_rows: i
 
 
 def fixed_positions(regs: Sequence[Any], width: int, height: int) -> Positions:
-    """Positions of the fixed-point model (``overlays/model/fixed.py``) for both cameras' registers."""
+    """Positions of the fixed-point model (``stereocam/overlays/model/fixed.py``) for both cameras'
+    registers."""
     from stereocam.overlays.model import fixed
 
     y, x = np.mgrid[0:height, 0:width]

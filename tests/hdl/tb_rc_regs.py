@@ -1,4 +1,4 @@
-"""cocotb testbench for overlays/rtl/rc_regs.v, the rectify core's AXI4-Lite register block.
+"""cocotb testbench for stereocam/overlays/rtl/rc_regs.v, the rectify core's AXI4-Lite register block.
 
 Run by ``tests/hdl/test_rc_regs.py`` through ``run_cocotb`` under Verilator and Icarus; it
 is not a pytest module (cocotb imports it inside the simulator). The build parameters

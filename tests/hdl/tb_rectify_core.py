@@ -1,4 +1,5 @@
-"""cocotb testbench for the whole rectify core (overlays/rtl/rectify_core.v) against the emulated core.
+"""cocotb testbench for the whole rectify core (stereocam/overlays/rtl/rectify_core.v) against the emulated
+core.
 
 Run by ``tests/hdl/test_rectify_core_rtl.py`` through ``run_cocotb``; not a pytest module.
 The pytest side writes the scenarios (``STEREOCAM_CORE_CASES``: a JSON file of steps and an

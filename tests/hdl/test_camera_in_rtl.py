@@ -1,7 +1,8 @@
-"""The camera input IP (overlays/rtl/camera/) in Verilator and Icarus, bit-exact against its numpy model.
+"""The camera input IP (stereocam/overlays/rtl/camera/) in Verilator and Icarus, bit-exact against its numpy
+model.
 
 The testbench (``tb_camera_in.py``) plays two MT9V034 buses on their own pixel clocks and compares
-every output beat with ``overlays/model/camera_in.py``. A 64-wide build keeps a run within seconds
+every output beat with ``stereocam/overlays/model/camera_in.py``. A 64-wide build keeps a run within seconds
 (its line FIFOs hold 256 words, so backpressure overflows them quickly); the 752-wide build plays a 752 x 6
 frame pair, a full 752 x 480 one with ``STEREOCAM_COSIM_FULL=1``, which also runs more seeds.
 """

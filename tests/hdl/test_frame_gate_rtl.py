@@ -1,8 +1,10 @@
-"""The frame gate (overlays/rtl/camera/frame_gate.v) in Verilator and Icarus, clock by clock against its
+"""The frame gate (stereocam/overlays/rtl/camera/frame_gate.v) in Verilator and Icarus, clock by clock
+against its
 model.
 
 The testbench (``tb_frame_gate.py``) drives schedules of beats and TREADY patterns and compares every
-beat that leaves, and the clock it leaves in, with ``overlays/model/frame_gate.py``. A DEPTH-64 build
+beat that leaves, and the clock it leaves in, with ``stereocam/overlays/model/frame_gate.py``. A DEPTH-64
+build
 runs the policy cases (overflow after three 20-beat lines); the default build (DEPTH 1024) runs the
 camera-rate case: 752-beat lines at camera_in's rate into the rectify core's and a VDMA's.
 """

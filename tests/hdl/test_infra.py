@@ -127,7 +127,7 @@ def test_rtl_dir_is_the_overlays_package_folder() -> None:
     """Through stereocam/'s link or the editable install's map, the same folder of the checkout."""
     overlays = importlib.import_module("stereocam.overlays")
     assert hdl.rtl_dir() == (Path(str(overlays.__file__)).parent / "rtl").resolve()
-    assert hdl.rtl_dir() == (REPO_ROOT / "overlays" / "rtl").resolve()
+    assert hdl.rtl_dir() == (REPO_ROOT / "stereocam" / "overlays" / "rtl").resolve()
     assert (hdl.rtl_dir() / "rectify_core.v").is_file()
 
 

@@ -1,9 +1,10 @@
-"""The coordinate engine (overlays/rtl/rc_coord.v) in Verilator and Icarus, word for word against the model.
+"""The coordinate engine (stereocam/overlays/rtl/rc_coord.v) in Verilator and Icarus, word for word against
+the model.
 
 Parameter sets: random stereo rigs rectified with OpenCV (``cv2.stereoRectify``), OpenCV's
 sample calibration, and stress sets that drive every validity check and the wrapping
 accumulators; ``tests/hdl/tb_rc_coord.py`` compares every output word with
-``overlays/model/fixed.py: positions``. ``STEREOCAM_COSIM_FULL=1`` runs the larger sets
+``stereocam/overlays/model/fixed.py: positions``. ``STEREOCAM_COSIM_FULL=1`` runs the larger sets
 (all random rigs under both simulators, the sample calibration at 640x480); by default
 both simulators see a subset and Verilator the rest, so the file stays well under two
 minutes. Also here: lint, and the engine's resources from yosys against its budget.

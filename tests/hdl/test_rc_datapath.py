@@ -1,4 +1,5 @@
-"""rc_datapath (overlays/rtl/rc_datapath.v) on its own, in Verilator and Icarus, against a numpy model.
+"""rc_datapath (stereocam/overlays/rtl/rc_datapath.v) on its own, in Verilator and Icarus, against a numpy
+model.
 
 The testbench (``tb_rc_datapath.py``) plays rc_regs and the coordinate engine. Small builds
 (64 columns, 16-row line buffer, gray and colour) keep a run within seconds;

@@ -1,4 +1,4 @@
-"""The rectify core's register block, overlays/rtl/rc_regs.v: co-simulation, lint and synthesis.
+"""The rectify core's register block, stereocam/overlays/rtl/rc_regs.v: co-simulation, lint and synthesis.
 
 The cocotb testbench is ``tb_rc_regs.py``; it reads the build parameters of the run from
 ``RC_REGS_BUILD`` and derives every expectation from ``RECTIFY_MAP`` and ``PARAM_RANGE``.

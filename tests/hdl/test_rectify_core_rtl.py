@@ -1,4 +1,5 @@
-"""The whole rectify core in RTL (overlays/rtl/rectify_core.v) against the emulated core, co-simulated.
+"""The whole rectify core in RTL (stereocam/overlays/rtl/rectify_core.v) against the emulated core,
+co-simulated.
 
 Each test writes scenarios (register writes, frames, checks) for ``tb_rectify_core.py``,
 which replays them on the RTL in Verilator or Icarus (cocotb, ``cocotbext-axi`` bus models

@@ -1,6 +1,6 @@
 """``stereocam.overlays.rtl.core.RtlCore``: the core's RTL compiled by Verilator, against the emulated core.
 
-The driver (``drivers/rectify.py: RectifyCore``) programs both the RTL (``RtlCore``) and
+The driver (``stereocam/drivers/rectify.py: RectifyCore``) programs both the RTL (``RtlCore``) and
 the emulated core (``EmulatedRectifyCore``, the oracle) with the same calibration; the
 same frames then go through both and every output byte, FLAGS, FRAME_COUNT and STATUS
 must agree. Small builds (96x64, 16 buffered rows, colour and gray) keep each test to

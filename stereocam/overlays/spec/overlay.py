@@ -1,0 +1,48 @@
+"""The overlay's IP instances: names, identities and what each driver needs from the metadata.
+
+Written once: the board overlay binds drivers by these names and checks the
+VLNV of what it finds there; the emulated fabric places its blocks under the
+same names.
+"""
+from __future__ import annotations
+
+from typing import Dict, Tuple
+
+from .rectify import VLNV as RECTIFY_VLNV
+
+BITSTREAM = "stereocam.bit"  # with stereocam.hwh beside it
+
+VDMA_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axi_vdma:6.2", "xilinx.com:ip:axi_vdma:6.3")
+SWITCH_VLNVS: Tuple[str, ...] = ("xilinx.com:ip:axis_switch:1.1",)
+
+# Base addresses of the IP register windows in the PS7's M_AXI_GP0 range, as the block design
+# (stereocam/overlays/vivado/block_design.tcl) assigns them and the .hwh reports them; the emulated fabric
+# places its blocks at the same addresses.
+ADDRESS_MAP: Dict[str, int] = {
+    "vdma_raw": 0x4300_0000,
+    "vdma_proc": 0x4301_0000,
+    "rectify": 0x43C0_0000,
+    "mux": 0x43C1_0000,
+}
+WINDOW_SIZE = 0x1_0000  # 64 KiB per IP
+NUM_FSTORES = 3  # frame stores of each VDMA channel (C_NUM_FSTORES)
+
+# instance name -> accepted VLNVs
+INSTANCES: Dict[str, Tuple[str, ...]] = {
+    "vdma_raw": VDMA_VLNVS,  # S2MM: raw camera frames to DDR
+    "vdma_proc": VDMA_VLNVS,  # MM2S: virtual camera; S2MM: rectified frames to DDR
+    "mux": SWITCH_VLNVS,  # SI0 live cameras, SI1 virtual camera -> rectify core
+    "rectify": (RECTIFY_VLNV,),
+}
+
+#: The one fabric clock (the PS7's FCLK_CLK0): AXI4-Lite registers, every stream, the HP port.
+#: stereocam/overlays/vivado/settings.tcl sets it in MHz (STEREOCAM_FCLK0_MHZ); a test checks they agree.
+FABRIC_CLOCK_HZ = 100_000_000
+
+#: The interrupt lines into the PS7's IRQ_F2P, in order (the xlconcat's In0 first, IRQ_F2P[0]):
+#: (cell, pin). Their interrupt numbers follow this order; the .hwh reports them to pynq.
+INTERRUPTS: Tuple[Tuple[str, str], ...] = (
+    ("vdma_raw", "s2mm_introut"),
+    ("vdma_proc", "mm2s_introut"),
+    ("vdma_proc", "s2mm_introut"),
+)

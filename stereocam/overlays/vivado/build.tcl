@@ -1,0 +1,189 @@
+# build.tcl: build the stereocam overlay (stereocam.bit + stereocam.hwh) with Vivado in batch mode.
+#
+#   stereocam/overlays/vivado/build.sh [options]
+#   vivado -mode batch -source stereocam/overlays/vivado/build.tcl -tclargs [options]
+#
+# Options (one or two leading dashes):
+#   -out DIR    where stereocam.bit and stereocam.hwh go. Default: stereocam/overlays/ of this checkout, the first
+#               folder `stereocam --backend pynq` looks in (stereocam/overlays/backend.py: DEFAULT_BITSTREAM_DIRS).
+#   -proj DIR   the Vivado project and the packaged IP. Default: stereocam/overlays/vivado/build/stereocam.
+#   -xdc FILE   the pin constraints. Default: stereocam.xdc beside this script, whose pin locations are
+#               placeholders: implementation refuses it until they are filled in.
+#   -jobs N     parallel synthesis/implementation jobs. Default: 2.
+#   -to STEP    stop after STEP: package (the IP), bd (block design, wrapper, output products),
+#               synth, impl (placed and routed), bit (the default: bitstream and .hwh copied to -out).
+#
+# The flow follows PYNQ's boards/<board>/base/build_bitstream.tcl: package the IP (package_ip.tcl),
+# create the project and the block design (block_design.tcl), validate it, make its HDL wrapper,
+# synthesise, implement, write the bitstream, and copy the bitstream and the hardware handoff under
+# the overlay's name (pynq wants the .hwh beside the .bit with the same name).
+
+set stereocam_here [file dirname [file normalize [info script]]]
+source [file join $stereocam_here settings.tcl]
+
+set stereocam_steps {package bd synth impl bit}
+
+# Options as a dict: $defaults with the values given in $arguments (-name value or --name value).
+proc stereocam_parse_args {arguments defaults} {
+    set opts $defaults
+    while {[llength $arguments] > 0} {
+        set arguments [lassign $arguments flag]
+        set name [string trimleft $flag -]
+        if {$name eq $flag || ![dict exists $opts $name]} {
+            error "build.tcl: unknown option '$flag' (options: -[join [dict keys $defaults] {, -}])"
+        }
+        if {[llength $arguments] == 0} {
+            error "build.tcl: option '$flag' needs a value"
+        }
+        set arguments [lassign $arguments value]
+        dict set opts $name $value
+    }
+    return $opts
+}
+
+# A path given on the command line, relative to where the user ran build.sh.
+proc stereocam_path {path} {
+    if {[info exists ::env(STEREOCAM_CALLER_DIR)] && [file pathtype $path] eq "relative"} {
+        set path [file join $::env(STEREOCAM_CALLER_DIR) $path]
+    }
+    return [file normalize $path]
+}
+
+# Fail unless run $run completed.
+proc stereocam_check_run {run} {
+    set progress [get_property PROGRESS [get_runs $run]]
+    if {$progress ne "100%"} {
+        set log [file join [get_property DIRECTORY [get_runs $run]] runme.log]
+        error "build.tcl: $run stopped at $progress ([get_property STATUS [get_runs $run]]): see $log"
+    }
+}
+
+if {![info exists argv]} {
+    set argv {}
+}
+set stereocam_opts [stereocam_parse_args $argv [dict create \
+    out $STEREOCAM_OVERLAYS_DIR \
+    proj [file join $STEREOCAM_VIVADO_DIR build $STEREOCAM_BD_NAME] \
+    xdc [file join $STEREOCAM_VIVADO_DIR stereocam.xdc] \
+    jobs 2 \
+    to bit]]
+set stereocam_out [stereocam_path [dict get $stereocam_opts out]]
+set stereocam_proj [stereocam_path [dict get $stereocam_opts proj]]
+set stereocam_xdc [stereocam_path [dict get $stereocam_opts xdc]]
+set stereocam_jobs [dict get $stereocam_opts jobs]
+set stereocam_last [lsearch -exact $stereocam_steps [dict get $stereocam_opts to]]
+if {$stereocam_last < 0} {
+    error "build.tcl: -to must be one of [join $stereocam_steps {, }], not '[dict get $stereocam_opts to]'"
+}
+if {![string is integer -strict $stereocam_jobs] || $stereocam_jobs < 1} {
+    error "build.tcl: -jobs must be a positive number, not '$stereocam_jobs'"
+}
+
+set stereocam_found [version -short]
+if {[string first $STEREOCAM_VIVADO_VERSION $stereocam_found] != 0} {
+    puts "WARNING: stereocam: these scripts were written for Vivado $STEREOCAM_VIVADO_VERSION and this is\
+          $stereocam_found: if an IP version differs, create_bd_cell names the VLNV it could not find."
+}
+
+# The constraints: refuse placeholder pins before hours of work, unless only synthesis was asked for.
+set stereocam_synth [lsearch -exact $stereocam_steps synth]
+if {$stereocam_last >= $stereocam_synth && ![file isfile $stereocam_xdc]} {
+    error "build.tcl: no constraints file $stereocam_xdc"
+}
+set stereocam_use_xdc 0
+if {[file isfile $stereocam_xdc]} {
+    set stereocam_fd [open $stereocam_xdc r]
+    set stereocam_xdc_text [read $stereocam_fd]
+    close $stereocam_fd
+    if {[string first FILL_IN $stereocam_xdc_text] < 0} {
+        set stereocam_use_xdc 1
+    } elseif {$stereocam_last > $stereocam_synth} {
+        error "build.tcl: $stereocam_xdc still has placeholder pin locations (FILL_IN). Copy it, fill in\
+               your board's pins (see the comments at its top) and pass -xdc <your copy>; or stop after\
+               synthesis with -to synth."
+    } else {
+        puts "WARNING: stereocam: $stereocam_xdc has placeholder pins (FILL_IN): leaving it out."
+    }
+}
+
+puts "stereocam: Vivado $stereocam_found, project $stereocam_proj, outputs to $stereocam_out"
+
+# ---- 1. package the IP (before the project: Vivado holds one project at a time) ---------------------
+set STEREOCAM_IP_REPO [file join $stereocam_proj ip_repo]
+set STEREOCAM_IP_BUILD [file join $stereocam_proj ip_build]
+source [file join $STEREOCAM_VIVADO_DIR package_ip.tcl]
+if {$stereocam_last == [lsearch -exact $stereocam_steps package]} {
+    puts "stereocam: IP packaged in $STEREOCAM_IP_REPO"
+    return
+}
+
+# ---- 2. the project, the block design, its wrapper and output products -----------------------------
+create_project -force $STEREOCAM_BD_NAME $stereocam_proj -part $STEREOCAM_PART
+if {$STEREOCAM_BOARD_PART ne ""} {
+    set_property board_part $STEREOCAM_BOARD_PART [current_project]
+}
+set_property target_language Verilog [current_project]
+set_property ip_repo_paths [list $STEREOCAM_IP_REPO] [current_project]
+update_ip_catalog -rebuild
+
+source [file join $STEREOCAM_VIVADO_DIR block_design.tcl]
+validate_bd_design
+save_bd_design
+
+set stereocam_bd [get_files $STEREOCAM_BD_NAME.bd]
+add_files -norecurse [make_wrapper -files $stereocam_bd -top]
+set_property top ${STEREOCAM_BD_NAME}_wrapper [current_fileset]
+update_compile_order -fileset sources_1
+generate_target all $stereocam_bd
+if {$stereocam_use_xdc} {
+    add_files -fileset constrs_1 -norecurse $stereocam_xdc
+}
+if {$stereocam_last == [lsearch -exact $stereocam_steps bd]} {
+    puts "stereocam: block design ready in $stereocam_proj"
+    return
+}
+
+# ---- 3. synthesis ------------------------------------------------------------------------------------
+launch_runs synth_1 -jobs $stereocam_jobs
+wait_on_run synth_1
+stereocam_check_run synth_1
+if {$stereocam_last == [lsearch -exact $stereocam_steps synth]} {
+    puts "stereocam: synthesised; reports in [get_property DIRECTORY [get_runs synth_1]]"
+    return
+}
+
+# ---- 4. implementation and bitstream ---------------------------------------------------------------
+if {$stereocam_last == [lsearch -exact $stereocam_steps impl]} {
+    launch_runs impl_1 -jobs $stereocam_jobs
+} else {
+    launch_runs impl_1 -to_step write_bitstream -jobs $stereocam_jobs
+}
+wait_on_run impl_1
+stereocam_check_run impl_1
+set stereocam_impl_dir [get_property DIRECTORY [get_runs impl_1]]
+if {$stereocam_last == [lsearch -exact $stereocam_steps impl]} {
+    puts "stereocam: implemented; reports in $stereocam_impl_dir"
+    return
+}
+
+# ---- 5. the overlay: <out>/stereocam.bit and <out>/stereocam.hwh -----------------------------------
+set stereocam_bit [file join $stereocam_impl_dir ${STEREOCAM_BD_NAME}_wrapper.bit]
+# The hardware handoff: under <project>.gen in recent releases, under <project>.srcs in older ones.
+set stereocam_hwh ""
+foreach stereocam_dir [list $STEREOCAM_BD_NAME.gen $STEREOCAM_BD_NAME.srcs] {
+    set stereocam_candidate [file join $stereocam_proj $stereocam_dir sources_1 bd $STEREOCAM_BD_NAME \
+        hw_handoff $STEREOCAM_BD_NAME.hwh]
+    if {$stereocam_hwh eq "" && [file isfile $stereocam_candidate]} {
+        set stereocam_hwh $stereocam_candidate
+    }
+}
+if {![file isfile $stereocam_bit]} {
+    error "build.tcl: impl_1 finished but wrote no $stereocam_bit"
+}
+if {$stereocam_hwh eq ""} {
+    error "build.tcl: no hardware handoff $STEREOCAM_BD_NAME.hwh under $stereocam_proj"
+}
+file mkdir $stereocam_out
+file copy -force $stereocam_bit [file join $stereocam_out $STEREOCAM_OVERLAY.bit]
+file copy -force $stereocam_hwh [file join $stereocam_out $STEREOCAM_OVERLAY.hwh]
+puts "stereocam: wrote [file join $stereocam_out $STEREOCAM_OVERLAY.bit] and $STEREOCAM_OVERLAY.hwh beside it"

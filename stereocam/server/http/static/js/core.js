@@ -1,0 +1,313 @@
+// Shared by every panel: the page's parameters, the access token, messages, the HTTP API
+// and formatting.
+//
+// Contract: stereocam/server/API.md. All live views come over ONE WebSocket (/ws): browsers
+// allow about 6 connections per host, so seven MJPEG <img> streams would starve the
+// API calls. Each binary message is
+//   [4-byte big-endian header length][UTF-8 JSON {view, frame, timestamp}][JPEG bytes]
+// and becomes a blob URL on that view's <img>; the previous blob URL is revoked once
+// the new one has loaded. Each <img> carries data-frame / data-timestamp of the frame
+// it shows (tests read them).
+//
+// Access token: when the daemon has `access_token` set, open the page as
+// /?token=SECRET once. The daemon answers with a redirect to the page without the token
+// (it leaves the address bar) and sets the stereocam_token cookie itself (HttpOnly,
+// SameSite=Strict): this script never holds the token, and every request of the page
+// (API calls, the WebSocket, images) carries it as that cookie. /?token= (empty) forgets it.
+// The daemon also sets stereocam_has_token=1, which says only that a token was given.
+//
+// Errors: every failed API call shows a message in plain words in #messages, with the
+// daemon's {"error": ...} text behind a disclosure; nothing is swallowed (see "messages").
+
+export { VIEWS, VIEW_INFO } from "./views.js";  // the daemon's view registry (GET /api/views)
+export const params = new URLSearchParams(window.location.search);
+export const WS_FPS = clampNumber(params.get("fps"), 1, 60, 15);
+export const THUMB_SCALE = 0.5;  // of each view's size, one of the daemon's stream scales
+export const STATUS_PERIOD_MS = 1000;
+export const BACKOFF_MIN_MS = 500;
+export const BACKOFF_MAX_MS = 10000;
+
+export const $ = (id) => document.getElementById(id);
+
+export function clampNumber(text, lo, hi, fallback) {
+  const n = Number(text);
+  if (text === null || text === "" || !Number.isFinite(n)) return fallback;
+  return Math.min(hi, Math.max(lo, n));
+}
+
+// ---- access token ---------------------------------------------------------------
+// Whether a token was given (the daemon's cookie holds it, out of this script's reach).
+export const TOKEN_GIVEN = document.cookie.split(";").some((c) => c.trim() === "stereocam_has_token=1");
+// Earlier pages kept the token in localStorage: it does not belong there.
+try { localStorage.removeItem("stereocam.token"); } catch (e) { /* storage disabled */ }
+
+// ---- messages -------------------------------------------------------------------
+// Three kinds: "error" stays until dismissed; "success" and "info" fade by themselves after
+// MESSAGE_FADE_MS. Each says in plain words what happened and what to do; the HTTP detail
+// ("POST /api/verify → 409: ...") sits behind a disclosure (<details>). A message has a `key`,
+// the kind of action it is about ("POST /api/virtual-camera"): a new error of that key replaces
+// the old one, and any later success of that key (every api() call that succeeds, or
+// clearMessages(key)) removes it, so a stale error never stays on top of a success.
+// data-testid: "message-error" for errors, "message-info" for the others.
+export const MESSAGE_FADE_MS = 5000;
+const MESSAGE_MAX = 6;
+let messageSeq = 0;
+
+export function showMessage(text, kind, opts) {
+  kind = kind || "error";
+  opts = opts || {};
+  const box = $("messages");
+  const key = opts.key || "";
+  if (key) clearMessages(key, kind === "error" ? null : "error");
+  const item = document.createElement("div");
+  item.className = "msg msg-" + kind;
+  item.setAttribute("data-testid", kind === "error" ? "message-error" : "message-info");
+  item.setAttribute("role", kind === "error" ? "alert" : "status");
+  item.id = "message-" + (++messageSeq);
+  if (key) item.dataset.key = key;
+  const body = document.createElement("div");
+  body.className = "msg-body";
+  const p = document.createElement("p");
+  p.className = "msg-text";
+  p.textContent = text;
+  body.append(p);
+  if (opts.detail) {
+    const details = document.createElement("details");
+    details.className = "msg-detail";
+    const summary = document.createElement("summary");
+    summary.textContent = opts.status ? "HTTP " + opts.status : "details";
+    const code = document.createElement("code");
+    code.textContent = opts.detail;
+    details.append(summary, code);
+    body.append(details);
+  }
+  const close = document.createElement("button");
+  close.type = "button";
+  close.className = "msg-close";
+  close.setAttribute("aria-label", "dismiss");
+  close.title = "dismiss";
+  close.textContent = "×";
+  close.addEventListener("click", () => item.remove());
+  item.append(body, close);
+  box.append(item);
+  while (box.children.length > MESSAGE_MAX) box.firstElementChild.remove();
+  if (kind !== "error") {
+    // Fade, then go; while it has the keyboard focus (its disclosure or close button) it stays.
+    let timer = null;
+    const arm = () => {
+      clearTimeout(timer);
+      timer = setTimeout(() => {
+        item.classList.add("msg-fading");
+        timer = setTimeout(() => item.remove(), 600);
+      }, opts.fadeMs || MESSAGE_FADE_MS);
+    };
+    item.addEventListener("focusin", () => { clearTimeout(timer); item.classList.remove("msg-fading"); });
+    item.addEventListener("focusout", arm);
+    arm();
+  }
+  return item;
+}
+
+// Remove the messages of `key` (only those of `kind` when given).
+export function clearMessages(key, kind) {
+  for (const el of [...$("messages").children]) {
+    if (el.dataset.key === key && (!kind || el.classList.contains("msg-" + kind))) el.remove();
+  }
+}
+
+export function showSuccess(text, key) { return showMessage(text, "success", { key: key }); }
+export function showInfo(text, key) { return showMessage(text, "info", { key: key }); }
+
+// An error as a message: `e` an ApiError (worded by `explain` and the generic rules below) or
+// any other error; `text` a plain string.
+export function showError(e, opts) {
+  opts = opts || {};
+  if (typeof e === "string") return showMessage(e, "error", { key: opts.key });
+  if (e instanceof ApiError) {
+    return showMessage(explainError(e, opts), "error",
+                       { key: opts.key || e.key, detail: e.http, status: e.status });
+  }
+  return showMessage("Something went wrong in the page: " + e + ". Reload it; if it happens again, " +
+                     "report it with the browser console's output.", "error", { key: opts.key });
+}
+
+// ---- HTTP API -------------------------------------------------------------------
+// An API failure: `method`, `path`, `status` (0: no answer) and `detail` (the daemon's
+// {"error": ...} text, which says what to do). `message` keeps the one-line form
+// "POST /api/verify → 409: ..." (`http`); an ApiError the page raises itself has no status.
+export class ApiError extends Error {
+  constructor(message, fields) {
+    super(message);
+    Object.assign(this, { method: null, path: null, status: null, detail: message, key: null }, fields || {});
+    this.http = this.method ? message : null;
+  }
+}
+
+// The kind of action a request is: the method and path without query or ids.
+export function actionKey(method, path) {
+  const clean = path.split("?")[0].split("/").map((seg) => (/\d/.test(seg) ? "*" : seg)).join("/");
+  return method + " " + clean;
+}
+
+const sentence = (t) => { t = String(t || "").trim(); return t ? t[0].toUpperCase() + t.slice(1) : t; };
+const stop = (t) => (/[.!?]$/.test(t) ? t : t + ".");
+
+// Plain words for an ApiError. `opts.explain`: {status: text | (e) => text} or (e) => text|null,
+// the panel's own wording; `opts.what`: what was tried ("Capture"), for the generic rules.
+export function explainError(e, opts) {
+  opts = opts || {};
+  const ex = opts.explain;
+  let own = null;
+  if (typeof ex === "function") own = ex(e);
+  else if (ex && e.status !== null && ex[e.status] !== undefined) {
+    own = typeof ex[e.status] === "function" ? ex[e.status](e) : ex[e.status];
+  }
+  if (own) return own;
+  const what = opts.what || (e.method ? describeRequest(e.method, e.path) : "");
+  const failed = what ? what + " failed: " : "";
+  const detail = stop(sentence(e.detail || ""));
+  if (e.status === null) return sentence(failed + e.detail);
+  if (e.status === 0) {
+    return failed + "the daemon did not answer. Check that stereocam is running and that this computer " +
+           "can reach the board, then try again.";
+  }
+  if (e.status === 401) {
+    return (what || "This change") + " needs the daemon's access token: open the page once as " +
+           "/?token=YOUR_TOKEN (it is remembered).";
+  }
+  if (e.status === 403) return failed + "the daemon takes changes only from its own page. " + detail;
+  if (e.status === 413) return failed + "that is more than the daemon accepts. " + detail;
+  if (e.status === 507) return failed + "the board's disk is full. Delete captures or calibration pairs, then try again.";
+  if (e.status >= 500) return failed + detail + " If it persists, see the daemon's log.";
+  return failed + detail;
+}
+
+const REQUESTS = [
+  ["POST /api/captures", "Capture"],
+  ["DELETE /api/captures/*", "Deleting the capture"],
+  ["POST /api/virtual-camera", "Sending the images through the fabric"],
+  ["POST /api/verify", "Verify"],
+  ["PUT /api/source", "Switching the source"],
+  ["GET /api/cameras", "Reading the camera settings"],
+  ["PUT /api/cameras", "Changing the camera setting"],
+  ["GET /api/status", "Reading the daemon's status"],
+  ["POST /api/calibration/pairs", "Capturing a calibration pair"],
+  ["DELETE /api/calibration/pairs", "Deleting the calibration pairs"],
+  ["DELETE /api/calibration/pairs/*", "Deleting the calibration pair"],
+  ["POST /api/calibration/compute", "Computing the calibration"],
+  ["POST /api/calibration/apply", "Applying the calibration"],
+  ["GET /api/calibration/corners", "Finding the board's corners"],
+  ["PUT /api/calibration/session", "Changing the calibration settings"],
+];
+export function describeRequest(method, path) {
+  const key = actionKey(method, path);
+  const hit = REQUESTS.find(([k]) => k === key);
+  return hit ? hit[1] : method + " " + path.split("?")[0];
+}
+
+// fetch + JSON; any non-2xx becomes ApiError with the daemon's "error" text. A success clears the
+// error messages of the same kind of action (actionKey).
+export async function api(method, path, body) {
+  const init = { method: method, headers: {} };
+  if (body instanceof FormData) {
+    init.body = body;
+  } else if (body !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  const key = actionKey(method, path);
+  let resp;
+  try {
+    resp = await fetch(path, init);
+  } catch (e) {
+    throw new ApiError(method + " " + path + ": the daemon is unreachable (" + e.message + ")",
+                       { method: method, path: path, status: 0, detail: "the daemon is unreachable (" + e.message + ")",
+                         key: key });
+  }
+  const text = await resp.text();
+  let data = null;
+  if (text) {
+    try { data = JSON.parse(text); } catch (e) { data = null; }
+  }
+  if (!resp.ok) {
+    const why = data && typeof data.error === "string" ? data.error : (text.trim().slice(0, 200) || resp.statusText);
+    throw new ApiError(method + " " + path + " → " + resp.status + ": " + why,
+                       { method: method, path: path, status: resp.status, detail: why, key: key });
+  }
+  clearMessages(key, "error");
+  return data;
+}
+
+// Run an async UI action with its button disabled; errors go to #messages, worded with
+// `opts` (see explainError; `opts.key` names the action when it is not one request).
+export async function action(button, fn, opts) {
+  if (button) button.disabled = true;
+  try {
+    const result = await fn();
+    if (opts && opts.key) clearMessages(opts.key, "error");
+    return result;
+  } catch (e) {
+    showError(e, opts);
+    return undefined;
+  } finally {
+    if (button) button.disabled = false;
+  }
+}
+
+export function bust(url) { return url + (url.includes("?") ? "&" : "?") + "t=" + Date.now(); }
+
+export function fmt(v) {
+  if (v === null || v === undefined) return "—";
+  if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toFixed(2);
+  if (typeof v === "boolean") return v ? "yes" : "no";
+  if (Array.isArray(v)) return v.map(fmt).join(" × ");
+  if (typeof v === "object") {
+    return Object.entries(v).map(([k, x]) => k + ": " + fmt(x)).join(", ") || "—";
+  }
+  return String(v);
+}
+
+export function flagsText(v) {
+  // Flags may arrive as a number (bit mask), a list of names, or an object of booleans.
+  if (v === null || v === undefined) return "—";
+  if (Array.isArray(v)) return v.length ? v.join(", ") : "none";
+  if (typeof v === "number") return v === 0 ? "none" : "0x" + v.toString(16);
+  if (typeof v === "object") {
+    const parts = [];
+    for (const [k, x] of Object.entries(v)) {
+      if (x === true || (typeof x === "number" && x !== 0)) parts.push(typeof x === "number" ? k + "=" + fmt(x) : k);
+      else if (Array.isArray(x) && x.length) parts.push(k + ": " + x.join(", "));
+      else if (typeof x === "string" && x) parts.push(k + ": " + x);
+      else if (x && typeof x === "object" && !Array.isArray(x)) {
+        const inner = flagsText(x);
+        if (inner !== "none") parts.push(k + ": " + inner);
+      }
+    }
+    return parts.length ? parts.join("; ") : "none";
+  }
+  return String(v);
+}
+
+// Set an <img> src and wait until it has loaded; a failed load is an error.
+export function loadImage(img, url) {
+  return new Promise((resolve, reject) => {
+    img.onload = () => { img.onload = img.onerror = null; img.dataset.loaded = url; resolve(); };
+    img.onerror = () => {
+      img.onload = img.onerror = null;
+      reject(new ApiError("the image " + url.split("?")[0] + " did not load: try again, or reload the page"));
+    };
+    img.src = url;
+  });
+}
+
+export function humanBytes(n) {
+  if (typeof n !== "number") return "";
+  if (n < 1024) return n + " B";
+  if (n < 1048576) return (n / 1024).toFixed(0) + " KiB";
+  return (n / 1048576).toFixed(1) + " MiB";
+}
+
+export function hasFlags(v) {
+  const t = flagsText(v);
+  return t !== "none" && t !== "—";
+}
