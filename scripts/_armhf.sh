@@ -16,8 +16,8 @@
 # that: nothing is installed into it later, it is rebuilt instead.
 #
 # Cache: $STEREOCAM_ARMHF_CACHE or ~/.cache/stereocam/armhf/rootfs-<hash>, the hash of this
-# file, requirements/armhf.txt and the helper the rootfs uses (scripts/_enosys_exec.py): change one and the next run builds a new rootfs. A build
-# happens in a .build-* folder under a lock and is renamed into place only once it passed its
+# file, requirements/armhf.txt and the helper the rootfs uses (scripts/_enosys_exec.py): change
+# one and the next run builds a new rootfs. A build happens in a .build-* folder under a lock and is renamed into place only once it passed its
 # checks, so a half-built rootfs is never used; downloaded .debs stay in debs/ for the next build.
 # The project is not installed in the rootfs: every process there has the checkout on PYTHONPATH
 # (stereocam/ is the package as it is in git), so one rootfs serves every checkout on the machine.

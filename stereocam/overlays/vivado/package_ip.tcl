@@ -1,9 +1,9 @@
 # package_ip.tcl: package the stereocam RTL as Vivado IP (IP-XACT, with the ipx:: commands of UG1118).
 #
-#   stereocam:user:rectify:2.0     stereocam/overlays/rtl/rectify_core.v, rc_*.v, *.vh (rectify_spec.vh, rc_regs_decode.vh)
-#                                  (stereocam/overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
-#   stereocam:user:camera_in:1.0   stereocam/overlays/rtl/camera/camera_in.v, ci_*.v, *.vh (stereocam/overlays/spec/camera_in.py:
-#                                  VLNV, TOP, PORTS, PARAMETERS)
+#   stereocam:user:rectify:2.0     stereocam/overlays/rtl/rectify_core.v, rc_*.v, *.vh (rectify_spec.vh,
+#                                  rc_regs_decode.vh) (stereocam/overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
+#   stereocam:user:camera_in:1.0   stereocam/overlays/rtl/camera/camera_in.v, ci_*.v, *.vh
+#                                  (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
 #   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ci_ram.v, ci_ofifo.v
 #                                  (stereocam/overlays/spec/frame_gate.py: VLNV, TOP, SOURCES, PORTS, PARAMETERS)
 #
@@ -130,7 +130,7 @@ set core [ipx::current_core]
 set_property name rectify $core
 set_property version 2.0 $core
 set_property display_name {stereocam rectify core} $core
-set_property description {Stereo rectification and lens undistortion at pixel rate (stereocam/overlays/RECTIFY_CORE.md)} \
+set_property description {Stereo rectification and lens undistortion at pixel rate (RECTIFY_CORE.md)} \
     $core
 set_property supported_families {zynq Production} $core
 stereocam_require_interfaces $core {aclk aresetn s_axil s_axis m_axis}
