@@ -22,8 +22,8 @@ from typing import IO, Any, Mapping, Optional, Sequence
 import numpy as np
 
 from . import __version__
+from .server.http.settings import LOG_LEVELS
 
-LOG_LEVELS = ("debug", "info", "warning", "error")  # the same as server.config.LOG_LEVELS (a test says so)
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 JOURNAL_FORMAT = "%(name)s: %(message)s"  # journald stamps the time and keeps the priority itself
 _PRIORITIES = ((logging.CRITICAL, 2), (logging.ERROR, 3), (logging.WARNING, 4), (logging.INFO, 6))
@@ -471,6 +471,8 @@ def cmd_install_service(args: argparse.Namespace) -> int:
 
 
 def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+    from .overlays.backend import CORES
+    from .overlays.spec.rectify import BUILDS, DEFAULT_BUILD
     from .server.http import systemd
     from .server.http.settings import BACKENDS, DEFAULT_CAPTURES
 
@@ -481,7 +483,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     s.add_argument("--host",
                    help="address to listen on (default 127.0.0.1; the board's service uses 0.0.0.0)")
     s.add_argument("--port", type=int, help="port (default 8080)")
-    s.add_argument("--backend", choices=BACKENDS, help="fabric: auto (default), pynq or emulated")
+    s.add_argument("--backend", choices=BACKENDS,
+                   help=f"fabric: {', '.join(BACKENDS)}; default {BACKENDS[0]} "
+                        "(pynq on the board, else emulated)")
     s.add_argument("--config", metavar="FILE",
                    help="settings file (YAML or JSON; keys as in stereocam/server/http/settings.py)")
     s.add_argument("--captures", metavar="DIR", help=f"capture folder (default {DEFAULT_CAPTURES})")
@@ -497,10 +501,10 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
                         "squares held up in a new pose every 1.5 s, to try calibration) or a folder of "
                         "recorded pairs to replay")
     s.add_argument("--fps", type=float, help="emulated camera frame rate (default 60)")
-    s.add_argument("--core-build", choices=("colour", "gray"),
+    s.add_argument("--core-build", choices=tuple(BUILDS),
                    help="the rectify core build the emulated fabric has "
-                        "(default colour; see RECTIFY_CORE.md)")
-    s.add_argument("--core", choices=("model", "rtl"),
+                        f"(default {DEFAULT_BUILD.name}; see RECTIFY_CORE.md)")
+    s.add_argument("--core", choices=CORES,
                    help="what computes the emulated fabric's rectify core: model (default, numpy) or rtl "
                         "(the core's Verilog under Verilator; slower, a few frames per second)")
     s.add_argument("--rtl-dir", metavar="DIR",
@@ -542,7 +546,9 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .overlays.backend import CORES
     from .overlays.spec.rectify import DEFAULT_LB_ROWS
+    from .server.http.uploads import FIT_MODES
 
     parser = argparse.ArgumentParser(
         prog="stereocam", description="Zynq stereo camera: rectify core, fabric and daemon"
@@ -565,10 +571,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="writes OUTDIR/left.png and OUTDIR/right.png")
     p.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
                    help=f"line-buffer rows of the bitstream to model (default {DEFAULT_LB_ROWS})")
-    p.add_argument("--core", choices=("model", "rtl"), default="model",
+    p.add_argument("--core", choices=CORES, default=CORES[0],
                    help="model (default): the bit-exact numpy model; rtl: the core's Verilog under Verilator "
                         "(built once and cached; the output is the same byte for byte)")
-    p.add_argument("--fit", choices=("exact", "crop", "pad", "scale"), default="exact",
+    p.add_argument("--fit", choices=FIT_MODES, default=FIT_MODES[0],
                    help="a pair of another size than the calibration's: exact (default) refuses it; crop "
                         "and pad centre it, cutting what sticks out and padding what is missing with black; "
                         "scale resizes it keeping the aspect ratio (INTER_AREA when shrinking) and pads the "

@@ -8,6 +8,7 @@ daemon's stderr).
 """
 from __future__ import annotations
 
+import argparse
 import importlib.metadata
 import io
 import logging
@@ -207,8 +208,29 @@ def test_journal_is_recognised_by_the_stream_it_names(tmp_path: Path) -> None:
     assert not cli.on_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, io.StringIO())
 
 
+def _choices(parser: argparse.ArgumentParser, option: str, command: str = "") -> tuple:
+    if command:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[command]
+    return tuple(next(a for a in parser._actions if option in a.option_strings).choices)
+
+
+def test_the_cli_offers_the_choices_of_the_tables_it_names() -> None:
+    """Each CLI choice list is the table the daemon checks against: a new entry there is offered here."""
+    from stereocam.overlays.backend import BACKENDS, CORES
+    from stereocam.overlays.spec.rectify import BUILDS
+    from stereocam.server.http.uploads import FIT_MODES
+
+    parser = cli.build_parser()
+    assert _choices(parser, "--log-level") == config_module.LOG_LEVELS
+    assert _choices(parser, "--log-level", "serve") == config_module.LOG_LEVELS
+    assert _choices(parser, "--backend", "serve") == BACKENDS
+    assert _choices(parser, "--core-build", "serve") == tuple(BUILDS)
+    assert _choices(parser, "--core", "serve") == CORES == _choices(parser, "--core", "rectify")
+    assert _choices(parser, "--fit", "rectify") == FIT_MODES
+
+
 def test_log_levels_are_the_configs() -> None:
-    assert cli.LOG_LEVELS == config_module.LOG_LEVELS
     parse = cli.build_parser().parse_args
     assert cli._cli_log_level(parse(["--log-level", "info", "serve", "--log-level", "debug"])) == "debug"
     assert cli._cli_log_level(parse(["--log-level", "warning", "serve"])) == "warning"
