@@ -308,8 +308,34 @@ class Module:
     ports: Dict[str, Tuple[str, Optional[int]]]  # name -> (direction, width if numeric)
 
 
+def header_defines() -> Dict[str, str]:
+    """Every numeric ```define`` of the RTL's headers (the generated ``*_spec.vh``), by name."""
+    out: Dict[str, str] = {}
+    for path in sorted(RTL_DIR.rglob("*.vh")):
+        for name, value in re.findall(r"^`define\s+(\w+)\s+(\d+)\b", path.read_text(), re.M):
+            out[name] = value
+    return out
+
+
+def _bound(text: str) -> Optional[int]:
+    """A range bound of digits, ``+`` and ``-`` (``12-1``, after the header's macros are expanded)."""
+    if not re.fullmatch(r"[\d\s+-]+", text):
+        return None
+    total, sign = 0, 1
+    for token in re.findall(r"\d+|[+-]", text):
+        if token in "+-":
+            sign = 1 if token == "+" else -1
+        else:
+            total += sign * int(token)
+    return total
+
+
 def verilog_module(text: str, name: str) -> Optional[Module]:
-    """Parameters and ports of module ``name``'s ANSI header in ``text`` (None if it is not there)."""
+    """Parameters and ports of module ``name``'s ANSI header in ``text`` (None if it is not there).
+
+    Macros of the RTL's headers are expanded, so a port ``[`RC_ADDR_W-1:0]`` has its width."""
+    defines = header_defines()
+    text = re.sub(r"`(\w+)", lambda d: defines.get(d.group(1), d.group(0)), text)
     m = re.search(rf"\bmodule\s+{name}\b(.*?)\);", re.sub(r"//[^\n]*|/\*.*?\*/", "", text, flags=re.S), re.S)
     if m is None:
         return None
@@ -320,8 +346,9 @@ def verilog_module(text: str, name: str) -> Optional[Module]:
             r"\b(input|output|inout)\s+(?:wire\s+|reg\s+)?(?:signed\s+)?(\[[^\]]*\])?\s*(\w+)", header):
         width: Optional[int] = 1
         if rng:
-            bounds = re.fullmatch(r"\[\s*(\d+)\s*:\s*(\d+)\s*\]", rng)
-            width = abs(int(bounds.group(1)) - int(bounds.group(2))) + 1 if bounds else None
+            msb, _, lsb = rng[1:-1].partition(":")
+            hi, lo = _bound(msb), _bound(lsb)
+            width = abs(hi - lo) + 1 if hi is not None and lo is not None else None
         ports[port] = (direction, width)
     return Module(params, ports)
 

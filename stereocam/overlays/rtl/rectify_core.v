@@ -49,7 +49,7 @@ module rectify_core #
     /*
      * AXI4-Lite slave
      */
-    input  wire [11:0]  s_axil_awaddr,
+    input  wire [`RC_ADDR_W-1:0] s_axil_awaddr,
     input  wire [2:0]   s_axil_awprot,
     input  wire         s_axil_awvalid,
     output wire         s_axil_awready,
@@ -60,7 +60,7 @@ module rectify_core #
     output wire [1:0]   s_axil_bresp,
     output wire         s_axil_bvalid,
     input  wire         s_axil_bready,
-    input  wire [11:0]  s_axil_araddr,
+    input  wire [`RC_ADDR_W-1:0] s_axil_araddr,
     input  wire [2:0]   s_axil_arprot,
     input  wire         s_axil_arvalid,
     output wire         s_axil_arready,
