@@ -33,7 +33,7 @@ def camera_dir() -> Path:
 
 
 def camera_sources() -> list[Path]:
-    names = ["camera_in", "ci_rx", "ci_lfifo", "ci_sync", "ci_ram", "ci_demosaic", "ci_ofifo"]
+    names = ["camera_in", "ci_rx", "ci_lfifo", "ci_sync", "ci_demosaic", "../rc_ram", "../rc_fifo"]
     return [camera_dir() / f"{n}.v" for n in names]
 
 
@@ -42,8 +42,10 @@ def test_sources_are_the_whole_folder() -> None:
     from it)."""
     from stereocam.overlays.spec import frame_gate
 
-    listed = {p.name for p in camera_sources()} | set(frame_gate.SOURCES)
-    assert sorted(p.name for p in camera_dir().glob("*.v")) == sorted(listed)
+    here = camera_dir().resolve()
+    listed = {p.resolve() for p in camera_sources()} | {(here / n).resolve() for n in frame_gate.SOURCES}
+    assert sorted(here.glob("*.v")) == sorted(p for p in listed if p.parent == here)
+    assert all(p.is_file() for p in listed)
 
 
 def test_top_module_has_the_spec_ports_and_parameters() -> None:

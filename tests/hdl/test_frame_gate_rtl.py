@@ -98,7 +98,8 @@ def test_frame_gate_rtl_default_depth(sim: str, cocotb_dir: Path) -> None:
 def test_frame_gate_resources() -> None:
     """yosys synth_xilinx (stereocam.overlays.rtl.synth) of the default build: the FIFO in block RAM,
     the output FIFO in distributed RAM, no DSP, little logic."""
-    result = hw_synth.synthesize(camera_dir(), top=spec.TOP, parameters=spec.PARAMETERS)
+    shared = [p for p in sources() if p.parent != camera_dir()]  # ../rc_ram.v, ../rc_fifo.v
+    result = hw_synth.synthesize(camera_dir(), top=spec.TOP, parameters=spec.PARAMETERS, extra_sources=shared)
     counts = result.counts
     ram_bits = spec.ram_words(spec.PARAMETERS["DEPTH"]) * (spec.STREAM_BITS + 2)
     print(f"frame_gate: {result.cells.get('RAMB36E1', 0)} RAMB36E1, {result.cells.get('RAMB18E1', 0)} "

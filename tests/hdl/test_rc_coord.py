@@ -402,8 +402,9 @@ LINT_SETS = [
 @pytest.mark.parametrize("top, params", LINT_SETS, ids=[f"{t}-{i}" for i, (t, _) in enumerate(LINT_SETS)])
 def test_lints_clean_with_verilator(top: str, params: Dict[str, int]) -> None:
     out = subprocess.run(
-        [str(hdl.verilator_bin()), "--lint-only", "-Wall", f"-I{RTL}", "--top-module", top,
-         *(f"-G{k}={v}" for k, v in params.items()), *map(str, SOURCES)],
+        # -Wall minus PROCASSINIT: initial values on registers are FPGA power-up values here (rc_fifo)
+        [str(hdl.verilator_bin()), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{RTL}",
+         "--top-module", top, *(f"-G{k}={v}" for k, v in params.items()), *map(str, SOURCES)],
         capture_output=True, text=True, timeout=120, check=False,
     )
     assert out.returncode == 0, out.stdout + out.stderr

@@ -43,6 +43,8 @@
 // (synchronous, active high) clears the control and the FIFO, not the datapath.
 `include "rectify_spec.vh"
 
+`timescale 1ns / 1ps
+
 module rc_coord #(
     parameter FIFO_DEPTH = 32     // output words buffered; at least FIFO_MIN (32), the words in flight at full rate
 ) (

@@ -4,6 +4,8 @@
 // Latency N clocks (N = 0: a wire), throughput one word per clock; datapath only, it knows
 // nothing of frames or lines. Its content after reset is undefined: use it for data whose
 // validity travels in a reset register beside it.
+`timescale 1ns / 1ps
+
 module rc_coord_delay #(
     parameter W = 1,
     parameter N = 1

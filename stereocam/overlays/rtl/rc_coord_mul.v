@@ -21,6 +21,8 @@
 // stages after each multiply, MREG and PREG, then p); c is taken 4 clocks after a, b (it
 // must come from a register then). Throughput one product per clock, no handshake, no
 // reset: it knows nothing of frames or lines.
+`timescale 1ns / 1ps
+
 module rc_coord_mul #(
     parameter AW = 34,      // signed width of a, 18..42
     parameter BW = 34,      // signed width of b, 18..35

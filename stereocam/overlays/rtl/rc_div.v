@@ -17,6 +17,8 @@
 // is one DW + 1 bit add/subtract (one LUT per bit on a carry chain, no restoring mux);
 // the result fits DW + 1 bits, so the arithmetic is modulo 2**(DW+1). The quotient bits
 // already found only travel down the stages (shift-register chains: SRLs on Xilinx).
+`timescale 1ns / 1ps
+
 module rc_div #(
     parameter LANES = 2,   // numerators sharing the divisor
     parameter NW = 48,     // numerator width (unsigned magnitude)

@@ -1,18 +1,30 @@
-// rc_fifo: synchronous FIFO, valid/ready on both sides, distributed-RAM storage.
-//
-// Holds up to DEPTH words; count is the number held (0..DEPTH, a register). s_ready =
-// count < DEPTH: a word moves in when s_valid && s_ready.
-//
-// SHOW_AHEAD = 1 (first-word fall-through): m_valid = count > 0 (a register) and m_data is
-// then the oldest word, read asynchronously from the RAM (LUTRAM read path to the
-// consumer); it moves out when m_valid && m_ready. Latency 1 clock from a word in to
-// m_valid; one word per clock in and out. s_ready depends on count only: when the FIFO is
-// full no word enters, even on a clock where one leaves. m_data holds still while m_ready
-// is low.
-// SHOW_AHEAD = 0 (read request): m_ready is a read request; when count > 0 on that clock
-// the oldest word is on m_data (a register) the next clock, with m_valid = 1 for that clock.
-//
-// Synchronous active-high rst empties it. It knows nothing of frames or lines: words only.
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * rc_fifo: synchronous FIFO, valid/ready on both sides, distributed-RAM storage: the one FIFO
+ * of the rectify core (rc_coord) and the camera IPs (camera_in's and frame_gate's output FIFO,
+ * whose writers count credits and leave s_ready unconnected).
+ *
+ * Holds up to DEPTH words; count is the number held (0..DEPTH, a register). s_ready =
+ * count < DEPTH: a word moves in when s_valid && s_ready.
+ *
+ * SHOW_AHEAD = 1 (first-word fall-through): m_valid = count > 0 (a register) and m_data is
+ * then the oldest word, read asynchronously from the RAM (LUTRAM read path to the
+ * consumer); it moves out when m_valid && m_ready. Latency 1 clock from a word in to
+ * m_valid; one word per clock in and out. s_ready depends on count only: when the FIFO is
+ * full no word enters, even on a clock where one leaves. m_data holds still while m_ready
+ * is low.
+ * SHOW_AHEAD = 0 (read request): m_ready is a read request; when count > 0 on that clock
+ * the oldest word is on m_data (a register) the next clock, with m_valid = 1 for that clock.
+ *
+ * Frame and line boundaries: none; it knows words only. Reset: synchronous, active high:
+ * empty (also the power-up state). Parameters are checked at elaboration: DEPTH >= 2,
+ * SHOW_AHEAD 0 or 1.
+ */
 module rc_fifo #(
     parameter WIDTH = 8,
     parameter DEPTH = 16,       // words held; >= 2
@@ -35,11 +47,21 @@ module rc_fifo #(
     localparam integer  FULL_I = DEPTH;
     localparam [CW-1:0] FULL = FULL_I[CW-1:0];
 
+    // parameter checks: an instance that breaks one fails to elaborate, naming the rule
+    generate
+        if (DEPTH < 2) begin : g_check_depth
+            rc_fifo_parameter_DEPTH_must_be_at_least_2 depth_too_small();
+        end
+        if (SHOW_AHEAD != 0 && SHOW_AHEAD != 1) begin : g_check_show_ahead
+            rc_fifo_parameter_SHOW_AHEAD_must_be_0_or_1 show_ahead_invalid();
+        end
+    endgenerate
+
     reg [WIDTH-1:0] mem [0:DEPTH-1];
-    reg [AW-1:0]    wr_ptr, rd_ptr;
-    reg [CW-1:0]    held;          // words in the FIFO
-    reg             nonempty;      // held != 0
-    reg             notfull;       // held != DEPTH
+    reg [AW-1:0]    wr_ptr = {AW{1'b0}}, rd_ptr = {AW{1'b0}};
+    reg [CW-1:0]    held = {CW{1'b0}};  // words in the FIFO
+    reg             nonempty = 1'b0;    // held != 0
+    reg             notfull = 1'b1;     // held != DEPTH
 
     function [AW-1:0] next_ptr(input [AW-1:0] ptr);
         next_ptr = (ptr == LAST) ? {AW{1'b0}} : ptr + 1'b1;
@@ -75,7 +97,7 @@ module rc_fifo #(
             assign m_valid = nonempty;
         end else begin : request
             reg [WIDTH-1:0] out_data;
-            reg             out_valid;
+            reg             out_valid = 1'b0;
             always @(posedge clk) begin
                 if (rst) out_valid <= 1'b0;
                 else out_valid <= pop;
@@ -89,3 +111,5 @@ module rc_fifo #(
     assign s_ready = notfull;
     assign count   = held;
 endmodule
+
+`resetall

@@ -258,15 +258,15 @@ def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameter
 
 
 def cache_key(sources_dir: Path, top: str, parameters: Mapping[str, int], defines: Mapping[str, str],
-              version: str) -> str:
+              version: str, extra_sources: Sequence[Path] = ()) -> str:
     """Hash of every source and header, the parameters, the defines, the flow and yosys's version."""
     h = hashlib.sha256()
     head = {"flow": FLOW_VERSION, "synth": SYNTH_COMMAND, "top": top, "yosys": version,
             "parameters": dict(sorted(parameters.items())), "defines": dict(sorted(defines.items()))}
     h.update(json.dumps(head, sort_keys=True).encode())
-    for p in sorted(sources_dir.iterdir()):
-        if p.suffix in HASHED_SUFFIXES and p.is_file():
-            h.update(b"\0" + p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
+    hashed = [p for p in sorted(sources_dir.iterdir()) if p.suffix in HASHED_SUFFIXES and p.is_file()]
+    for p in [*hashed, *map(Path, extra_sources)]:
+        h.update(b"\0" + p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()[:20]
 
 
@@ -301,19 +301,21 @@ class SynthResult:
 
 def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mapping[str, int]] = None,
                defines: Optional[Mapping[str, str]] = None, cache_dir: Optional[Path] = None,
-               timeout: float = DEFAULT_TIMEOUT_S, use_cache: bool = True) -> SynthResult:
-    """Run yosys on every ``*.v`` in ``sources_dir``, or return the cached counts of an identical run.
+               timeout: float = DEFAULT_TIMEOUT_S, use_cache: bool = True,
+               extra_sources: Sequence[Path] = ()) -> SynthResult:
+    """Run yosys on every ``*.v`` in ``sources_dir`` and ``extra_sources`` (modules shared from another
+    folder), or return the cached counts of an identical run.
 
     The cache key covers the sources, the parameters and yosys's version, so a change to
     any of them reruns yosys; an identical call returns at once.
     """
     parameters = dict(parameters or {})
     defines = dict(defines or {})
-    sources = find_sources(sources_dir, top)
+    sources = find_sources(sources_dir, top) + [Path(p) for p in extra_sources]
     yosys = find_yosys()
     version = yosys_version(yosys)
     cache = cache_dir or default_cache_dir()
-    key = cache_key(sources_dir, top, parameters, defines, version)
+    key = cache_key(sources_dir, top, parameters, defines, version, extra_sources)
     result_path = cache / f"{top}-{key}.json"
     log_path = cache / f"{top}-{key}.log"
     if use_cache and result_path.is_file():

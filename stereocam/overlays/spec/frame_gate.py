@@ -32,8 +32,9 @@ GATE_LIVE = "gate_live"  # cell between the broadcaster's M01 and the mux's live
 INSTANCES: Tuple[str, str] = (GATE_RAW, GATE_LIVE)  # in the broadcaster's output order, M00 first
 STREAM_BITS = BYTES_PER_PIXEL * 8
 
-#: The IP's Verilog files, all in stereocam/overlays/rtl/camera/ (it shares the camera input's RAM and FIFO).
-SOURCES: Tuple[str, ...] = ("frame_gate.v", "ci_ram.v", "ci_ofifo.v")
+#: The IP's Verilog files (it shares the camera input's RAM and FIFO).
+# Paths from rtl/camera/: the RAM and the FIFO are the rectify core's (rtl/), shared.
+SOURCES: Tuple[str, ...] = ("frame_gate.v", "../rc_ram.v", "../rc_fifo.v")
 
 # Verilog parameters of the top module and their defaults.
 PARAMETERS: Dict[str, int] = {
@@ -127,7 +128,7 @@ THROUGHPUT_CLOCKS_PER_BEAT = 1  # in and out
 STALL_CLOCKS_RECTIFY = 2221
 STALL_CLOCKS_VDMA = 2700
 
-# Internal: the output FIFO after the block RAM's two-clock read (ci_ofifo, distributed RAM). Four
+# Internal: the output FIFO after the block RAM's two-clock read (rc_fifo, distributed RAM). Four
 # words keep one beat per clock flowing while the RAM's reads are in flight.
 OUTPUT_FIFO_DEPTH = 4
 

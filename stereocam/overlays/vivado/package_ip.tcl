@@ -2,9 +2,9 @@
 #
 #   stereocam:user:rectify:2.0     stereocam/overlays/rtl/rectify_core.v, rc_*.v, *.vh (rectify_spec.vh,
 #                                  rc_regs_decode.vh) (stereocam/overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
-#   stereocam:user:camera_in:1.0   stereocam/overlays/rtl/camera/camera_in.v, ci_*.v, *.vh
-#                                  (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
-#   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ci_ram.v, ci_ofifo.v
+#   stereocam:user:camera_in:1.0   stereocam/overlays/rtl/camera/camera_in.v, ci_*.v, *.vh, ../rc_ram.v,
+#                                  ../rc_fifo.v (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
+#   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ../rc_ram.v, ../rc_fifo.v
 #                                  (stereocam/overlays/spec/frame_gate.py: VLNV, TOP, SOURCES, PORTS, PARAMETERS)
 #
 # Each IP is packaged from a throw-away project of its own (Vivado holds one project at a time, so
@@ -147,7 +147,8 @@ stereocam_save_core $core
 
 # ---- stereocam:user:camera_in:1.0 (stereocam/overlays/spec/camera_in.py: VLNV) ---------------------------------
 
-# camera_in.v and its ci_*.v modules; the folder's other top (frame_gate.v) is an IP of its own.
+# camera_in.v and its ci_*.v modules, and the RAM and FIFO it shares with the rectify core; the folder's
+# other top (frame_gate.v) is an IP of its own.
 set camera_dir [file join $STEREOCAM_RTL_DIR camera]
 if {![file exists [file join $camera_dir camera_in.v]]} {
     error "stereocam: no camera input RTL (camera_in.v) in $camera_dir: the camera_in IP cannot be packaged"
@@ -155,6 +156,7 @@ if {![file exists [file join $camera_dir camera_in.v]]} {
 set camera_sources [concat \
     [list [file join $camera_dir camera_in.v]] \
     [lsort [glob -nocomplain -directory $camera_dir ci_*.v]] \
+    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v]] \
     [lsort [glob -nocomplain -directory $camera_dir *.vh]]]
 
 stereocam_packaging_project pkg_camera_in camera_in $camera_sources
@@ -182,7 +184,7 @@ stereocam_save_core $core
 # a master that forwards whole frames through a block RAM FIFO of DEPTH beats.
 
 set gate_sources {}
-foreach name {frame_gate.v ci_ram.v ci_ofifo.v} {
+foreach name {frame_gate.v ../rc_ram.v ../rc_fifo.v} {
     set path [file join $camera_dir $name]
     if {![file exists $path]} {
         error "stereocam: no $name in $camera_dir: the frame_gate IP cannot be packaged"

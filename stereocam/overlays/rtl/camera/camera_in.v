@@ -375,7 +375,7 @@ wire v2 = ctrl2_reg[CTRL_W-1];
 wire newcol2 = ctrl2_reg[CTRL_W-3];
 wire lb_we = v2 && newcol2 && mode2_reg != M_FLUSH;
 
-ci_ram #(.WIDTH(4 * RW), .DEPTH(MAX_WIDTH), .AW(LBAW)) lb_inst (
+rc_ram #(.WIDTH(4 * RW), .DEPTH(MAX_WIDTH), .AW(LBAW)) lb_inst (
     .clk(aclk),
     .we(lb_we), .waddr(addr2_reg), .wdata({a1, pix1_2_reg, a0, pix0_2_reg}),
     .re(issue && newcol), .raddr(step_addr), .rdata(lb_rdata)
@@ -453,11 +453,15 @@ end
  */
 wire [65:0] out_word;
 
-ci_ofifo #(.WIDTH(66), .DEPTH(ODEPTH)) ofifo_inst (
+// a step starts only if its beat has room (credits): the FIFO is never full when a word
+// arrives, so s_ready is left open
+// verilator lint_off PINCONNECTEMPTY
+rc_fifo #(.WIDTH(66), .DEPTH(ODEPTH), .SHOW_AHEAD(1)) ofifo_inst (
     .clk(aclk), .rst(rst_reg),
-    .s_data({ctrl7_reg[4], ctrl7_reg[3], rgby1, rgby0}), .s_valid(write_out),
+    .s_data({ctrl7_reg[4], ctrl7_reg[3], rgby1, rgby0}), .s_valid(write_out), .s_ready(),
     .m_data(out_word), .m_valid(m_axis_tvalid), .m_ready(m_axis_tready), .count(ocount)
 );
+// verilator lint_on PINCONNECTEMPTY
 
 assign m_axis_tdata = out_word[63:0];
 assign m_axis_tlast = out_word[64];

@@ -17,7 +17,7 @@
  * rest of the frame is dropped; the committed lines still go out. A TUSER while a partial line is
  * held (malformed input) forgets that line the same way.
  *
- * Read side: the RAM (ci_ram, two clocks) feeds a 4-word output FIFO (ci_ofifo) that drives
+ * Read side: the RAM (rc_ram, two clocks) feeds a 4-word output FIFO (rc_fifo) that drives
  * m_axis; a read is issued only when that FIFO has room for it and every read in flight (credits).
  *
  * Latency: a line's first beat is offered on m_axis 4 clocks after the clock its TLAST is taken in
@@ -150,17 +150,21 @@ always @(posedge aclk) begin
     end
 end
 
-ci_ram #(.WIDTH(WW), .DEPTH(1 << AW), .AW(AW)) ram_inst (
+rc_ram #(.WIDTH(WW), .DEPTH(1 << AW), .AW(AW)) ram_inst (
     .clk(aclk),
     .we(store), .waddr(waddr[AW-1:0]), .wdata({s_axis_tuser, s_axis_tlast, s_axis_tdata}),
     .re(issue), .raddr(rd_ptr_reg[AW-1:0]), .rdata(rdata)
 );
 
-ci_ofifo #(.WIDTH(WW), .DEPTH(ODEPTH)) ofifo_inst (
+// the reads are issued against credits: the FIFO is never full when a word arrives, so
+// s_ready is left open
+// verilator lint_off PINCONNECTEMPTY
+rc_fifo #(.WIDTH(WW), .DEPTH(ODEPTH), .SHOW_AHEAD(1)) ofifo_inst (
     .clk(aclk), .rst(rst_reg),
-    .s_data(rdata), .s_valid(rv2_reg),
+    .s_data(rdata), .s_valid(rv2_reg), .s_ready(),
     .m_data(out_word), .m_valid(m_axis_tvalid), .m_ready(m_axis_tready), .count(ocount)
 );
+// verilator lint_on PINCONNECTEMPTY
 
 assign s_axis_tready = 1'b1;
 assign m_axis_tdata = out_word[63:0];
