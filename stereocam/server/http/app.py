@@ -2,7 +2,8 @@
 
 ``create_app(config, overlay)`` takes an opened overlay (an
 :class:`~...overlays.interface.Overlay`) and returns a ``web.Application`` whose state is
-in the ``web.AppKey``s of :mod:`.state`. Starting the app starts the
+in ``web.AppKey``s: :mod:`.state`'s, and those declared beside their types (:data:`.streams.STREAMS`,
+:data:`.metrics.METRICS`). Starting the app starts the
 overlay's streams and the pipeline thread and the background tasks
 (no-signal watch, slow-client sweeper, systemd watchdog); cleaning it up
 stops them in reverse order, with the mux back on live. The overlay itself
@@ -43,7 +44,7 @@ from . import routes_faults
 from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors
 from .heap import give_back_memory, limit_arenas
-from .metrics import Metrics
+from .metrics import METRICS, Metrics
 from .metrics import setup_routes as setup_ops_routes
 from .routes_api import setup_routes as setup_api_routes
 from .security import allowed_host_names, guard
@@ -57,18 +58,16 @@ from .state import (
     EXTENSIONS,
     FABRIC_HEALTH,
     FEED,
-    METRICS,
     OVERLAY,
     PIPELINE,
     SETTINGS,
-    STREAMS,
     VIRTUAL,
     CalibrationInEffect,
     CalibrationState,
     Executors,
     Extensions,
 )
-from .streams import StreamClients
+from .streams import STREAMS, StreamClients
 from .streams import setup_routes as setup_stream_routes
 from .systemd import notify, watchdog_interval
 
