@@ -139,7 +139,13 @@ def create_app(
     emulation = tuple(overlay.emulation_threads)
     budget = CpuBudget(cores, excluded_threads=lambda: emulation)
     feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
-    pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge)
+    # FabricHealth reads the pipeline's frame period and the virtual camera's source, which are
+    # told of its faults (constructor arguments): it is made first and reads the two once the
+    # app runs (its thread starts with the fabric; nothing calls it before create_app returns).
+    health = FabricHealth(overlay, source=lambda: virtual.source, frame_age=feed.frame_age,
+                          period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
+    pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge,
+                        channel_ok=health.channel_ok)
     executors = Executors.create(config.encode_threads)
     app[SETTINGS] = config
     app[OVERLAY] = overlay
@@ -151,21 +157,17 @@ def create_app(
     app[ENCODERS] = encoders = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
                                         observe=metrics.observe_encode,
                                         on_error=lambda text: metrics.error(text, "encode"), budget=budget)
-    pipeline.set_copy_rate(encoders.copy_rate)
+    pipeline.set_copy_rate(encoders.copy_rate)  # Encoders reads the pipeline: set once both exist
     app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
     app[CAPTURES] = captures if captures is not None else CaptureStore(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
     rtl = overlay.core_kind == "rtl"
-    app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
+    app[VIRTUAL] = virtual = VirtualCamera(overlay, pipeline, feed,
+                                           round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0,
+                                           mux_refused=health.mux_refused, mux_committed=health.mux_committed)
     app[CALIBRATION] = CalibrationInEffect(calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows))
-    app[EXTENSIONS] = Extensions()
-    health = FabricHealth(overlay, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
-                          period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
+    app[EXTENSIONS] = Extensions(faults=[health.faults], metrics=[health.metrics])
     app[FABRIC_HEALTH] = health
-    pipeline.channel_ok = health.channel_ok
-    app[VIRTUAL].mux_refused, app[VIRTUAL].mux_committed = health.mux_refused, health.mux_committed
-    app[EXTENSIONS].faults.append(health.faults)
-    app[EXTENSIONS].metrics.append(health.metrics)
 
     app.router.add_get("/", _index)
     app.router.add_get("/static/{path:.+}", _static)
