@@ -156,6 +156,28 @@ def test_fault_injection_is_refused_off_the_emulated_fabric() -> None:
         overlay.close()
 
 
+def test_the_fabric_health_is_handed_its_parts_and_holds_no_app() -> None:
+    """Hooks are constructor arguments; FabricHealth reads the pipeline and virtual camera, not the app."""
+    from aiohttp import web
+
+    from stereocam.server.http.state import VIRTUAL
+
+    overlay = make_overlay(clock="stepped")
+    try:
+        app = create_app(Settings(), overlay)
+        health, pipeline, virtual = app[FABRIC_HEALTH], app[PIPELINE], app[VIRTUAL]
+        assert pipeline.channel_ok == health.channel_ok
+        assert (virtual.mux_refused, virtual.mux_committed) == (health.mux_refused, health.mux_committed)
+        held = [cell.cell_contents for getter in (health._source, health._period)
+                for cell in getter.__closure__ or ()]
+        assert held and not any(isinstance(value, web.Application) for value in held)
+        assert health._source() == "live"
+        virtual.source = "virtual"
+        assert health._source() == "virtual"
+    finally:
+        overlay.close()
+
+
 async def test_bad_fault_requests_get_a_clear_4xx(start_daemon) -> None:
     d = await start_daemon(allow_fault_injection=True)
     cases: List[Tuple[Any, int, str]] = [

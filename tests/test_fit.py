@@ -11,7 +11,8 @@ from aiohttp import FormData
 from PIL import Image
 
 from stereocam.overlays.spec import pixel
-from stereocam.server.http.state import METRICS, VIRTUAL
+from stereocam.server.http.metrics import METRICS
+from stereocam.server.http.state import VIRTUAL
 from stereocam.server.http.uploads import (
     FIT_MODES,
     UploadError,

@@ -46,7 +46,8 @@ from stereocam.bench.serve import daemon_command, free_port, wait_healthy
 from stereocam.calibration.file import Calibration
 from stereocam.server.frames.encoders import EncoderKey
 from stereocam.server.http import routes_calibration
-from stereocam.server.http.state import ENCODERS, FEED, STREAMS
+from stereocam.server.http.state import ENCODERS, FEED
+from stereocam.server.http.streams import STREAMS
 
 from .server_fixtures import make_overlay, start_daemon_fixture  # noqa: F401
 

@@ -19,7 +19,8 @@ from prometheus_client.parser import text_string_to_metric_families
 from prometheus_client.samples import Sample
 
 from stereocam.server.http import routes_cameras
-from stereocam.server.http.state import EXTENSIONS, METRICS, PIPELINE
+from stereocam.server.http.metrics import METRICS
+from stereocam.server.http.state import EXTENSIONS, PIPELINE
 
 from .server_fixtures import WAIT_S, read_parts, start_daemon_fixture  # noqa: F401
 

@@ -17,7 +17,8 @@ from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.spec import pixel
 from stereocam.server.frames import store_files
-from stereocam.server.http.state import CAPTURES, METRICS, PIPELINE, VIRTUAL
+from stereocam.server.http.metrics import METRICS
+from stereocam.server.http.state import CAPTURES, PIPELINE, VIRTUAL
 
 from .sample import png_claiming
 from .server_fixtures import (

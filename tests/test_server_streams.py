@@ -19,7 +19,9 @@ import pytest
 from aiohttp import WSMsgType
 
 from stereocam.server.frames.encoders import EncoderKey
-from stereocam.server.http.state import ENCODERS, FEED, METRICS, PIPELINE, STREAMS
+from stereocam.server.http.metrics import METRICS
+from stereocam.server.http.state import ENCODERS, FEED, PIPELINE
+from stereocam.server.http.streams import STREAMS
 
 from .server_fixtures import (
     SMALL,

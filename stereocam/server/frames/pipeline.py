@@ -200,6 +200,7 @@ class Pipeline:
         copy_rate: Optional[Callable[[], Optional[float]]] = None,
         alive: Optional[Callable[[], None]] = None,
         charge: Optional[Callable[[str, float], None]] = None,
+        channel_ok: Callable[[Channel], bool] = lambda name: True,
     ) -> None:
         self.overlay = overlay
         self._publish = publish
@@ -218,7 +219,7 @@ class Pipeline:
         self._raw_wanted = 0
         self._pairs_wanted = 0
         self._sinks: Tuple[Callable[[FrameSet], None], ...] = ()  # every_frame consumers
-        self.channel_ok: Callable[[Channel], bool] = lambda name: True  # FabricHealth.channel_ok, once set
+        self.channel_ok = channel_ok  # FabricHealth.channel_ok: False while a channel is faulted
         self.source_state = SourceState()
         # Counters.
         self.frames = 0

@@ -81,7 +81,9 @@ class VirtualCamera:
     """
 
     def __init__(self, overlay: Overlay, pipeline: Pipeline, feed: FrameFeed, *,
-                 round_trip_timeout: float = 2.0) -> None:
+                 round_trip_timeout: float = 2.0,
+                 mux_refused: Callable[[str, BaseException], None] = lambda source, exc: None,
+                 mux_committed: Callable[[], None] = lambda: None) -> None:
         self.overlay = overlay
         self.pipeline = pipeline
         self.feed = feed
@@ -95,9 +97,9 @@ class VirtualCamera:
         self.models = ModelCache()
         self.round_trip_timeout = round_trip_timeout
         self.player: Optional[RecordingPlayer] = None  # while a recording plays (recordings.py)
-        # FabricHealth's, once set: a commit the mux refused is a fault until one lands.
-        self.mux_refused: Callable[[str, BaseException], None] = lambda source, exc: None
-        self.mux_committed: Callable[[], None] = lambda: None
+        # FabricHealth's: a commit the mux refused is a fault until one lands.
+        self.mux_refused = mux_refused
+        self.mux_committed = mux_committed
 
     def to_json(self) -> Dict[str, Any]:
         w, h = self.overlay.frame_size

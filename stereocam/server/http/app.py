@@ -2,7 +2,8 @@
 
 ``create_app(config, overlay)`` takes an opened overlay (an
 :class:`~...overlays.interface.Overlay`) and returns a ``web.Application`` whose state is
-in the ``web.AppKey``s of :mod:`.state`. Starting the app starts the
+in ``web.AppKey``s: :mod:`.state`'s, and those declared beside their types (:data:`.streams.STREAMS`,
+:data:`.metrics.METRICS`). Starting the app starts the
 overlay's streams and the pipeline thread and the background tasks
 (no-signal watch, slow-client sweeper, systemd watchdog); cleaning it up
 stops them in reverse order, with the mux back on live. The overlay itself
@@ -43,7 +44,7 @@ from . import routes_faults
 from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors
 from .heap import give_back_memory, limit_arenas
-from .metrics import Metrics
+from .metrics import METRICS, Metrics
 from .metrics import setup_routes as setup_ops_routes
 from .routes_api import setup_routes as setup_api_routes
 from .security import allowed_host_names, guard
@@ -57,18 +58,16 @@ from .state import (
     EXTENSIONS,
     FABRIC_HEALTH,
     FEED,
-    METRICS,
     OVERLAY,
     PIPELINE,
     SETTINGS,
-    STREAMS,
     VIRTUAL,
     CalibrationInEffect,
     CalibrationState,
     Executors,
     Extensions,
 )
-from .streams import StreamClients
+from .streams import STREAMS, StreamClients
 from .streams import setup_routes as setup_stream_routes
 from .systemd import notify, watchdog_interval
 
@@ -140,7 +139,13 @@ def create_app(
     emulation = tuple(overlay.emulation_threads)
     budget = CpuBudget(cores, excluded_threads=lambda: emulation)
     feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
-    pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge)
+    # FabricHealth reads the pipeline's frame period and the virtual camera's source, which are
+    # told of its faults (constructor arguments): it is made first and reads the two once the
+    # app runs (its thread starts with the fabric; nothing calls it before create_app returns).
+    health = FabricHealth(overlay, source=lambda: virtual.source, frame_age=feed.frame_age,
+                          period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
+    pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge,
+                        channel_ok=health.channel_ok)
     executors = Executors.create(config.encode_threads)
     app[SETTINGS] = config
     app[OVERLAY] = overlay
@@ -152,21 +157,17 @@ def create_app(
     app[ENCODERS] = encoders = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
                                         observe=metrics.observe_encode,
                                         on_error=lambda text: metrics.error(text, "encode"), budget=budget)
-    pipeline.set_copy_rate(encoders.copy_rate)
+    pipeline.set_copy_rate(encoders.copy_rate)  # Encoders reads the pipeline: set once both exist
     app[STREAMS] = StreamClients(max_streams=config.max_streams, timeout=config.stream_timeout_s)
     app[CAPTURES] = captures if captures is not None else CaptureStore(
         config.captures_path, min_free_bytes=int(config.min_free_mb * 1e6))
     rtl = overlay.core_kind == "rtl"
-    app[VIRTUAL] = VirtualCamera(overlay, pipeline, feed, round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0)
+    app[VIRTUAL] = virtual = VirtualCamera(overlay, pipeline, feed,
+                                           round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0,
+                                           mux_refused=health.mux_refused, mux_committed=health.mux_committed)
     app[CALIBRATION] = CalibrationInEffect(calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows))
-    app[EXTENSIONS] = Extensions()
-    health = FabricHealth(overlay, source=lambda: app[VIRTUAL].source, frame_age=feed.frame_age,
-                          period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
+    app[EXTENSIONS] = Extensions(faults=[health.faults], metrics=[health.metrics])
     app[FABRIC_HEALTH] = health
-    pipeline.channel_ok = health.channel_ok
-    app[VIRTUAL].mux_refused, app[VIRTUAL].mux_committed = health.mux_refused, health.mux_committed
-    app[EXTENSIONS].faults.append(health.faults)
-    app[EXTENSIONS].metrics.append(health.metrics)
 
     app.router.add_get("/", _index)
     app.router.add_get("/static/{path:.+}", _static)

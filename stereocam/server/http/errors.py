@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING, Awaitable, Callable, Optional
+from typing import TYPE_CHECKING, Awaitable, Callable, Optional, Protocol
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
@@ -22,14 +22,20 @@ from .state import SETTINGS
 if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
 
-    from .metrics import Metrics
-
 log = logging.getLogger(__name__)
 
 __all__ = ["json_error", "json_errors", "too_large", "BAD_REQUEST_LINES"]
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 KEPT_HEADERS = ("WWW-Authenticate", "Allow", "Retry-After")  # of an aiohttp HTTPException's, in the answer
+
+
+class Counts(Protocol):
+    """What :func:`json_errors` counts answers in (:class:`.metrics.Metrics`; callable from any thread)."""
+
+    def request(self, status: int) -> None: ...
+
+    def error(self, text: str, where: str = ...) -> None: ...
 
 
 def shutting_down() -> ApiError:
@@ -84,7 +90,7 @@ BAD_REQUEST_LINES = _BadRequestLines()
 """Add to the ``aiohttp.server`` logger (a filter set: adding it twice keeps one)."""
 
 
-def json_errors(metrics: "Metrics") -> "Middleware":
+def json_errors(metrics: Counts) -> "Middleware":
     """The middleware that answers every error (install it first: outermost); counts every answer."""
 
     @web.middleware

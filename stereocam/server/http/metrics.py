@@ -34,12 +34,13 @@ from prometheus_client import CollectorRegistry, PlatformCollector, ProcessColle
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric, SummaryMetricFamily
 from prometheus_client.registry import Collector
 
-from .state import BUDGET, ENCODERS, EXTENSIONS, FEED, METRICS, PIPELINE, SETTINGS, STREAMS
+from .state import BUDGET, ENCODERS, EXTENSIONS, FEED, PIPELINE, SETTINGS
+from .streams import STREAMS
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..frames.cpu_budget import CpuBudget
 
-__all__ = ["Metrics", "DaemonCollector", "REGISTRY", "CONTENT_TYPE", "make_registry", "render",
+__all__ = ["Metrics", "DaemonCollector", "METRICS", "REGISTRY", "CONTENT_TYPE", "make_registry", "render",
            "setup_routes", "healthy"]
 
 log = logging.getLogger(__name__)
@@ -47,7 +48,6 @@ log = logging.getLogger(__name__)
 # What generate_latest writes: the text format 0.0.4 (prometheus_client 0.14's CONTENT_TYPE_LATEST;
 # later releases call it CONTENT_TYPE_PLAIN_0_0_4 and mean format 1.0.0 by CONTENT_TYPE_LATEST).
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
-REGISTRY: "web.AppKey[CollectorRegistry]" = web.AppKey("stereocam.metrics_registry", CollectorRegistry)
 
 
 class Metrics:
@@ -86,6 +86,10 @@ class Metrics:
         with self._lock:
             return [f"{time.strftime('%Y-%m-%dT%H:%M:%S', time.localtime(t))} {text}"
                     for t, text in self.recent_errors]
+
+
+METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics", Metrics)
+REGISTRY: "web.AppKey[CollectorRegistry]" = web.AppKey("stereocam.metrics_registry", CollectorRegistry)
 
 
 class DaemonCollector(Collector):

@@ -32,6 +32,7 @@ from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from .bodies import json_response, read_json
 from .downloads import stream_download
 from .errors import shutting_down
+from .metrics import METRICS
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
     BUDGET,
@@ -41,13 +42,12 @@ from .state import (
     EXECUTORS,
     EXTENSIONS,
     FEED,
-    METRICS,
     OVERLAY,
     PIPELINE,
     SETTINGS,
-    STREAMS,
     VIRTUAL,
 )
+from .streams import STREAMS
 from .uploads import (
     PAIR_FIELDS,
     SBS_FIELD,

@@ -85,7 +85,7 @@ class Prepared:
     text: str
 
 
-ACTIVE: "web.AppKey[ActiveCalibration]" = web.AppKey("stereocam.calibration.active")
+ACTIVE: "web.AppKey[ActiveCalibration]" = web.AppKey("stereocam.calibration.active", ActiveCalibration)
 
 
 # -- loading ------------------------------------------------------------------------------------

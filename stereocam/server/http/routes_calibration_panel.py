@@ -54,9 +54,10 @@ from ..frames.errors import ApiError
 from ..frames.pipeline import FrameSet
 from ..frames.views import render
 from .bodies import json_response, read_json
+from .metrics import METRICS
 from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
-from .state import EXECUTORS, FEED, METRICS, OVERLAY, SETTINGS
+from .state import EXECUTORS, FEED, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
 

@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["setup", "INJECTOR", "FaultInjectionUnavailable"]
 
-INJECTOR: "web.AppKey[FaultInjection]" = web.AppKey("stereocam.fault_injector")
+INJECTOR: "web.AppKey[FaultInjection]" = web.AppKey("stereocam.fault_injector", FaultInjection)
 
 
 class FaultInjectionUnavailable(Exception):

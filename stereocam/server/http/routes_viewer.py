@@ -76,7 +76,7 @@ class ThumbnailCache:
         return data
 
 
-THUMBS: "web.AppKey[ThumbnailCache]" = web.AppKey("stereocam.thumbnails")
+THUMBS: "web.AppKey[ThumbnailCache]" = web.AppKey("stereocam.thumbnails", ThumbnailCache)
 
 
 async def capture_thumb(request: web.Request) -> web.Response:

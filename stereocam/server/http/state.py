@@ -1,9 +1,14 @@
 """The daemon's application state: typed ``web.AppKey``s and the small holders they point at.
 
 ``create_app`` (:mod:`.app`) fills every key before the app starts; route
-modules read them (``request.app[PIPELINE]``). Extensions (calibration,
-sensors) add their routes in their ``setup(app)`` and
-register providers in ``app[EXTENSIONS]``: what they add to ``/api/status``,
+modules read them (``request.app[PIPELINE]``). The keys here are those of the
+types whose modules declare none (the frame path's and the overlay's: no
+aiohttp there; :class:`.settings.Settings`, which the CLI reads without
+aiohttp) and of the holders below; any other type of server/http has its key
+beside it (:data:`.streams.STREAMS`, :data:`.metrics.METRICS`,
+...), so this module imports none of the modules that read it. Extensions
+(calibration, sensors) add their routes in their ``setup(app)`` and register
+providers in ``app[EXTENSIONS]``: what they add to ``/api/status``,
 ``/metrics`` and capture metadata.
 """
 from __future__ import annotations
@@ -16,27 +21,24 @@ from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional,
 
 from aiohttp import web
 
+from ...overlays.interface import Overlay
+from ..frames.captures import CaptureStore
+from ..frames.cpu_budget import CpuBudget
+from ..frames.encoders import Encoders
+from ..frames.fabric_health import FabricHealth
+from ..frames.feed import FrameFeed
+from ..frames.pipeline import Pipeline
+from ..frames.virtual_camera import VirtualCamera
+from .settings import Settings
+
 if TYPE_CHECKING:  # pragma: no cover
     from prometheus_client.metrics_core import Metric
-
-    from ...overlays.interface import Overlay
-    from ..frames.captures import CaptureStore
-    from ..frames.cpu_budget import CpuBudget
-    from ..frames.encoders import Encoders
-    from ..frames.fabric_health import FabricHealth
-    from ..frames.feed import FrameFeed
-    from ..frames.pipeline import Pipeline
-    from ..frames.virtual_camera import VirtualCamera
-    from .metrics import Metrics
-    from .settings import Settings
-    from .streams import StreamClients
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 __all__ = [
-    "SETTINGS", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "STREAMS", "METRICS", "CAPTURES",
-    "VIRTUAL",
+    "SETTINGS", "OVERLAY", "PIPELINE", "FEED", "BUDGET", "ENCODERS", "CAPTURES", "VIRTUAL",
     "CALIBRATION", "EXTENSIONS", "EXECUTORS", "FABRIC_HEALTH", "Executors", "CalibrationState",
     "CalibrationInEffect", "Extensions",
 ]
@@ -162,6 +164,9 @@ class Executors:
         self.work.shutdown(wait=False, cancel_futures=True)
 
 
+EXECUTORS: "web.AppKey[Executors]" = web.AppKey("stereocam.executors", Executors)
+
+
 @dataclass(frozen=True)
 class CalibrationState:
     """The calibration the core runs with, whole, as status and captures report it (immutable).
@@ -259,6 +264,9 @@ class CalibrationInEffect:
         return self._now.id
 
 
+CALIBRATION: "web.AppKey[CalibrationInEffect]" = web.AppKey("stereocam.calibration", CalibrationInEffect)
+
+
 HISTORY = 8  # calibration changes remembered for labelling frames (a capture is seconds old at most)
 
 
@@ -329,17 +337,18 @@ class Extensions:
         return self._chain(self.metrics, "metrics")
 
 
-SETTINGS: "web.AppKey[Settings]" = web.AppKey("stereocam.settings")
-OVERLAY: "web.AppKey[Overlay]" = web.AppKey("stereocam.overlay")
-PIPELINE: "web.AppKey[Pipeline]" = web.AppKey("stereocam.pipeline")
-FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed")
-BUDGET: "web.AppKey[CpuBudget]" = web.AppKey("stereocam.cpu_budget")
-ENCODERS: "web.AppKey[Encoders]" = web.AppKey("stereocam.encoders")
-STREAMS: "web.AppKey[StreamClients]" = web.AppKey("stereocam.streams")
-METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics")
-CAPTURES: "web.AppKey[CaptureStore]" = web.AppKey("stereocam.captures")
-VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual")
-CALIBRATION: "web.AppKey[CalibrationInEffect]" = web.AppKey("stereocam.calibration")
-EXTENSIONS: "web.AppKey[Extensions]" = web.AppKey("stereocam.extensions")
-EXECUTORS: "web.AppKey[Executors]" = web.AppKey("stereocam.executors")
-FABRIC_HEALTH: "web.AppKey[FabricHealth]" = web.AppKey("stereocam.fabric_health")
+EXTENSIONS: "web.AppKey[Extensions]" = web.AppKey("stereocam.extensions", Extensions)
+
+
+# Keys of types whose modules declare none: the frame path's (it serves no HTTP: no aiohttp
+# there), the overlay's, and Settings' (configuration the CLI reads without aiohttp). Every key
+# of the daemon is written ``NAME: "web.AppKey[T]" = web.AppKey("stereocam.<name>", T)``.
+SETTINGS: "web.AppKey[Settings]" = web.AppKey("stereocam.settings", Settings)
+OVERLAY: "web.AppKey[Overlay]" = web.AppKey("stereocam.overlay", Overlay)
+PIPELINE: "web.AppKey[Pipeline]" = web.AppKey("stereocam.pipeline", Pipeline)
+FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed", FrameFeed)
+BUDGET: "web.AppKey[CpuBudget]" = web.AppKey("stereocam.cpu_budget", CpuBudget)
+ENCODERS: "web.AppKey[Encoders]" = web.AppKey("stereocam.encoders", Encoders)
+CAPTURES: "web.AppKey[CaptureStore]" = web.AppKey("stereocam.captures", CaptureStore)
+VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual", VirtualCamera)
+FABRIC_HEALTH: "web.AppKey[FabricHealth]" = web.AppKey("stereocam.fabric_health", FabricHealth)

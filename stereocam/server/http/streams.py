@@ -35,11 +35,12 @@ from ..frames.pipeline import FrameSet
 from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS
 from .errors import shutting_down
 from .settings import MAX_FPS
-from .state import ENCODERS, EXECUTORS, FEED, METRICS, PIPELINE, SETTINGS, STREAMS
+from .state import ENCODERS, EXECUTORS, FEED, PIPELINE, SETTINGS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StreamClients", "StreamClient", "StreamParams", "parse_params", "send_newest", "setup_routes"]
+__all__ = ["StreamClients", "StreamClient", "STREAMS", "StreamParams", "parse_params", "send_newest",
+           "setup_routes"]
 
 
 
@@ -153,6 +154,9 @@ class StreamClients:
             await asyncio.sleep(0.02)
         for c in list(self.clients.values()):
             self._drop(c)
+
+
+STREAMS: "web.AppKey[StreamClients]" = web.AppKey("stereocam.streams", StreamClients)
 
 
 # -- parameters ------------------------------------------------------------------------------
@@ -360,7 +364,7 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
     executor = app[EXECUTORS].encode
     if fmt == "jpg":
         encoded = await loop.run_in_executor(executor, encoded_for, params.key, frame_set,
-                                             app[METRICS].observe_encode)
+                                             app[ENCODERS].observe)
         body, headers, ctype = bytes(encoded.jpeg), encoded.headers(), "image/jpeg"
     else:
         body = await loop.run_in_executor(executor, png_for, frame_set, params.view, params.gray,
