@@ -20,7 +20,7 @@ import pytest
 
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import captures, store_files
+from stereocam.server.frames import captures, folder_store, store_files
 from stereocam.server.frames.captures import (
     CaptureDamaged,
     CaptureDiskFull,
@@ -272,7 +272,7 @@ def test_listing_during_saves_and_deletes_never_shows_a_half_capture(tmp_path: P
 
 def test_an_id_collision_picks_another_suffix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     suffixes = iter(["abcd", "abcd", "abcd", "ef01"])
-    monkeypatch.setattr(captures, "_random_suffix", lambda: next(suffixes))
+    monkeypatch.setattr(folder_store, "_random_suffix", lambda: next(suffixes))
     store = CaptureStore(tmp_path, min_free_bytes=0, clock=fixed_clock())
     first = store.save(stream_frames(), meta(frame=5))
     second = store.save(stream_frames(), meta(frame=5))
@@ -478,7 +478,7 @@ def test_a_crash_mid_delete_never_leaves_a_half_capture_listed(
     store: CaptureStore, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     info = store.save(stream_frames(), meta())
-    monkeypatch.setattr(captures, "remove_tree", lambda path: None)  # "crash" after the rename
+    monkeypatch.setattr(folder_store, "remove_tree", lambda path: None)  # "crash" after the rename
     store.delete(info.id)
     assert store.list() == [] and any(p.name.startswith(".deleting-") for p in store.root.iterdir())
     monkeypatch.undo()
@@ -547,7 +547,7 @@ def test_low_free_space_is_refused_before_writing(
 ) -> None:
     before = store.save(stream_frames(1), meta(frame=1))
     store.min_free_bytes = 50_000_000
-    monkeypatch.setattr(CaptureStore, "_free_bytes", lambda self: 50_010_000)
+    monkeypatch.setattr(CaptureStore, "free_bytes", lambda self: 50_010_000)
     with pytest.raises(CaptureDiskFull) as err:
         store.save(stream_frames(2), meta(frame=2))
     assert err.value.status == 507
@@ -605,7 +605,7 @@ def test_disk_full_on_fsync_or_mkdir_leaves_nothing(
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []
     monkeypatch.undo()
-    monkeypatch.setattr(captures.os, "mkdir", no_space)
+    monkeypatch.setattr(folder_store.os, "mkdir", no_space)
     with pytest.raises(CaptureDiskFull, match="while creating the capture folder"):
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []
@@ -669,7 +669,7 @@ def test_a_really_full_disk(tiny_fs: Path, monkeypatch: pytest.MonkeyPatch) -> N
     assert tree(store.root) == snapshot
 
     # then: the check is fooled, the filesystem itself runs out (ENOSPC) halfway
-    monkeypatch.setattr(CaptureStore, "_free_bytes", lambda self: 1 << 40)
+    monkeypatch.setattr(CaptureStore, "free_bytes", lambda self: 1 << 40)
     with pytest.raises(CaptureDiskFull, match="the capture disk is full"):
         store.save(huge, meta())
     assert tree(store.root) == snapshot and store.list() == [small]
