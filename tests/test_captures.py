@@ -30,6 +30,7 @@ from stereocam.server.frames.captures import (
     CaptureStore,
     InvalidCaptureId,
 )
+from stereocam.server.http.errors import status_of
 
 W, H = 24, 16
 T0 = datetime(2026, 11, 22, 4, 5, 12, 345678, tzinfo=timezone.utc)
@@ -293,7 +294,7 @@ def test_malformed_ids_are_refused_before_touching_the_disk(store: CaptureStore,
     for call in (store.path, store.get, store.delete, store.raw_pair, store.zip_stream):
         with pytest.raises(InvalidCaptureId) as err:
             call(bad)
-        assert err.value.status == 400
+        assert status_of(err.value) == 400
         assert "capture ids look like 20261122T040512Z-000123-ab12" in err.value.message
         assert len(err.value.message) < 200 and "\n" not in err.value.message
 
@@ -310,7 +311,7 @@ def test_unknown_valid_id_is_404(store: CaptureStore) -> None:
     for call in (store.path, store.get, store.delete, store.raw_pair, store.zip_stream):
         with pytest.raises(CaptureNotFound, match=f"no capture {cid}") as err:
             call(cid)
-        assert err.value.status == 404 and err.value.to_json() == {"error": err.value.message}
+        assert status_of(err.value) == 404 and err.value.to_json() == {"error": err.value.message}
 
 
 def test_symlinks_never_lead_out_of_the_store(store: CaptureStore, tmp_path: Path) -> None:
@@ -385,7 +386,7 @@ def test_a_damaged_capture_is_listed_with_an_error_not_dropped(store: CaptureSto
     with pytest.raises(CaptureDamaged, match=f"capture {lost.id} cannot be replayed: raw_right.png is missing"
                        ) as e:
         store.raw_pair(lost.id)
-    assert e.value.status == 422
+    assert status_of(e.value) == 422
     (store.root / good.id / "raw_left.png").write_bytes(b"\x89PNG\r\n\x1a\ngarbage")
     with pytest.raises(CaptureDamaged, match="raw_left.png is not a valid 8-bit image"):
         store.raw_pair(good.id)
@@ -454,7 +455,7 @@ def test_read_one_file(store: CaptureStore, tmp_path: Path) -> None:
                 f"../{info.id}/meta.json", None):
         with pytest.raises(CaptureNotFound) as err:
             store.read_file(info.id, bad)
-        assert err.value.status == 404 and err.value.message.startswith(f"capture {info.id} has no file ")
+        assert status_of(err.value) == 404 and err.value.message.startswith(f"capture {info.id} has no file ")
         assert "; it has meta.json, raw_left.png, raw_right.png, rect_left.png" in err.value.message
     with pytest.raises(InvalidCaptureId):
         store.read_file("../x", "meta.json")
@@ -550,7 +551,7 @@ def test_low_free_space_is_refused_before_writing(
     monkeypatch.setattr(CaptureStore, "free_bytes", lambda self: 50_010_000)
     with pytest.raises(CaptureDiskFull) as err:
         store.save(stream_frames(2), meta(frame=2))
-    assert err.value.status == 507
+    assert status_of(err.value) == 507
     assert err.value.message.startswith(f"not enough free space for a capture in {store.root}: 50.0 MB free")
     assert "50.0 MB are kept free; delete old captures to make room" in err.value.message
     assert store.list() == [before] and sorted(p.name for p in store.root.iterdir()) == [before.id]
@@ -586,7 +587,7 @@ def test_disk_full_midway_leaves_no_partial_files(
     monkeypatch.setattr(store_files, "_os_write", failing_write(fail_on_call, err, partial=partial))
     with pytest.raises(CaptureDiskFull) as exc:
         store.save(stream_frames(2), meta(frame=2))
-    assert exc.value.status == 507
+    assert status_of(exc.value) == 507
     assert exc.value.message == (
         f"the capture disk is full ({os.strerror(err)}) while writing {step}: nothing was stored; "
         f"delete old captures to make room"
@@ -617,7 +618,7 @@ def test_other_io_errors_are_500_and_leave_nothing(
     monkeypatch.setattr(store_files, "_os_write", failing_write(3, errno.EIO))
     with pytest.raises(CaptureError) as err:
         store.save(stream_frames(), meta())
-    assert type(err.value) is CaptureError and err.value.status == 500
+    assert type(err.value) is CaptureError and status_of(err.value) == 500
     assert "failed (Input/output error); nothing was stored" in err.value.message
     assert list(store.root.iterdir()) == []
 

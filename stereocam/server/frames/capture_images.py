@@ -123,7 +123,7 @@ def _decode_png(data: bytes) -> Optional[np.ndarray]:
 def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
     """The raw left and right frames of the capture ``cid`` in ``folder``, as RGBY arrays.
 
-    :class:`Damaged` (422) if a raw image is missing or corrupt, or the two differ in size.
+    :class:`Damaged` if a raw image is missing or corrupt, or the two differ in size.
     """
     out = []
     for name in RAW_FRAMES:

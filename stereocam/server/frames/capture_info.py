@@ -73,7 +73,7 @@ class CaptureInfo:
 
 
 def read_info(cid: str, folder: Path) -> CaptureInfo:
-    """The capture ``cid`` in ``folder``, damage described in ``error``; 404 if it was deleted meanwhile."""
+    """The capture ``cid`` in ``folder``, damage described in ``error``; NotFound if deleted meanwhile."""
     problems: List[str] = []
     sizes: Dict[str, int] = {}
     try:

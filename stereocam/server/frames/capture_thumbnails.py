@@ -21,7 +21,7 @@ _THUMB_QUALITY = 80
 def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
     """The thumbnail of the capture ``cid`` in ``folder``: the first of :data:`THUMB_FRAMES` that reads.
 
-    404 if the folder is gone meanwhile; :class:`.store_errors.Damaged` (422) when no image can be read.
+    NotFound if the folder is gone meanwhile; :class:`.store_errors.Damaged` when no image can be read.
     """
     image = None
     for name in map(capture_file, THUMB_FRAMES):

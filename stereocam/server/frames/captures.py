@@ -36,10 +36,10 @@ Thread safety: a :class:`CaptureStore` holds no mutable state; every method
 is synchronous, blocking (disk I/O, PNG encoding) and safe to call from
 several threads at once. Run them in a worker thread, not on an event loop.
 
-Errors: every :class:`CaptureError` carries the HTTP ``status`` to answer
-with and a one-line ``message`` for the user. Wrong arguments from the
+Errors: every :class:`CaptureError` carries its ``kind`` (the HTTP side
+chooses the status) and a one-line ``message`` for the user. Wrong arguments from the
 calling code (frames of the wrong shape, meta that is not JSON) raise
-``ValueError``/``TypeError``: those are bugs, answer 500.
+``ValueError``/``TypeError``: those are bugs, answered as failures.
 """
 from __future__ import annotations
 
@@ -111,7 +111,7 @@ RESERVED_META_KEYS = ("format", "id", "created", "images", "files")
 class CaptureStore(FolderStore[CaptureInfo]):
     """The capture folder ``root``: save, list, download as zip, delete, replay.
 
-    ``min_free_bytes``: :meth:`save` refuses (507) unless the filesystem keeps
+    ``min_free_bytes``: :meth:`save` refuses (DiskFull) unless the filesystem keeps
     at least this much free after the capture is written. ``clock`` returns
     the current time as an aware ``datetime`` (tests pass a fixed one).
 
@@ -150,9 +150,9 @@ class CaptureStore(FolderStore[CaptureInfo]):
         :data:`RESERVED_META_KEYS` are the store's. Suggested further keys:
         ``"time"``, ``"registers"``, ``"camera"``.
 
-        Raises :class:`CaptureDiskFull` (507) if the space is short, before
+        Raises :class:`CaptureDiskFull` if the space is short, before
         writing or on ENOSPC/EDQUOT while writing, and :class:`CaptureError`
-        (500) on any other I/O error; in both cases no file of this capture
+        on any other I/O error; in both cases no file of this capture
         remains and :meth:`list` is unchanged.
         """
         user_meta, frame_no = self._check_meta(meta)
@@ -280,8 +280,8 @@ class CaptureStore(FolderStore[CaptureInfo]):
         """The raw left and right frames as ``(H, W, 4)`` RGBY uint8 arrays, bit for bit as captured.
 
         Fresh arrays the caller owns; ``pixel.pack(*store.raw_pair(id))`` is
-        the stream frame for the virtual camera. 400/404 as :meth:`path`;
-        :class:`CaptureDamaged` (422) if a raw image is missing or corrupt.
+        the stream frame for the virtual camera. InvalidId/NotFound as :meth:`path`;
+        :class:`CaptureDamaged` if a raw image is missing or corrupt.
         """
         folder = self.path(capture_id)
         return read_raw_pair(folder.name, folder)
@@ -294,7 +294,7 @@ class CaptureStore(FolderStore[CaptureInfo]):
         ``name`` must be the name of a regular file directly in the capture
         folder, as :attr:`CaptureInfo.files` lists them: it is looked up in
         that listing, never joined to a path as given, so ``../x`` or a
-        symbolic link cannot be read. 400 malformed id; 404 absent capture
+        symbolic link cannot be read. InvalidId malformed id; NotFound absent capture
         or no such file (the message lists the files there are).
         """
         folder = self.path(capture_id)
@@ -322,7 +322,7 @@ class CaptureStore(FolderStore[CaptureInfo]):
         """A small JPEG of the capture: its rectified left frame (its raw left one when that cannot
         be read), ``width`` pixels wide (never wider than the frame), aspect kept.
 
-        400/404 as :meth:`path`; :class:`CaptureDamaged` (422) when neither image can be read.
+        InvalidId/NotFound as :meth:`path`; :class:`CaptureDamaged` when neither image can be read.
         Files are read by fixed names, never following a symbolic link.
         """
         folder = self.path(capture_id)

@@ -110,7 +110,7 @@ class FolderStore(Generic[InfoT]):
 
     @classmethod
     def check_id(cls, ident: object) -> str:
-        """``ident`` if well-formed, else :class:`.store_errors.InvalidId` (400)."""
+        """``ident`` if well-formed, else :class:`.store_errors.InvalidId`."""
         if not valid_id(ident):
             raise InvalidId(f"invalid {cls.noun} id {cls._shown_id(ident)}: {cls.noun} ids look like "
                             f"{ID_EXAMPLE}")
@@ -125,7 +125,7 @@ class FolderStore(Generic[InfoT]):
         return gone(self.noun, ident)
 
     def path(self, ident: object) -> Path:
-        """The folder of an existing entry: 400 for a malformed id, 404 if absent (or a symbolic link)."""
+        """The folder of an existing entry: InvalidId if malformed, NotFound if absent (or a link)."""
         checked = self.check_id(ident)
         folder = self.root / checked
         try:
@@ -193,7 +193,7 @@ class FolderStore(Generic[InfoT]):
     # -- reading -----------------------------------------------------------------------------------------
 
     def _info(self, ident: str, folder: Path) -> InfoT:
-        """The listing entry of ``folder``: damage described, never raised; 404 if it is gone meanwhile."""
+        """The listing entry of ``folder``: damage described, never raised; NotFound if gone meanwhile."""
         raise NotImplementedError
 
     def list(self) -> List[InfoT]:
@@ -210,7 +210,7 @@ class FolderStore(Generic[InfoT]):
         return infos
 
     def get(self, ident: object) -> InfoT:
-        """One entry (400 malformed id, 404 absent); its ``meta`` holds its own JSON file."""
+        """One entry (InvalidId malformed id, NotFound absent); its ``meta`` holds its own JSON file."""
         folder = self.path(ident)
         return self._info(folder.name, folder)
 
@@ -221,7 +221,7 @@ class FolderStore(Generic[InfoT]):
     def zip_stream(self, ident: object, *, chunk_size: int = CHUNK) -> Iterator[bytes]:
         """The entry as a zip archive (folder ``<id>/``), as an iterator of byte chunks (~``chunk_size``).
 
-        PNGs are stored, not recompressed. 400/404 are raised here, at the call,
+        PNGs are stored, not recompressed. InvalidId/NotFound are raised here, at the call,
         before any byte is produced; the files are opened now too, so a delete while
         the archive streams does not cut it short. Iterate it to the end or
         ``close()`` it (garbage collection closes it too).
@@ -259,7 +259,7 @@ class FolderStore(Generic[InfoT]):
     # -- removing ----------------------------------------------------------------------------------------
 
     def delete(self, ident: object) -> None:
-        """Remove an entry: 400 malformed id, 404 absent.
+        """Remove an entry: InvalidId malformed id, NotFound absent.
 
         The folder is first renamed to a hidden ``.deleting-*`` name (from
         then on it is not listed), then removed; what a crash leaves behind
@@ -281,8 +281,8 @@ class FolderStore(Generic[InfoT]):
     def trash(self, ident: object) -> None:
         """Delete an entry so that :meth:`restore` can bring it back (for :data:`.store_trash.TRASH_KEEP_S`).
 
-        400 malformed id, 404 absent. From the rename on, the entry is no longer listed and
-        every other call says 404; nothing is copied (one rename on the same filesystem), so a
+        InvalidId malformed id, NotFound absent. From the rename on, the entry is no longer listed and
+        every other call says NotFound; nothing is copied (one rename on the same filesystem), so a
         page closed before its undo loses nothing: the delete stands and the files stay
         restorable until the trash is purged.
         """
@@ -307,8 +307,8 @@ class FolderStore(Generic[InfoT]):
     def restore(self, ident: object) -> InfoT:
         """Bring back an entry :meth:`trash` deleted (the latest delete of that id) and return it.
 
-        400 malformed id; 404 when it is not in the trash (never deleted, purged, or restored
-        already); 409 when an entry of that id exists.
+        InvalidId malformed id; NotFound when it is not in the trash (never deleted, purged, or restored
+        already); Conflict when an entry of that id exists.
         """
         checked = self.check_id(ident)
         trash = trash_dir(self.root, create=False, noun=self.noun)

@@ -138,8 +138,8 @@ QUEUE_BYTES = 64 << 20  # frames waiting for the writer, at most (then they are 
 RecordingError = StoreError
 InvalidRecordingId = InvalidId
 RecordingNotFound = NotFound
-RecordingBusy = Conflict  # another recording runs, or the recording is in use (409)
-RecordingDiskFull = DiskFull  # not enough free space to start; nothing was created (507)
+RecordingBusy = Conflict  # another recording runs, or the recording is in use
+RecordingDiskFull = DiskFull  # not enough free space to start; nothing was created
 
 
 # -- what the store reports ---------------------------------------------------------------------------
@@ -637,9 +637,9 @@ class Recorder:
         """Begin recording from now (blocks briefly: a folder is made).
 
         ``seconds`` None records until :meth:`stop`. ``fps`` (the cameras' rate now) and
-        ``frame_size`` size the disk check: :class:`RecordingDiskFull` (507) when the
+        ``frame_size`` size the disk check: :class:`RecordingDiskFull` when the
         recording asked for (or, without ``seconds``, one second of it) would not leave
-        ``min_free_bytes``; :class:`RecordingBusy` (409) while another runs. Nothing is
+        ``min_free_bytes``; :class:`RecordingBusy` while another runs. Nothing is
         created when it is refused.
         """
         if seconds is not None and not (0 < seconds <= MAX_SECONDS and math.isfinite(seconds)):

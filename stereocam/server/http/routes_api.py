@@ -26,6 +26,7 @@ from ..frames.encoders import png_for
 from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
+from ..frames.store_errors import NotFound
 from ..frames.verify import compare, difference_image
 from ..frames.views import REGISTRY
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
@@ -496,16 +497,12 @@ async def capture_zip(request: web.Request) -> web.StreamResponse:
                                  run=request.app[EXECUTORS].run)
 
 
-class _NoSuchFile(CaptureError):
-    status = 404
-
-
 def _read_capture_file(store: CaptureStore, cid: str, name: str) -> bytes:
     """One file of a capture, by a name its listing shows (never a path built from the request)."""
     info = store.get(cid)
     if name not in {f.name for f in info.files}:
         names = ", ".join(f.name for f in info.files)
-        raise _NoSuchFile(f"capture {cid} has no file {name[:60]!r}; it has {names}")
+        raise NotFound(f"capture {cid} has no file {name[:60]!r}; it has {names}")
     fd = os.open(store.path(cid) / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     with os.fdopen(fd, "rb") as fh:
         if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
