@@ -20,7 +20,7 @@ import pytest
 
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import captures, store_files
+from stereocam.server.frames import captures, folder_store, store_files
 from stereocam.server.frames.captures import (
     CaptureDamaged,
     CaptureDiskFull,
@@ -30,6 +30,7 @@ from stereocam.server.frames.captures import (
     CaptureStore,
     InvalidCaptureId,
 )
+from stereocam.server.http.errors import status_of
 
 W, H = 24, 16
 T0 = datetime(2026, 11, 22, 4, 5, 12, 345678, tzinfo=timezone.utc)
@@ -272,7 +273,7 @@ def test_listing_during_saves_and_deletes_never_shows_a_half_capture(tmp_path: P
 
 def test_an_id_collision_picks_another_suffix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     suffixes = iter(["abcd", "abcd", "abcd", "ef01"])
-    monkeypatch.setattr(captures, "_random_suffix", lambda: next(suffixes))
+    monkeypatch.setattr(folder_store, "_random_suffix", lambda: next(suffixes))
     store = CaptureStore(tmp_path, min_free_bytes=0, clock=fixed_clock())
     first = store.save(stream_frames(), meta(frame=5))
     second = store.save(stream_frames(), meta(frame=5))
@@ -293,7 +294,7 @@ def test_malformed_ids_are_refused_before_touching_the_disk(store: CaptureStore,
     for call in (store.path, store.get, store.delete, store.raw_pair, store.zip_stream):
         with pytest.raises(InvalidCaptureId) as err:
             call(bad)
-        assert err.value.status == 400
+        assert status_of(err.value) == 400
         assert "capture ids look like 20261122T040512Z-000123-ab12" in err.value.message
         assert len(err.value.message) < 200 and "\n" not in err.value.message
 
@@ -310,7 +311,7 @@ def test_unknown_valid_id_is_404(store: CaptureStore) -> None:
     for call in (store.path, store.get, store.delete, store.raw_pair, store.zip_stream):
         with pytest.raises(CaptureNotFound, match=f"no capture {cid}") as err:
             call(cid)
-        assert err.value.status == 404 and err.value.to_json() == {"error": err.value.message}
+        assert status_of(err.value) == 404 and err.value.to_json() == {"error": err.value.message}
 
 
 def test_symlinks_never_lead_out_of_the_store(store: CaptureStore, tmp_path: Path) -> None:
@@ -385,7 +386,7 @@ def test_a_damaged_capture_is_listed_with_an_error_not_dropped(store: CaptureSto
     with pytest.raises(CaptureDamaged, match=f"capture {lost.id} cannot be replayed: raw_right.png is missing"
                        ) as e:
         store.raw_pair(lost.id)
-    assert e.value.status == 422
+    assert status_of(e.value) == 422
     (store.root / good.id / "raw_left.png").write_bytes(b"\x89PNG\r\n\x1a\ngarbage")
     with pytest.raises(CaptureDamaged, match="raw_left.png is not a valid 8-bit image"):
         store.raw_pair(good.id)
@@ -454,7 +455,7 @@ def test_read_one_file(store: CaptureStore, tmp_path: Path) -> None:
                 f"../{info.id}/meta.json", None):
         with pytest.raises(CaptureNotFound) as err:
             store.read_file(info.id, bad)
-        assert err.value.status == 404 and err.value.message.startswith(f"capture {info.id} has no file ")
+        assert status_of(err.value) == 404 and err.value.message.startswith(f"capture {info.id} has no file ")
         assert "; it has meta.json, raw_left.png, raw_right.png, rect_left.png" in err.value.message
     with pytest.raises(InvalidCaptureId):
         store.read_file("../x", "meta.json")
@@ -478,7 +479,7 @@ def test_a_crash_mid_delete_never_leaves_a_half_capture_listed(
     store: CaptureStore, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     info = store.save(stream_frames(), meta())
-    monkeypatch.setattr(captures, "remove_tree", lambda path: None)  # "crash" after the rename
+    monkeypatch.setattr(folder_store, "remove_tree", lambda path: None)  # "crash" after the rename
     store.delete(info.id)
     assert store.list() == [] and any(p.name.startswith(".deleting-") for p in store.root.iterdir())
     monkeypatch.undo()
@@ -547,10 +548,10 @@ def test_low_free_space_is_refused_before_writing(
 ) -> None:
     before = store.save(stream_frames(1), meta(frame=1))
     store.min_free_bytes = 50_000_000
-    monkeypatch.setattr(CaptureStore, "_free_bytes", lambda self: 50_010_000)
+    monkeypatch.setattr(CaptureStore, "free_bytes", lambda self: 50_010_000)
     with pytest.raises(CaptureDiskFull) as err:
         store.save(stream_frames(2), meta(frame=2))
-    assert err.value.status == 507
+    assert status_of(err.value) == 507
     assert err.value.message.startswith(f"not enough free space for a capture in {store.root}: 50.0 MB free")
     assert "50.0 MB are kept free; delete old captures to make room" in err.value.message
     assert store.list() == [before] and sorted(p.name for p in store.root.iterdir()) == [before.id]
@@ -586,7 +587,7 @@ def test_disk_full_midway_leaves_no_partial_files(
     monkeypatch.setattr(store_files, "_os_write", failing_write(fail_on_call, err, partial=partial))
     with pytest.raises(CaptureDiskFull) as exc:
         store.save(stream_frames(2), meta(frame=2))
-    assert exc.value.status == 507
+    assert status_of(exc.value) == 507
     assert exc.value.message == (
         f"the capture disk is full ({os.strerror(err)}) while writing {step}: nothing was stored; "
         f"delete old captures to make room"
@@ -605,7 +606,7 @@ def test_disk_full_on_fsync_or_mkdir_leaves_nothing(
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []
     monkeypatch.undo()
-    monkeypatch.setattr(captures.os, "mkdir", no_space)
+    monkeypatch.setattr(folder_store.os, "mkdir", no_space)
     with pytest.raises(CaptureDiskFull, match="while creating the capture folder"):
         store.save(stream_frames(), meta())
     assert list(store.root.iterdir()) == []
@@ -617,7 +618,7 @@ def test_other_io_errors_are_500_and_leave_nothing(
     monkeypatch.setattr(store_files, "_os_write", failing_write(3, errno.EIO))
     with pytest.raises(CaptureError) as err:
         store.save(stream_frames(), meta())
-    assert type(err.value) is CaptureError and err.value.status == 500
+    assert type(err.value) is CaptureError and status_of(err.value) == 500
     assert "failed (Input/output error); nothing was stored" in err.value.message
     assert list(store.root.iterdir()) == []
 
@@ -669,7 +670,7 @@ def test_a_really_full_disk(tiny_fs: Path, monkeypatch: pytest.MonkeyPatch) -> N
     assert tree(store.root) == snapshot
 
     # then: the check is fooled, the filesystem itself runs out (ENOSPC) halfway
-    monkeypatch.setattr(CaptureStore, "_free_bytes", lambda self: 1 << 40)
+    monkeypatch.setattr(CaptureStore, "free_bytes", lambda self: 1 << 40)
     with pytest.raises(CaptureDiskFull, match="the capture disk is full"):
         store.save(huge, meta())
     assert tree(store.root) == snapshot and store.list() == [small]

@@ -96,7 +96,7 @@ def test_the_trash_is_purged_by_age_and_when_space_is_short(store: CaptureStore,
     assert [p.name.split(".")[0] for p in (store.root / TRASH_DIR).iterdir()] == [young.id]
     # Short of space: the trash goes first, then the save is refused only if that was not enough.
     free = iter([100, 10**12])
-    monkeypatch.setattr(store, "_free_bytes", lambda: next(free))
+    monkeypatch.setattr(store, "free_bytes", lambda: next(free))
     saved = store.save(frames(3), {"frame": 3})
     assert list((store.root / TRASH_DIR).iterdir()) == []
     assert [c.id for c in store.list()] == [saved.id]

@@ -459,7 +459,7 @@ async def test_full_disk_is_507_and_leaves_nothing(start_daemon, monkeypatch) ->
     assert "full" in error and "\n" not in error
     assert list(store.root.iterdir()) == []
     monkeypatch.undo()
-    monkeypatch.setattr(store, "_free_bytes", lambda: 1000)
+    monkeypatch.setattr(store, "free_bytes", lambda: 1000)
     async with d.http.post("/api/captures") as resp:
         assert resp.status == 507
     assert list(store.root.iterdir()) == []

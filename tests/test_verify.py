@@ -10,6 +10,7 @@ import pytest
 
 from stereocam.overlays.spec import pixel
 from stereocam.server.frames.verify import EXAMPLES, ChannelStats, VerifyError, compare, difference_image
+from stereocam.server.http.errors import status_of
 
 W, H = 40, 30
 
@@ -175,7 +176,7 @@ def test_mismatched_inputs_raise_a_clear_error(expected: object, actual: object,
     for call in (compare, difference_image):
         with pytest.raises(VerifyError, match=message) as err:
             call(expected, actual)  # type: ignore[arg-type]
-        assert err.value.status == 500 and isinstance(err.value, ValueError)
+        assert status_of(err.value) == 500 and isinstance(err.value, ValueError)
         assert err.value.to_json() == {"error": err.value.message} and "\n" not in err.value.message
 
 

@@ -41,7 +41,7 @@ from ...overlays.model.fast import RectifyModel
 from ...overlays.model.result import CoreOptions
 from ...overlays.spec import pixel
 from .captures import CAPTURE_FILES, CaptureInfo, CaptureStore
-from .errors import ApiError
+from .errors import ApiError, Kind
 from .store_files import read_member
 
 log = logging.getLogger(__name__)
@@ -63,9 +63,10 @@ MAX_SQUARE_MM = 1000.0
 
 
 class PanelError(ApiError):
-    """A refusal of the calibration panel: ``status`` and one line for the user."""
+    """A refusal of the calibration panel: its ``kind`` (of itself: the pairs cannot be used) and one
+    line for the user."""
 
-    status = 422
+    kind = Kind.UNUSABLE
 
 
 # -- settings -----------------------------------------------------------------------------------
@@ -86,38 +87,39 @@ class PanelSettings:
                 "alpha": self.alpha}
 
     def updated(self, doc: Mapping[str, Any]) -> "PanelSettings":
-        """These settings with the fields of ``doc`` changed; :class:`PanelError` 400 names a bad one."""
+        """These settings with the fields of ``doc`` changed; :class:`PanelError` names a bad one."""
         if not isinstance(doc, Mapping):
             raise PanelError('send a JSON object such as {"pattern": "9x6", "square_mm": 25, "alpha": 0}',
-                             status=400)
+                             kind=Kind.BAD_REQUEST)
         unknown = sorted(set(doc) - {"pattern", "square_mm", "alpha"})
         if unknown:
             raise PanelError(f"unknown field {unknown[0]!r}: the fields are pattern, square_mm and alpha",
-                             status=400)
+                             kind=Kind.BAD_REQUEST)
         cols, rows, square = self.pattern.cols, self.pattern.rows, self.pattern.square
         alpha = self.alpha
         if "pattern" in doc:
             if not isinstance(doc["pattern"], str):
-                raise PanelError('pattern is a string of inner corners, e.g. "9x6"', status=400)
+                raise PanelError('pattern is a string of inner corners, e.g. "9x6"', kind=Kind.BAD_REQUEST)
             try:
                 cols, rows = parse_pattern(doc["pattern"])
             except CalibrationError as exc:
-                raise PanelError(str(exc), status=400) from None
+                raise PanelError(str(exc), kind=Kind.BAD_REQUEST) from None
             if cols * rows > 2000:
                 raise PanelError(f"pattern {cols}x{rows} has more than 2000 corners: count the inner corners "
-                                 "of your board", status=400)
+                                 "of your board", kind=Kind.BAD_REQUEST)
         if "square_mm" in doc:
             value = doc["square_mm"]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or not MIN_SQUARE_MM <= value <= MAX_SQUARE_MM:
                 raise PanelError(f"square_mm is the side of one square in millimetres, from "
-                                 f"{MIN_SQUARE_MM:g} to {MAX_SQUARE_MM:g}; got {value!r}", status=400)
+                                 f"{MIN_SQUARE_MM:g} to {MAX_SQUARE_MM:g}; got {value!r}",
+                                 kind=Kind.BAD_REQUEST)
             square = float(value) / 1000.0
         if "alpha" in doc:
             value = doc["alpha"]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
                 raise PanelError(f"alpha is from 0 (only valid pixels) to 1 (every source pixel); "
-                                 f"got {value!r}", status=400)
+                                 f"got {value!r}", kind=Kind.BAD_REQUEST)
             alpha = float(value)
         return PanelSettings(Pattern(cols, rows, square), alpha)
 
@@ -275,7 +277,7 @@ def compute(store: CaptureStore, ids: Sequence[str], settings: PanelSettings, re
     """Calibrate from the stored pairs ``ids`` with ``settings`` (blocking, seconds).
 
     The report's pairs are in the order of ``ids``. Raises
-    :class:`PanelError` (422) with the calibrator's message when it cannot
+    :class:`PanelError` (unusable) with the calibrator's message when it cannot
     calibrate (too few pairs showing the pattern, divergence, registers).
     """
     for i in ids:  # the listing reports a link as damage, and damaged pairs are left out: one made since
@@ -338,5 +340,5 @@ def rectified_figure(store: CaptureStore, pair_id: str, report: CalibrationRepor
     cv2.line(figure, (w, 0), (w, h - 1), (255, 255, 255), 1)
     ok, png = cv2.imencode(".png", figure)
     if not ok:  # pragma: no cover - OpenCV encodes any BGR uint8 image
-        raise PanelError("cannot encode the figure", status=500)
+        raise PanelError("cannot encode the figure", kind=Kind.FAILED)
     return png.tobytes()

@@ -27,7 +27,7 @@ from ...calibration.image_files import (
     check_image_header,
 )
 from ...overlays.spec import pixel
-from .capture_errors import CaptureDamaged, CaptureError
+from .store_errors import Damaged, StoreError
 from .store_files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["FRAME_NAMES", "read_raw_pair"]
@@ -41,7 +41,7 @@ def _png(name: str, image: np.ndarray) -> bytes:
         image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), _PNG_PARAMS)
     if not ok:
-        raise CaptureError(f"cannot encode {name} as PNG (OpenCV refused it): nothing was stored")
+        raise StoreError(f"cannot encode {name} as PNG (OpenCV refused it): nothing was stored")
     return buf.tobytes()
 
 
@@ -123,7 +123,7 @@ def _decode_png(data: bytes) -> Optional[np.ndarray]:
 def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
     """The raw left and right frames of the capture ``cid`` in ``folder``, as RGBY arrays.
 
-    :class:`CaptureDamaged` (422) if a raw image is missing or corrupt, or the two differ in size.
+    :class:`Damaged` if a raw image is missing or corrupt, or the two differ in size.
     """
     out = []
     for name in RAW_FRAMES:
@@ -131,16 +131,16 @@ def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
         try:
             data = read_member(folder, file, MAX_IMAGE_FILE_BYTES)
         except FileNotFoundError:
-            raise CaptureDamaged(f"capture {cid} cannot be replayed: {file} is missing") from None
+            raise Damaged(f"capture {cid} cannot be replayed: {file} is missing") from None
         except ValueError as exc:  # larger than any frame
-            raise CaptureDamaged(f"capture {cid} cannot be replayed: {exc}") from None
+            raise Damaged(f"capture {cid} cannot be replayed: {exc}") from None
         except OSError as exc:
-            raise CaptureDamaged(
+            raise Damaged(
                 f"capture {cid} cannot be replayed: {file} cannot be read ({exc.strerror or exc})"
             ) from exc
         image = _decode_png(data)
         if image is None:
-            raise CaptureDamaged(
+            raise Damaged(
                 f"capture {cid} cannot be replayed: {file} is not a valid 8-bit image"
             )
         frame = pixel.rgby(image)
@@ -149,15 +149,15 @@ def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
         except FileNotFoundError:
             y_data = None
         except ValueError as exc:
-            raise CaptureDamaged(f"capture {cid} cannot be replayed: {exc}") from None
+            raise Damaged(f"capture {cid} cannot be replayed: {exc}") from None
         except OSError as exc:
-            raise CaptureDamaged(
+            raise Damaged(
                 f"capture {cid} cannot be replayed: {y_file} cannot be read ({exc.strerror or exc})"
             ) from exc
         if y_data is not None:
             y = _decode_png(y_data)
             if y is None or y.shape != frame.shape[:2]:
-                raise CaptureDamaged(
+                raise Damaged(
                     f"capture {cid} cannot be replayed: {y_file} is not a gray image of the "
                     f"frame's size"
                 )
@@ -165,7 +165,7 @@ def read_raw_pair(cid: str, folder: Path) -> Tuple[np.ndarray, np.ndarray]:
         out.append(frame)
     left, right = out
     if left.shape != right.shape:
-        raise CaptureDamaged(
+        raise Damaged(
             f"capture {cid} cannot be replayed: {CAPTURE_FILES[0]} is {left.shape[1]}x{left.shape[0]} "
             f"but {CAPTURE_FILES[1]} is {right.shape[1]}x{right.shape[0]}"
         )

@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from ...calibration.image_files import CAPTURE_FILES
-from .capture_errors import not_found
-from .capture_ids import created_from_id
+from .store_errors import gone
 from .store_files import read_member
+from .store_ids import created_from_id
 
 __all__ = ["CaptureFile", "CaptureInfo", "META_FILE", "read_info"]
 
@@ -73,7 +73,7 @@ class CaptureInfo:
 
 
 def read_info(cid: str, folder: Path) -> CaptureInfo:
-    """The capture ``cid`` in ``folder``, damage described in ``error``; 404 if it was deleted meanwhile."""
+    """The capture ``cid`` in ``folder``, damage described in ``error``; NotFound if deleted meanwhile."""
     problems: List[str] = []
     sizes: Dict[str, int] = {}
     try:
@@ -84,7 +84,7 @@ def read_info(cid: str, folder: Path) -> CaptureInfo:
                 elif entry.is_file(follow_symlinks=False):
                     sizes[entry.name] = entry.stat(follow_symlinks=False).st_size
     except (FileNotFoundError, NotADirectoryError):  # deleted meanwhile
-        raise not_found(cid) from None
+        raise gone("capture", cid) from None
     problems.sort()
 
     doc: Dict[str, Any] = {}
@@ -124,7 +124,7 @@ def read_info(cid: str, folder: Path) -> CaptureInfo:
                 problems.append(f"{name} is missing")
 
     if problems and not os.path.isdir(folder):  # deleted while we looked: not damage
-        raise not_found(cid)
+        raise gone("capture", cid)
     created = doc.get("created")
     if not isinstance(created, str) or not created:
         created = created_from_id(cid)

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from ...calibration.image_files import ImageTooLarge, capture_file, check_image_header
-from .capture_errors import CaptureDamaged, CaptureError, not_found
+from .store_errors import Damaged, StoreError, gone
 from .store_files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["THUMB_FRAMES", "THUMB_WIDTH", "thumbnail_jpeg"]
@@ -21,7 +21,7 @@ _THUMB_QUALITY = 80
 def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
     """The thumbnail of the capture ``cid`` in ``folder``: the first of :data:`THUMB_FRAMES` that reads.
 
-    404 if the folder is gone meanwhile; :class:`CaptureDamaged` (422) when no image can be read.
+    NotFound if the folder is gone meanwhile; :class:`.store_errors.Damaged` when no image can be read.
     """
     image = None
     for name in map(capture_file, THUMB_FRAMES):
@@ -40,8 +40,8 @@ def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
             break
     if image is None:
         if not os.path.isdir(folder):
-            raise not_found(cid)
-        raise CaptureDamaged(f"capture {cid} has no readable "
+            raise gone("capture", cid)
+        raise Damaged(f"capture {cid} has no readable "
                              f"{' or '.join(map(capture_file, THUMB_FRAMES))} for a thumbnail")
     h, w = image.shape[:2]
     tw = max(1, min(int(width), w))
@@ -49,5 +49,5 @@ def thumbnail_jpeg(cid: str, folder: Path, width: int = THUMB_WIDTH) -> bytes:
     small = cv2.resize(image, (tw, th), interpolation=cv2.INTER_AREA) if tw != w else image
     ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, _THUMB_QUALITY])
     if not ok:
-        raise CaptureError(f"cannot encode the thumbnail of capture {cid}")
+        raise StoreError(f"cannot encode the thumbnail of capture {cid}")
     return buf.tobytes()

@@ -71,23 +71,17 @@ import logging
 import math
 import os
 import queue
-import secrets
-import shutil
-import stat
 import threading
 import time
-import weakref
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import (
-    IO,
     Any,
     Awaitable,
     Callable,
     ContextManager,
     Dict,
-    Iterator,
     List,
     Mapping,
     Optional,
@@ -98,10 +92,8 @@ from typing import (
 import numpy as np
 
 from ...overlays.spec import pixel
-from .capture_ids import ID_EXAMPLE
 from .capture_images import encode_frame
-from .captures import DELETING_PREFIX, INCOMING_PREFIX, CaptureStore
-from .errors import ApiError
+from .folder_store import DELETING_PREFIX, INCOMING_PREFIX, FolderStore
 from .pipeline import COUNT_MOD, FrameSet
 from .recording_files import (
     ENDS,
@@ -124,17 +116,8 @@ from .recording_files import (
     sync_file,
     sync_folder,
 )
-from .store_files import (
-    FULL_ERRNOS,
-    fsync_dir,
-    iso_utc,
-    mb,
-    meta_dumps,
-    open_member,
-    remove_tree,
-    utcnow,
-)
-from .zip_stream import close_all, zip_chunks
+from .store_errors import Conflict, DiskFull, InvalidId, NotFound, StoreError
+from .store_files import FULL_ERRNOS, fsync_dir, iso_utc, mb, meta_dumps, remove_tree, utcnow
 
 log = logging.getLogger(__name__)
 
@@ -150,38 +133,13 @@ PNG_SHARE = 0.75  # a PNG of camera frames, of the uncompressed RGB: what a star
 QUEUE_BYTES = 64 << 20  # frames waiting for the writer, at most (then they are skipped, counted)
 
 
-# -- errors -------------------------------------------------------------------------------------------
+# -- errors: the stores' one tree (:mod:`.store_errors`), by the names callers know ------------------
 
-class RecordingError(ApiError):
-    """Base of what the recorder and the store raise on purpose (``status``: the HTTP status)."""
-
-
-class InvalidRecordingId(RecordingError):
-    status = 400
-
-
-class RecordingNotFound(RecordingError):
-    status = 404
-
-
-class RecordingBusy(RecordingError):
-    """Another recording runs, or the recording is in use (409)."""
-
-    status = 409
-
-
-class RecordingDiskFull(RecordingError):
-    """Not enough free space to start; nothing was created (507)."""
-
-    status = 507
-
-
-class NoSignal(RecordingError):
-    status = 503
-
-
-def _not_found(rid: str) -> RecordingNotFound:
-    return RecordingNotFound(f"no recording {rid}: it was deleted or never existed; list the recordings")
+RecordingError = StoreError
+InvalidRecordingId = InvalidId
+RecordingNotFound = NotFound
+RecordingBusy = Conflict  # another recording runs, or the recording is in use
+RecordingDiskFull = DiskFull  # not enough free space to start; nothing was created
 
 
 # -- what the store reports ---------------------------------------------------------------------------
@@ -226,8 +184,8 @@ class RecordingInfo:
 
 # -- the store ------------------------------------------------------------------------------------------
 
-class RecordingStore:
-    """The recordings folder ``root``: reserve, publish, list, zip, delete.
+class RecordingStore(FolderStore[RecordingInfo]):
+    """The recordings folder ``root``: reserve, publish, list, zip, delete (a folder store).
 
     ``min_free_bytes`` is kept free on its filesystem (a recording stops before it
     would take it). Ids are capture-style (``20261122T040512Z-000123-ab12``: UTC
@@ -236,19 +194,18 @@ class RecordingStore:
     recovers what a crash or a power cut left being recorded (see :meth:`recover_interrupted`).
     """
 
+    noun = "recording"
+    folder_name = "the recordings folder"
+
     def __init__(self, root: "str | Path", *, min_free_bytes: int = 0,
                  clock: Optional[Callable[[], datetime]] = None) -> None:
-        if min_free_bytes < 0:
-            raise ValueError(f"min_free_bytes must be >= 0, got {min_free_bytes}")
-        self.min_free_bytes = int(min_free_bytes)
-        self._clock = clock or utcnow
-        try:
-            Path(root).mkdir(parents=True, exist_ok=True)
-            self.root = Path(root).resolve(strict=True)
-        except OSError as exc:
-            raise RecordingError(f"cannot use {root} as the recordings folder: {exc.strerror or exc}; "
-                                 f"give a writable folder") from exc
+        super().__init__(root, min_free_bytes=min_free_bytes, clock=clock)
         self.recover_interrupted()
+
+    @staticmethod
+    def _shown_id(ident: object) -> str:
+        text = ident if isinstance(ident, str) else repr(ident)
+        return repr(text if len(text) <= 40 else text[:40] + "...")
 
     def recover_interrupted(self) -> None:
         """Publish the whole frames of every recording a crash interrupted; finish deletes a crash cut short.
@@ -294,75 +251,6 @@ class RecordingStore:
                 log.warning("recording %s was interrupted before a whole frame was written: nothing to keep",
                             rid)
 
-    # -- ids and space ---------------------------------------------------------------------------------
-    @staticmethod
-    def check_id(rid: object) -> str:
-        if not CaptureStore.valid_id(rid):
-            text = rid if isinstance(rid, str) else repr(rid)
-            shown = text if len(text) <= 40 else text[:40] + "..."
-            raise InvalidRecordingId(f"invalid recording id {shown!r}: recording ids look like {ID_EXAMPLE}")
-        assert isinstance(rid, str)
-        return rid
-
-    def path(self, rid: object) -> Path:
-        """The folder of a finished recording: 400 malformed id, 404 absent (or a symbolic link)."""
-        rid = self.check_id(rid)
-        folder = self.root / rid
-        try:
-            st = os.lstat(folder)
-        except FileNotFoundError:
-            raise _not_found(rid) from None
-        if not stat.S_ISDIR(st.st_mode):
-            raise _not_found(rid)
-        return folder
-
-    def free_bytes(self) -> int:
-        """Free bytes on the recordings' filesystem (a test makes the disk fill here)."""
-        return shutil.disk_usage(self.root).free
-
-    def room(self) -> int:
-        """Bytes a recording may still write: free space less ``min_free_bytes``."""
-        return self.free_bytes() - self.min_free_bytes
-
-    def reserve(self, frame_no: int) -> Tuple[str, Path]:
-        """A fresh id and its empty hidden ``.incoming-<id>`` folder (see CaptureStore._reserve)."""
-        stamp = self._clock().astimezone(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-        for _ in range(64):
-            rid = f"{stamp}-{int(frame_no) % 10**10:06d}-{secrets.token_hex(2)}"
-            tmp = self.root / f"{INCOMING_PREFIX}{rid}"
-            if os.path.lexists(self.root / rid):
-                continue
-            try:
-                os.mkdir(tmp, 0o755)
-            except FileExistsError:
-                continue
-            return rid, tmp
-        raise RecordingError(f"cannot find a free recording id in {self.root}: try again")
-
-    def publish(self, tmp: Path, rid: str) -> None:
-        os.rename(tmp, self.root / rid)
-        with contextlib.suppress(OSError):
-            fsync_dir(self.root)
-
-    # -- read ------------------------------------------------------------------------------------------
-    def list(self) -> List[RecordingInfo]:
-        """Every finished recording, newest first (damaged ones too, with ``error``)."""
-        with os.scandir(self.root) as entries:
-            found = [e.name for e in entries
-                     if CaptureStore.valid_id(e.name) and e.is_dir(follow_symlinks=False)]
-        infos = []
-        for rid in found:
-            try:
-                infos.append(self._info(rid, self.root / rid))
-            except RecordingNotFound:
-                continue
-        infos.sort(key=lambda i: (i.created, i.id), reverse=True)
-        return infos
-
-    def get(self, rid: object) -> RecordingInfo:
-        folder = self.path(rid)
-        return self._info(folder.name, folder)
-
     def _info(self, rid: str, folder: Path) -> RecordingInfo:
         sizes: Dict[str, int] = {}
         links = set()
@@ -374,7 +262,7 @@ class RecordingStore:
                     elif entry.is_file(follow_symlinks=False):
                         sizes[entry.name] = entry.stat(follow_symlinks=False).st_size
         except (FileNotFoundError, NotADirectoryError):
-            raise _not_found(rid) from None
+            raise self.not_found(rid) from None
         doc: Dict[str, Any] = {}
         problems: List[str] = []
         try:
@@ -415,46 +303,13 @@ class RecordingStore:
             error="; ".join(problems) or None, meta=doc,
         )
 
-    def zip_stream(self, rid: object, *, chunk_size: int = 1 << 20) -> Iterator[bytes]:
-        """The recording as a zip (folder ``<id>/``; PNGs stored, the JSON deflated), in chunks.
-
-        400/404 are raised at the call, and every file is opened then, so a delete while
-        the archive streams does not cut it short. Iterate to the end or ``close()`` it.
-        """
-        folder = self.path(rid)
-        rid = folder.name
-        info = self._info(rid, folder)
+    def _zip_names(self, folder: Path, info: RecordingInfo) -> List[str]:
+        """recording.json, frames.jsonl, then every other regular file by name."""
         with os.scandir(folder) as entries:
             names = sorted(e.name for e in entries if e.is_file(follow_symlinks=False))
         first = {META_FILE: 0, FRAMES_FILE: 1}
         names.sort(key=lambda n: (first.get(n, 2), n))
-        handles: List[Tuple[str, IO[bytes], int]] = []
-        try:
-            for name in names:
-                member: IO[bytes] = os.fdopen(open_member(folder, name), "rb")
-                handles.append((name, member, os.fstat(member.fileno()).st_size))
-        except OSError as exc:
-            close_all([fh for _, fh, _ in handles])
-            if isinstance(exc, FileNotFoundError):
-                raise RecordingNotFound(f"recording {rid} was deleted while it was being read") from None
-            raise RecordingError(f"cannot read recording {rid}: {exc.strerror or exc}") from exc
-        stamp = datetime.strptime(info.created[:19], "%Y-%m-%dT%H:%M:%S")
-        date_time = (max(stamp.year, 1980), stamp.month, stamp.day, stamp.hour, stamp.minute, stamp.second)
-        gen = zip_chunks(rid, date_time, handles, max(1, int(chunk_size)))
-        weakref.finalize(gen, close_all, [fh for _, fh, _ in handles])
-        return gen
-
-    def delete(self, rid: object) -> None:
-        """Remove a finished recording (renamed to a hidden folder first, then removed)."""
-        folder = self.path(rid)
-        trash = self.root / f"{DELETING_PREFIX}{folder.name}-{secrets.token_hex(4)}"
-        try:
-            os.rename(folder, trash)
-        except FileNotFoundError:
-            raise _not_found(folder.name) from None
-        except OSError as exc:
-            raise RecordingError(f"cannot delete recording {folder.name}: {exc.strerror or exc}") from exc
-        remove_tree(trash)
+        return names
 
 
 # -- recording ------------------------------------------------------------------------------------------
@@ -782,9 +637,9 @@ class Recorder:
         """Begin recording from now (blocks briefly: a folder is made).
 
         ``seconds`` None records until :meth:`stop`. ``fps`` (the cameras' rate now) and
-        ``frame_size`` size the disk check: :class:`RecordingDiskFull` (507) when the
+        ``frame_size`` size the disk check: :class:`RecordingDiskFull` when the
         recording asked for (or, without ``seconds``, one second of it) would not leave
-        ``min_free_bytes``; :class:`RecordingBusy` (409) while another runs. Nothing is
+        ``min_free_bytes``; :class:`RecordingBusy` while another runs. Nothing is
         created when it is refused.
         """
         if seconds is not None and not (0 < seconds <= MAX_SECONDS and math.isfinite(seconds)):

@@ -14,7 +14,7 @@ never as "unknown").
 
 Pure functions of their arguments, synchronous, thread-safe, and they never
 modify or keep the frames they are given. Mismatched inputs raise
-:class:`VerifyError` (a ``ValueError`` with ``status = 500``: both frames
+:class:`VerifyError` (a ``ValueError`` of kind ``FAILED``: both frames
 come from the daemon, so a mismatch is the server's problem, not the
 client's).
 """
@@ -37,7 +37,7 @@ EXAMPLES = 10  # differing pixels a report lists
 
 
 class VerifyError(ApiError, ValueError):
-    """The two frames cannot be compared (shape or type mismatch); ``status`` 500."""
+    """The two frames cannot be compared (shape or type mismatch): a failure of the daemon's."""
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ...overlays.interface import Channel, ChannelFault, DriverError, Overlay
 from ...overlays.model.fast import RectifyModel
-from .errors import ApiError
+from .errors import ApiError, Kind
 from .feed import FrameFeed
 from .pipeline import COUNT_MOD, FrameSet, Pipeline, SourceState
 
@@ -66,11 +66,11 @@ class VerifyResult:
 
 
 class MuxRefused(ApiError):
-    """The mux did not commit a change of source: 503, the daemon's source stays what it was."""
+    """The mux did not commit a change of source (unavailable): the daemon's source stays what it was."""
 
     def __init__(self, source: str, exc: BaseException) -> None:
         super().__init__(f"the mux did not switch to {source} ({exc}): the daemon retries until it commits "
-                         "(see /api/status faults); try again in a moment", status=503)
+                         "(see /api/status faults); try again in a moment", kind=Kind.UNAVAILABLE)
 
 
 class VirtualCamera:
@@ -150,7 +150,7 @@ class VirtualCamera:
         self._select_blocking("live")
 
     async def send(self, loop_executor: Executor, frame: np.ndarray, origin: str) -> FrameSet:
-        """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError 504 if none came).
+        """Flow 4: ``frame`` through the fabric; returns the processed set (ApiError, timeout, if none came).
 
         A recording playing through the virtual camera stops first.
         """
@@ -168,7 +168,7 @@ class VirtualCamera:
                 with contextlib.suppress(MuxRefused):
                     await self._back_to_live(loop_executor)
                 raise ApiError(f"the fabric did not take the virtual-camera frame: {exc}",
-                               status=504) from exc
+                               kind=Kind.TIMEOUT) from exc
             effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
             self.pipeline.set_source(SourceState("virtual", frame, effective))
             self.source, self.input, self.origin, self.effective_count = "virtual", frame, origin, effective
@@ -179,7 +179,7 @@ class VirtualCamera:
                 await self._back_to_live(loop_executor)
                 raise ApiError(f"the fabric returned no processed frame within "
                                f"{self._round_trip_s():g} s; is the rectify core enabled? "
-                               "(GET /api/status); the source is live again", status=504) from None
+                               "(GET /api/status); the source is live again", kind=Kind.TIMEOUT) from None
             self.result = result
             return result
 
@@ -204,11 +204,11 @@ class VirtualCamera:
     async def select(self, executor: Executor, source: str) -> None:
         """Flow 6 (live) or back to the last virtual input (virtual).
 
-        Virtual before any input is refused (ApiError 409), the source staying live: the mux
+        Virtual before any input is refused (ApiError, conflict), the source staying live: the mux
         would feed the core nothing, and the views would show live raw frames beside black
         rectified ones under a header saying virtual.
 
-        A mux that does not take the change (its commit times out) is an ApiError 503 naming
+        A mux that does not take the change (its commit times out) is an ApiError (unavailable) naming
         the source the status then shows; nothing else changes.
         """
         await self.stop_player()
@@ -219,7 +219,7 @@ class VirtualCamera:
             if self.input is None:
                 raise ApiError("the virtual camera has no input yet: upload a pair "
                                "(POST /api/virtual-camera) or send a capture to it first; "
-                               "the source stays live", status=409)
+                               "the source stays live", kind=Kind.CONFLICT)
             frame = self.input
         await self.send(executor, frame, self.origin or "upload")
 
@@ -245,7 +245,7 @@ class VirtualCamera:
         frame.flags.writeable = False
         async with self.lock:
             if self.source != "virtual":
-                raise ApiError("the source is no longer virtual", status=409)
+                raise ApiError("the source is no longer virtual", kind=Kind.CONFLICT)
             count = await asyncio.get_running_loop().run_in_executor(executor, self._next_blocking, frame)
             effective = (count + ROUND_TRIP_FRAMES) % COUNT_MOD
             self.pipeline.set_source(SourceState("virtual", frame, effective))

@@ -1,22 +1,24 @@
 """Errors as answers: every refusal, whoever raised it, becomes the same JSON answer here and nowhere else.
 
 Handlers, the frame path and the other middlewares raise: an :class:`~..frames.errors.ApiError`
-(``status``, ``message``, ``headers``) for a refusal of theirs, or aiohttp's ``web.HTTPException``
-(its own 404, 405, 413, ...). :func:`json_errors`, the app's outermost middleware, answers both
-as ``{"error": message}`` with that status, and anything unexpected as a 500 that names the
+(``kind``, ``message``, ``headers``; handlers may set its ``status`` themselves) for a refusal of
+theirs, or aiohttp's ``web.HTTPException`` (its own 404, 405, 413, ...). The frame path never
+names a status: :data:`STATUS` says which each :class:`~..frames.errors.Kind` answers with
+(:func:`status_of`). :func:`json_errors`, the app's outermost middleware, answers both as
+``{"error": message}`` with that status, and anything unexpected as a 500 that names the
 exception (the traceback goes to the daemon's log, once, never to the client).
 """
 from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING, Awaitable, Callable, Optional, Protocol
+from typing import TYPE_CHECKING, Awaitable, Callable, Dict, Optional, Protocol
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web_protocol import RequestPayloadError
 
-from ..frames.errors import ApiError
+from ..frames.errors import ApiError, Kind
 from .state import SETTINGS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -24,7 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-__all__ = ["json_error", "json_errors", "too_large", "BAD_REQUEST_LINES"]
+__all__ = ["json_error", "json_errors", "too_large", "BAD_REQUEST_LINES", "STATUS", "status_of"]
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 KEPT_HEADERS = ("WWW-Authenticate", "Allow", "Retry-After")  # of an aiohttp HTTPException's, in the answer
@@ -36,6 +38,27 @@ class Counts(Protocol):
     def request(self, status: int) -> None: ...
 
     def error(self, text: str, where: str = ...) -> None: ...
+
+
+STATUS: Dict[Kind, int] = {
+    Kind.BAD_REQUEST: 400,
+    Kind.NOT_FOUND: 404,
+    Kind.CONFLICT: 409,
+    Kind.TOO_LARGE: 413,
+    Kind.UNSUPPORTED: 415,
+    Kind.UNUSABLE: 422,
+    Kind.TOO_MANY: 429,
+    Kind.FAILED: 500,
+    Kind.UNAVAILABLE: 503,
+    Kind.TIMEOUT: 504,
+    Kind.NO_SPACE: 507,
+}
+"""The HTTP status each kind of :class:`~..frames.errors.ApiError` answers with."""
+
+
+def status_of(exc: ApiError) -> int:
+    """The status to answer ``exc`` with: the one a handler set, else its kind's."""
+    return exc.status if exc.status is not None else STATUS[exc.kind]
 
 
 def shutting_down() -> ApiError:
@@ -98,8 +121,9 @@ def json_errors(metrics: Counts) -> "Middleware":
         try:
             response = await handler(request)
         except ApiError as exc:
-            metrics.request(exc.status)
-            return json_error(exc.status, exc.message or str(exc), **exc.headers)
+            status = status_of(exc)
+            metrics.request(status)
+            return json_error(status, exc.message or str(exc), **exc.headers)
         except web.HTTPException as exc:
             if exc.status < 400:
                 raise

@@ -14,7 +14,6 @@ import mimetypes
 import os
 import stat
 import time
-from datetime import datetime, timezone
 from typing import Any, Callable, Dict, Optional, Tuple, TypeVar
 
 import numpy as np
@@ -26,10 +25,12 @@ from ..frames.encoders import png_for
 from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
+from ..frames.store_errors import NotFound
 from ..frames.verify import compare, difference_image
 from ..frames.views import REGISTRY
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from .bodies import json_response, read_json
+from .capture_service import capture_service
 from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
@@ -61,7 +62,7 @@ from .uploads import (
 log = logging.getLogger(__name__)
 FIT_FIELD = "fit"  # the upload's optional text field naming the fit (or ?fit= in the URL)
 
-__all__ = ["setup_routes", "fresh_raw_frame", "store_capture"]
+__all__ = ["setup_routes"]
 
 T = TypeVar("T")
 SOURCES = ("live", "virtual")
@@ -367,106 +368,14 @@ async def verify_difference(request: web.Request) -> web.Response:
 
 # -- captures ---------------------------------------------------------------------------------------
 
-CHANGE_WAIT_S = 30.0  # how long a capture waits out a calibration change (programming and file write)
-
-async def fresh_raw_frame(app: web.Application) -> FrameSet:
-    """The first frame set grabbed after now that carries its raw pair.
-
-    Raises :class:`ApiError` 503 when no frame comes in time (no signal) or the daemon is stopping.
-    """
-    feed, pipeline, calibration = app[FEED], app[PIPELINE], app[CALIBRATION]
-    timeout = app[SETTINGS].frame_wait_s
-    asked = time.time()
-
-    def wanted(f: FrameSet) -> bool:  # grabbed after the request, with its raw pair, of a known calibration
-        known = calibration.for_frame(f.fabric_count) is not None
-        return f.timestamp >= asked and f.raw is not None and known
-
-    change_ends = time.monotonic() + CHANGE_WAIT_S
-    try:
-        with pipeline.raw_wanted(), pipeline.pairs_wanted():
-            while True:
-                try:
-                    return await feed.next_frame(timeout=timeout, accept=wanted)
-                except asyncio.TimeoutError:
-                    # Frames of a calibration change in progress are refused, not missing: wait it out.
-                    if not (calibration.now.changing and time.monotonic() < change_ends):
-                        raise
-    except asyncio.TimeoutError:
-        raise ApiError(f"no signal: no frame came within {timeout:g} s, nothing was captured",
-                       status=503) from None
-    except BroadcastClosed:
-        raise shutting_down() from None
-
-
-def paired_raw(app: web.Application, fs: FrameSet) -> Tuple[np.ndarray, str]:
-    """The raw pair whose rectified frame ``fs.processed`` is, and how that is known (blocking).
-
-    The pipeline copies the latest raw and processed stores together, but the raw channel
-    can complete the next frame before the core has finished this one, so the latest raw
-    store may be a frame ahead; for captures it also copies the store before
-    (``fs.raw_previous``). The closed loop decides: the raw frame that the model turns into
-    exactly the processed one. "checked" when one does; "unverified" when neither does (a
-    core that differs from the model, which Verify shows), and the latest raw pair is kept.
-    """
-    assert fs.raw is not None
-    if fs.source == "virtual":
-        return fs.raw, "virtual input"
-    overlay, models = app[OVERLAY], app[VIRTUAL].models
-    for candidate in (fs.raw, fs.raw_previous):
-        if candidate is not None and np.array_equal(models.run(overlay, candidate), fs.processed):
-            return candidate, "checked"
-    return fs.raw, "unverified"
-
-
-async def store_capture(app: web.Application, store: CaptureStore, fs: FrameSet,
-                        extra: Optional[Dict[str, Any]] = None) -> Any:
-    """Save ``fs`` (raw and rectified pairs, metadata: registers, calibration, extensions) in ``store``.
-
-    Returns the :class:`CaptureInfo`; raises :class:`CaptureError` (disk full, I/O) with nothing stored.
-    """
-    overlay = app[OVERLAY]
-    try:
-        registers: Dict[str, Any] = await app[EXECUTORS].run(overlay.rectify.dump)
-    except Exception as exc:
-        registers = {"error": str(exc)}
-    # The calibration this frame ran with (a change since it was grabbed does not relabel it).
-    calibration = app[CALIBRATION].for_frame(fs.fabric_count) or {
-        "id": None, "description": "unknown: the calibration changed while this frame was processed"}
-    assert fs.raw is not None
-    try:
-        raw, pairing = await app[EXECUTORS].run(paired_raw, app, fs)
-    except Exception as exc:  # a model that cannot run (no registers?): store what was copied, say so
-        raw, pairing = fs.raw, f"unverified ({type(exc).__name__}: {exc})"
-    meta: Dict[str, Any] = {
-        "frame": fs.frame,
-        "pairing": pairing,
-        "fabric_count": fs.fabric_count,
-        "time": fs.timestamp,
-        "time_utc": datetime.fromtimestamp(fs.timestamp, timezone.utc).isoformat(timespec="milliseconds"),
-        "source": fs.source,
-        "calibration_id": calibration["id"],
-        "calibration": calibration,
-        "backend": overlay.backend,
-        "frame_size": list(fs.size),
-        "registers": registers,
-    }
-    if fs.source == "virtual":
-        meta["virtual_input"] = app[VIRTUAL].origin
-    meta.update(app[EXTENSIONS].capture_sections())
-    meta.update(extra or {})
-    frames = {"raw_left": raw[..., pixel.LEFT], "raw_right": raw[..., pixel.RIGHT],
-              "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
-    return await app[EXECUTORS].run(store.save, frames, meta)
-
-
 async def post_capture(request: web.Request) -> web.Response:
     app = request.app
     metrics = app[METRICS]
-    fs = await fresh_raw_frame(app)
+    capturing = capture_service(app)
+    fs = await capturing.fresh_raw_frame()
     store: CaptureStore = app[CAPTURES]
     try:
-        info = await store_capture(app, store, fs)
+        info = await capturing.store(store, fs)
     except CaptureError as exc:
         metrics.error(exc.message, "captures")
         raise
@@ -496,16 +405,12 @@ async def capture_zip(request: web.Request) -> web.StreamResponse:
                                  run=request.app[EXECUTORS].run)
 
 
-class _NoSuchFile(CaptureError):
-    status = 404
-
-
 def _read_capture_file(store: CaptureStore, cid: str, name: str) -> bytes:
     """One file of a capture, by a name its listing shows (never a path built from the request)."""
     info = store.get(cid)
     if name not in {f.name for f in info.files}:
         names = ", ".join(f.name for f in info.files)
-        raise _NoSuchFile(f"capture {cid} has no file {name[:60]!r}; it has {names}")
+        raise NotFound(f"capture {cid} has no file {name[:60]!r}; it has {names}")
     fd = os.open(store.path(cid) / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     with os.fdopen(fd, "rb") as fh:
         if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):

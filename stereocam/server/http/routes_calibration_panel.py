@@ -54,8 +54,8 @@ from ..frames.errors import ApiError
 from ..frames.pipeline import FrameSet
 from ..frames.views import render
 from .bodies import json_response, read_json
+from .capture_service import capture_service
 from .metrics import METRICS
-from .routes_api import fresh_raw_frame, store_capture
 from .routes_calibration import activate, check_runnable
 from .state import EXECUTORS, FEED, OVERLAY, SETTINGS
 
@@ -167,7 +167,7 @@ async def get_corners(request: web.Request) -> web.Response:
         raise ApiError(f"no signal: no frame has come for {asked - since:.1f} s", status=503)
     async with panel.live_lock:
         if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
-            fs = await fresh_raw_frame(app)
+            fs = await capture_service(app).fresh_raw_frame()
             settings = panel.settings
             raw = fs.raw
             assert raw is not None
@@ -206,7 +206,7 @@ async def post_pair(request: web.Request) -> web.Response:
     panel = app[PANEL]
     async with panel.pairs_lock:
         settings = panel.settings
-        fs = await fresh_raw_frame(app)
+        fs = await capture_service(app).fresh_raw_frame()
         raw = fs.raw
         assert raw is not None
         found = await app[EXECUTORS].run(lambda: detect_frame(raw, settings.pattern, thorough=True))
@@ -224,7 +224,7 @@ async def post_pair(request: web.Request) -> web.Response:
                  "square_mm": settings.pattern.square * 1000.0,
                  "corners": {"left": found["left"], "right": found["right"]}}
         try:
-            info = await store_capture(app, panel.store, fs, extra)
+            info = await capture_service(app).store(panel.store, fs, extra)
         except CaptureError as exc:
             app[METRICS].error(exc.message, "calibration")
             raise

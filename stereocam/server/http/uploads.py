@@ -53,9 +53,8 @@ from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImag
 
 from ...calibration.image_files import MAX_IMAGE_PIXELS  # larger headers: decompression bombs
 from ...overlays.spec import pixel
-from ..frames.capture_ids import ID_EXAMPLE
-from ..frames.captures import CaptureStore
 from ..frames.errors import ApiError
+from ..frames.store_ids import ID_EXAMPLE, valid_id
 
 __all__ = [
     "UploadError",
@@ -569,7 +568,7 @@ def parse_json_replay_request(obj: Any) -> Tuple[str, str]:
         if not isinstance(value, str):
             raise UploadError(400, f'"recording" must be a recording id string like {ID_EXAMPLE}, '
                                    f'got {type(value).__name__}')
-        if not CaptureStore.valid_id(value):
+        if not valid_id(value):
             shown = value if len(value) <= 40 else value[:40] + "..."
             raise UploadError(400, f"invalid recording id {shown!r}: recording ids look like {ID_EXAMPLE}")
         return "recording", value
@@ -598,7 +597,7 @@ def parse_json_capture_request(obj: Any) -> str:
         raise UploadError(
             400, f'"capture" must be a capture id string like {ID_EXAMPLE}, got {type(value).__name__}'
         )
-    if not CaptureStore.valid_id(value):
+    if not valid_id(value):
         shown = value if len(value) <= 40 else value[:40] + "..."
         raise UploadError(400, f"invalid capture id {shown!r}: capture ids look like {ID_EXAMPLE}")
     return value

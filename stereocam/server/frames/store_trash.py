@@ -1,6 +1,6 @@
-"""The hidden ``.trash/`` folder of a capture store, where deleted captures wait for an undo.
+"""The hidden ``.trash/`` folder of a store, where deleted folders (captures) wait for an undo.
 
-A trashed capture is the folder ``<id>.<nanoseconds>`` (when it was deleted),
+A trashed folder is ``<id>.<nanoseconds>`` (when it was deleted),
 moved there by one rename; what stays longer than :data:`TRASH_KEEP_S` is
 removed.
 """
@@ -13,18 +13,18 @@ from datetime import datetime
 from pathlib import Path
 from typing import Callable, List, Optional, Tuple
 
-from .capture_errors import CaptureError
-from .capture_ids import ID_PATTERN
+from .store_errors import StoreError
 from .store_files import remove_tree
+from .store_ids import ID_PATTERN
 
 __all__ = ["TRASH_DIR", "TRASH_KEEP_S"]
 
 TRASH_DIR = ".trash"
-TRASH_KEEP_S = 600.0  # a trashed capture can be restored for 10 minutes
+TRASH_KEEP_S = 600.0  # a trashed folder can be restored for 10 minutes
 _TRASH_RE = re.compile(r"(" + ID_PATTERN + r")\.([0-9]{1,20})")
 
 
-def trash_dir(root: Path, create: bool) -> Optional[Path]:
+def trash_dir(root: Path, create: bool, noun: str = "capture") -> Optional[Path]:
     """``root/.trash`` (a real folder, never a symbolic link), made if ``create``; else None if absent."""
     folder = root / TRASH_DIR
     try:
@@ -38,13 +38,13 @@ def trash_dir(root: Path, create: bool) -> Optional[Path]:
             pass
         st = os.lstat(folder)
     if not stat.S_ISDIR(st.st_mode):
-        raise CaptureError(f"{folder} is not a folder: remove it so that deleted captures can be kept "
+        raise StoreError(f"{folder} is not a folder: remove it so that deleted {noun}s can be kept "
                            f"for an undo")
     return folder
 
 
 def trashed(folder: Path) -> List[Tuple[str, int, Path]]:
-    """``(id, deleted at (ns since the epoch), path)`` of every capture in the trash folder."""
+    """``(id, deleted at (ns since the epoch), path)`` of every folder in the trash folder."""
     out = []
     with os.scandir(folder) as entries:
         for e in entries:
@@ -63,7 +63,7 @@ def purge_trash(root: Path, clock: Callable[[], datetime], keep_s: float) -> int
         now_ns = clock().timestamp() * 1e9
         keep_ns = keep_s * 1e9  # a clock set back (a board without RTC) ages entries too
         old = [path for _, deleted, path in trashed(trash) if abs(now_ns - deleted) >= keep_ns]
-    except (OSError, CaptureError):
+    except (OSError, StoreError):
         return 0
     for path in old:
         remove_tree(path)
