@@ -108,7 +108,7 @@ class Panel:
     candidate: Optional[Candidate] = None
 
 
-PANEL: "web.AppKey[Panel]" = web.AppKey("stereocam.calibration.panel")
+PANEL: "web.AppKey[Panel]" = web.AppKey("stereocam.calibration.panel", Panel)
 
 
 def pairs_folder(config: Any) -> Path:

@@ -25,8 +25,8 @@ from .state import CALIBRATION, EXECUTORS, FEED, OVERLAY, PIPELINE, SETTINGS, VI
 
 __all__ = ["RECORDINGS", "RECORDER", "setup", "open_replay"]
 
-RECORDINGS = web.AppKey("recordings", RecordingStore)
-RECORDER = web.AppKey("recorder", Recorder)
+RECORDINGS: "web.AppKey[RecordingStore]" = web.AppKey("stereocam.recordings", RecordingStore)
+RECORDER: "web.AppKey[Recorder]" = web.AppKey("stereocam.recorder", Recorder)
 STOP_WAIT_S = 120.0  # a stop waits for the queued frames to be written and the folder synced
 
 
