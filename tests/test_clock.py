@@ -184,3 +184,39 @@ def test_stop_waits_as_long_as_the_clocks_ticks_take() -> None:
         release.set()
         releaser.cancel()
     assert not clock.running
+
+
+def test_stop_waits_for_a_first_tick_that_computes_longer_than_the_least_wait() -> None:
+    """The first tick has no longest tick before it: on a starved CPU (qemu beside other work) it took
+    longer than 2 s and the daemon's shutdown raised. A tick that uses CPU is working: stop waits."""
+    entered = threading.Event()
+
+    def tick(index: int, t: float) -> None:
+        entered.set()
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            sum(range(1000))  # CPU, not a blocking call
+
+    clock = FrameClock(100, tick).start()
+    assert entered.wait(60.0)
+    clock.stop()  # before: ClockStopTimeout after 2 s
+    assert not clock.running and clock.frames == 1
+
+
+def test_a_first_tick_blocked_without_using_cpu_is_still_called_a_hang() -> None:
+    release = threading.Event()
+    entered = threading.Event()
+
+    def tick(index: int, t: float) -> None:
+        entered.set()
+        release.wait(60.0)
+
+    clock = FrameClock(100, tick).start()
+    assert entered.wait(60.0)
+    try:
+        with pytest.raises(ClockStopTimeout, match="blocking call in the tick callback"):
+            clock.stop()
+    finally:
+        release.set()
+    clock.stop()
+    assert not clock.running

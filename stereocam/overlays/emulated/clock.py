@@ -29,6 +29,7 @@ __all__ = ["FrameClock", "ClockError", "ClockStopTimeout", "Tick"]
 Tick = Callable[[int, float], None]
 STOP_WAIT_S = 2.0  # the least time stop() waits for a tick to end
 STOP_WAIT_TICKS = 4.0  # ... or this many times the longest tick so far, when that is longer
+STOP_BUSY_CAP_S = 120.0  # past the wait above, stop() waits on while the tick uses CPU, up to this
 MODES = ("realtime", "stepped")
 
 
@@ -150,9 +151,11 @@ class FrameClock:
         """Stop ticking and wait up to ``timeout`` s for the thread. Idempotent; no-op in stepped mode.
 
         ``timeout`` None: :data:`STOP_WAIT_S`, or :data:`STOP_WAIT_TICKS` times the longest tick
-        so far when that is longer. A tick is a whole frame of the emulated fabric, and a slow or
-        busy CPU (a Cortex-A9 emulating the fabric, qemu, a machine shared with other work) can
-        take seconds over one: stopping must wait for it, not call it a hang.
+        so far when that is longer; then on, while the tick thread keeps using CPU (it is
+        working, not blocked), up to :data:`STOP_BUSY_CAP_S`. A tick is a whole frame of the
+        emulated fabric, and a slow or busy CPU (a Cortex-A9 emulating the fabric, qemu, a
+        machine shared with other work) can take seconds over one, the first one included:
+        stopping must wait for it, not call it a hang. A tick blocked in a call uses no CPU.
         Called from inside ``tick`` it only asks the thread to stop (the
         thread cannot wait for itself). Raises :class:`ClockStopTimeout` if
         ``tick`` is still running after ``timeout``; the thread stops after
@@ -166,7 +169,10 @@ class FrameClock:
             return
         if timeout is None:
             timeout = max(STOP_WAIT_S, STOP_WAIT_TICKS * self._longest_tick)
-        thread.join(timeout)
+            thread.join(timeout)
+            timeout += _join_while_busy(thread, STOP_WAIT_S, STOP_BUSY_CAP_S)
+        else:
+            thread.join(timeout)
         if thread.is_alive():
             raise ClockStopTimeout(
                 f"{self.name}: tick() has not returned {timeout:g} s after stop(); it stops after the tick "
@@ -237,3 +243,26 @@ def _name_os_thread(name: str) -> None:
         libc.prctl(15, name.encode("ascii", "replace")[:15], 0, 0, 0)  # PR_SET_NAME
     except (OSError, AttributeError):
         pass
+
+
+def _join_while_busy(thread: threading.Thread, window_s: float, cap_s: float) -> float:
+    """Join ``thread`` in windows of ``window_s`` while it used CPU in the last one; the seconds waited.
+
+    Stops at ``cap_s``, or at once where a thread's CPU clock cannot be read."""
+    waited = 0.0
+    try:
+        clock = time.pthread_getcpuclockid(thread.ident or 0)
+        used = time.clock_gettime(clock)
+    except (AttributeError, OSError, OverflowError):
+        return waited
+    while thread.is_alive() and waited < cap_s:
+        thread.join(window_s)
+        waited += window_s
+        try:
+            now = time.clock_gettime(clock)
+        except OSError:  # the thread ended: its clock is gone
+            break
+        if now - used < 1e-3:
+            break  # no CPU in a whole window: blocked, not slow
+        used = now
+    return waited
