@@ -232,3 +232,9 @@ async def read_parts(resp: aiohttp.ClientResponse, n: int, timeout: float = WAIT
         if not chunk:
             raise AssertionError(f"the stream ended after {len(parts)} parts")
         buf += chunk
+
+
+def bad_id_status(bad: str, path: str) -> int:
+    """A dot segment (``..``, ``%2E%2E``) is removed from the URL before routing, leaving a path that
+    no route has: 404. Any other id that is not a capture id (``..`` inside ``...zip`` included): 400."""
+    return 404 if bad in ("..", "%2E%2E") and not path.endswith(".zip") else 400

@@ -12,9 +12,10 @@ import aiohttp
 import pytest
 from yarl import URL
 
+from stereocam.server.http.app import default_extensions
 from stereocam.server.http.state import CAPTURES
 
-from .server_fixtures import WAIT_S, start_daemon_fixture  # noqa: F401
+from .server_fixtures import WAIT_S, start_daemon_fixture, wait_for_frames  # noqa: F401
 
 TOKEN = "s3cret-token-123"
 
@@ -90,7 +91,8 @@ async def test_origin_matching(start_daemon, origin, expected) -> None:
 async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> None:
     """The default: a token guards streams, snapshots, captures, status and /ws, not the page (nor the
     view registry it is built from) or /healthz."""
-    d = await start_daemon(access_token=TOKEN)
+    d = await start_daemon(access_token=TOKEN, extensions=default_extensions())  # production's routes
+    await wait_for_frames(d)
     async with d.http.post("/api/captures", headers={"X-Stereocam-Token": TOKEN}) as resp:
         assert resp.status == 201
         capture = (await resp.json())["id"]
@@ -99,9 +101,8 @@ async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> 
     for path in reads:
         for headers in ({}, {"Authorization": "Bearer wrong-token-000"}, {"Cookie": "stereocam_token=nope"}):
             async with d.http.get(path, headers=headers) as resp:
-                assert resp.status in (401, 404), (path, headers, resp.status)  # 404: a route not installed
-                if resp.status == 401:
-                    assert "needs the access token" in (await resp.json())["error"]
+                assert resp.status == 401, (path, headers, resp.status)
+                assert "needs the access token" in (await resp.json())["error"]
     async with d.http.get("/stream/rect_left", headers={"Cookie": "stereocam_token=nope"}) as resp:
         assert resp.status == 401
     for how in ({"headers": {"Authorization": f"Bearer {TOKEN}"}},
@@ -114,7 +115,7 @@ async def test_with_protect_all_every_read_needs_the_token_too(start_daemon) -> 
         assert not ws.closed
     for path in ("/", "/healthz", "/static/js/main.js", "/api/views"):
         async with d.http.get(path) as resp:
-            assert resp.status in (200, 503), path  # healthz: 503 before the first frame, never 401
+            assert resp.status == 200, path  # frames flow (healthz would be 503 before the first), never 401
 
 
 @pytest.mark.parametrize("host", ["evil.example", "evil.example:{port}", "localhost.evil.example",
