@@ -6,6 +6,7 @@ import errno
 import io
 import json
 import os
+import time
 import zipfile
 
 import cv2
@@ -18,13 +19,14 @@ from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.spec import pixel
 from stereocam.server.frames import store_files
 from stereocam.server.http.metrics import METRICS
-from stereocam.server.http.state import CAPTURES, PIPELINE, VIRTUAL
+from stereocam.server.http.state import CAPTURES, FEED, PIPELINE, VIRTUAL
 
 from .sample import png_claiming
 from .server_fixtures import (
     FULL,
     SMALL,
     TEST_FPS,
+    WAIT_S,
     StillSource,
     bad_id_status,
     read_parts,
@@ -485,7 +487,11 @@ async def test_capture_while_virtual_stores_the_virtual_input_and_output(start_d
 async def test_capture_without_signal_is_503(start_daemon) -> None:
     d = await start_daemon(no_signal_s=0.2)
     d.overlay.emulation.cameras_running = False
-    await asyncio.sleep(0.3)
+    feed = d.app[FEED]
+    deadline = time.monotonic() + WAIT_S
+    while feed.signal:  # the last frame is older than no_signal_s
+        assert time.monotonic() < deadline, "the signal did not go"
+        await asyncio.sleep(0.02)
     async with d.http.post("/api/captures") as resp:
         assert resp.status == 503
     assert list(d.app[CAPTURES].root.iterdir()) == []

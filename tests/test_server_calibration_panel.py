@@ -11,6 +11,7 @@ import asyncio
 import dataclasses
 import json
 import time
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -72,6 +73,18 @@ async def show_nothing(daemon) -> None:
                 return
         await asyncio.sleep(0.05)
     raise AssertionError(f"the daemon did not lose the signal within {WAIT_S} s")
+
+
+async def corners_when(daemon, condition: Callable[[dict], bool]) -> dict:
+    """``GET /api/calibration/corners`` until its answer meets ``condition`` (within WAIT_S): that answer."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        async with daemon.http.get("/api/calibration/corners") as r:
+            body = await r.json()
+        if r.status == 200 and condition(body):
+            return body
+        assert time.monotonic() < deadline, f"no such answer within {WAIT_S} s: {r.status} {body}"
+        await asyncio.sleep(0.05)
 
 
 async def session(daemon, token: "str | None" = None) -> dict:
@@ -155,9 +168,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     _, views = synthetic_views()
     left, right = views[0]
     await show(daemon, left, right)
-    await asyncio.sleep(0.3)  # past the shared result's lifetime
-    async with daemon.http.get("/api/calibration/corners") as r:
-        body = await r.json()
+    body = await corners_when(daemon, lambda b: b["source"] == "virtual")  # the scene's answer has expired
     assert body["found"] is True and body["source"] == "virtual"
     got = np.asarray(body["left"])
     want = detect_corners(left, PATTERN, thorough=False)
@@ -178,7 +189,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
     await show(daemon, left, right)
 
     # Many pollers at once share one detection.
-    await asyncio.sleep(0.3)
+    await corners_when(daemon, lambda b: b.get("found") is True)  # the signal is back
     replies = await asyncio.gather(*(daemon.http.get("/api/calibration/corners") for _ in range(6)))
     frames = set()
     for r in replies:
