@@ -233,6 +233,40 @@ def test_keyboard_shortcuts(daemon: str, tmp_path: Path, artifacts_dir: Path) ->
         expect(page.locator("figure[data-view=rect_left]")).not_to_have_class(re.compile("view-enlarged"))
 
 
+# A click on a control focuses it: the page's shortcuts must still work after it (only a text field,
+# or the keys that operate the focused control, keep a key from them).
+CLICKED = {"radio": "source-live", "checkbox": "camera-flip-h", "select": "camera-target",
+           "button": "btn-capture"}
+
+
+@pytest.mark.parametrize("kind", sorted(CLICKED))
+def test_shortcuts_work_after_a_click_on_a_control(daemon: str, tmp_path: Path, artifacts_dir: Path,
+                                                   kind: str) -> None:
+    with watched_page(tmp_path, artifacts_dir, f"shortcuts-after-{kind}.png", expected=EXPECTED) as page:
+        page.goto(daemon + "/")
+        expect(page.get_by_test_id("conn")).to_have_text("live")
+        page.wait_for_function("() => document.body.dataset.ready === '1'")
+        control = page.get_by_test_id(CLICKED[kind])
+        control.click()
+        if kind == "select":
+            page.keyboard.press("Escape")  # close the option list the click opened; the select keeps focus
+        focused = f"() => document.activeElement && document.activeElement.id === '{CLICKED[kind]}'"
+        page.wait_for_function(focused)
+        overlay = page.get_by_test_id("shortcuts")
+        page.keyboard.press("?")
+        expect(overlay).to_be_visible()
+        page.keyboard.press("?")
+        expect(overlay).to_be_hidden()
+        control.focus()
+        page.keyboard.press("3")
+        expect(page.locator("figure[data-view=rect_left]")).to_have_class(re.compile("view-enlarged"))
+        page.keyboard.press("Escape")
+        expect(page.locator("figure[data-view=rect_left]")).not_to_have_class(re.compile("view-enlarged"))
+        control.focus()
+        page.keyboard.press("u")  # the virtual camera: none uploaded yet, and the page says so
+        expect(page.get_by_test_id("message-error").filter(has_text="no input yet")).to_be_visible()
+
+
 # -- item 7: status grouped, one truth about the signal ----------------------------------------
 
 def test_status_groups_and_signal_agree_with_the_views(tmp_path: Path, artifacts_dir: Path) -> None:

@@ -1,5 +1,5 @@
 // The calibration panel.
-import { $, ApiError, api, action, bust, clearMessages, fmt, loadImage, showError, showSuccess } from "./core.js";
+import { $, ApiError, api, action, bust, clearMessages, fmt, keyBelongsTo, loadImage, showError, showSuccess } from "./core.js";
 
 // ---- calibration panel (issue 4) ---------------------------------------------------
 // While the panel is open and "show corners" is ticked, GET /api/calibration/corners is
@@ -398,11 +398,6 @@ async function computeCalibration() {
   } });
 }
 
-function typing(target) {
-  return target instanceof HTMLElement && (target.isContentEditable ||
-    ["INPUT", "SELECT", "TEXTAREA", "BUTTON"].includes(target.tagName));
-}
-
 export function initCalibration() {
   const details = $("calib");
   details.addEventListener("toggle", () => {
@@ -414,7 +409,7 @@ export function initCalibration() {
   // Space or C captures a pair while the panel is open: the person holding the board may be
   // far from the mouse (a wireless keyboard or presenter remote sends these).
   document.addEventListener("keydown", (ev) => {
-    if (!details.open || ev.repeat || ev.ctrlKey || ev.metaKey || ev.altKey || typing(ev.target)) return;
+    if (!details.open || ev.repeat || ev.ctrlKey || ev.metaKey || ev.altKey || keyBelongsTo(ev.target, ev.key)) return;
     if (ev.key === " " || ev.key === "c" || ev.key === "C") {
       ev.preventDefault();
       const btn = $("btn-calib-pair");

@@ -29,6 +29,20 @@ export const BACKOFF_MAX_MS = 10000;
 
 export const $ = (id) => document.getElementById(id);
 
+// Inputs whose keys are not text: a click on one must not turn the page's shortcuts off.
+const NOT_TEXT = ["checkbox", "radio", "button", "submit", "reset", "range", "color", "file", "image"];
+
+// Whether a key pressed on `target` belongs to it, not to the page's shortcuts: all keys while
+// typing in a text field; on any other focused control (a clicked button, checkbox, radio,
+// select), only the keys that operate it (Space, Enter, the arrows).
+export function keyBelongsTo(target, key) {
+  if (!(target instanceof HTMLElement)) return false;
+  if (target.isContentEditable || target.tagName === "TEXTAREA") return true;
+  if (target.tagName === "INPUT" && !NOT_TEXT.includes((target.type || "text").toLowerCase())) return true;
+  const control = ["INPUT", "SELECT", "BUTTON", "SUMMARY"].includes(target.tagName);
+  return control && (key === " " || key === "Enter" || key.startsWith("Arrow"));
+}
+
 export function clampNumber(text, lo, hi, fallback) {
   const n = Number(text);
   if (text === null || text === "" || !Number.isFinite(n)) return fallback;
@@ -241,6 +255,9 @@ export async function api(method, path, body) {
 // Run an async UI action with its button disabled; errors go to #messages, worded with
 // `opts` (see explainError; `opts.key` names the action when it is not one request).
 export async function action(button, fn, opts) {
+  // A disabled button loses the focus: give it back when the action ends, so that a keyboard
+  // user stays where they were.
+  const focused = button && document.activeElement === button;
   if (button) button.disabled = true;
   try {
     const result = await fn();
@@ -251,6 +268,7 @@ export async function action(button, fn, opts) {
     return undefined;
   } finally {
     if (button) button.disabled = false;
+    if (focused && (document.activeElement === document.body || document.activeElement === null)) button.focus();
   }
 }
 

@@ -4,7 +4,7 @@
 // Each shortcut clicks the page's own control, so it does exactly what the click does (errors,
 // messages, disabled buttons included). The calibration panel's Space / C (calibration.js) and
 // the views' Enter / Escape (live.js) are listed here too, handled where they are.
-import { $, VIEWS, VIEW_INFO } from "./core.js";
+import { $, VIEWS, VIEW_INFO, keyBelongsTo } from "./core.js";
 import { chooseSource } from "./source.js";
 
 function click(id) {
@@ -40,11 +40,6 @@ export const SHORTCUTS = [
   [["Space", "C"], "Calibration panel open: capture a calibration pair", [], null],
   [["?"], "Show or hide this list", ["?"], () => toggleOverlay()],
 ];
-
-function typing(target) {
-  return target instanceof HTMLElement && (target.isContentEditable ||
-    ["INPUT", "SELECT", "TEXTAREA"].includes(target.tagName));
-}
 
 function buildOverlay() {
   const dialog = document.createElement("dialog");
@@ -108,7 +103,7 @@ export function initShortcuts() {
   const button = $("btn-shortcuts");
   if (button) button.addEventListener("click", () => toggleOverlay());
   document.addEventListener("keydown", (ev) => {
-    if (ev.defaultPrevented || ev.repeat || ev.ctrlKey || ev.metaKey || ev.altKey || typing(ev.target)) return;
+    if (ev.defaultPrevented || ev.repeat || ev.ctrlKey || ev.metaKey || ev.altKey || keyBelongsTo(ev.target, ev.key)) return;
     if (overlay && overlay.open) {
       // The list is modal: only "?" (and Escape, the dialog's own) act while it is open.
       if (ev.key === "?") { ev.preventDefault(); toggleOverlay(false); }
