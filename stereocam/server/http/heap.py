@@ -10,20 +10,19 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
-import ctypes.util
-import logging
+import functools
 from typing import Any, Optional
-
-log = logging.getLogger(__name__)
 
 ARENAS = 2  # the executor threads share them: a burst of uploads no longer leaves one heap per thread
 TRIM_S = 2.0
 _M_ARENA_MAX = -8  # glibc's malloc.h
 
 
+@functools.lru_cache(maxsize=None)
 def _libc() -> Optional[Any]:
+    """The C library the process runs with (its own symbols: no library search, no ``ldconfig``)."""
     try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return ctypes.CDLL(None)
     except OSError:
         return None
 
