@@ -179,6 +179,14 @@ async def start_daemon_fixture(tmp_path: Path) -> AsyncIterator[StartDaemon]:
         close_overlay_when_idle(daemon.overlay)
 
 
+async def until(condition: Callable[[], bool], what: str) -> None:
+    """Wait (on the loop) until ``condition()``; fail naming ``what`` after the last-resort WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, f"{what}: not within {WAIT_S} s"
+        await asyncio.sleep(0.02)
+
+
 async def wait_for_frames(daemon: Daemon, n: int = 2, timeout: float = WAIT_S) -> None:
     """Wait until the pipeline has seen ``n`` frames complete (copied or not: nobody may be watching)."""
     from stereocam.server.http.state import PIPELINE

@@ -1,12 +1,10 @@
 """The control API over HTTP: status, source, virtual camera, verify, captures, metrics, health."""
 from __future__ import annotations
 
-import asyncio
 import errno
 import io
 import json
 import os
-import time
 import zipfile
 
 import cv2
@@ -26,11 +24,11 @@ from .server_fixtures import (
     FULL,
     SMALL,
     TEST_FPS,
-    WAIT_S,
     StillSource,
     bad_id_status,
     read_parts,
     start_daemon_fixture,  # noqa: F401
+    until,
     wait_for_frames,
 )
 
@@ -488,10 +486,7 @@ async def test_capture_without_signal_is_503(start_daemon) -> None:
     d = await start_daemon(no_signal_s=0.2)
     d.overlay.emulation.cameras_running = False
     feed = d.app[FEED]
-    deadline = time.monotonic() + WAIT_S
-    while feed.signal:  # the last frame is older than no_signal_s
-        assert time.monotonic() < deadline, "the signal did not go"
-        await asyncio.sleep(0.02)
+    await until(lambda: not feed.signal, "the signal going (the last frame older than no_signal_s)")
     async with d.http.post("/api/captures") as resp:
         assert resp.status == 503
     assert list(d.app[CAPTURES].root.iterdir()) == []

@@ -11,7 +11,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable, Tuple
+from typing import Tuple
 
 import cv2
 import numpy as np
@@ -29,18 +29,11 @@ from .server_fixtures import (
     WAIT_S,
     read_parts,
     start_daemon_fixture,  # noqa: F401
+    until,
     wait_for_frames,
 )
 
 W, H = SMALL
-
-
-async def until(condition: Callable[[], bool], what: str) -> None:
-    """Wait (on the loop) until ``condition()``; fail naming ``what`` after the last-resort WAIT_S."""
-    deadline = time.monotonic() + WAIT_S
-    while not condition():
-        assert time.monotonic() < deadline, f"{what}: not within {WAIT_S} s"
-        await asyncio.sleep(0.02)
 
 
 def jpeg_size(data: bytes) -> tuple:
