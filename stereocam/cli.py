@@ -416,9 +416,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from .overlays.backend import BackendError
-    from .server.frames.captures import CaptureError
     from .server.http.app import ServeError, run
     from .server.http.settings import Settings, SettingsError
+    from .server.stores.captures import CaptureError
 
     try:
         config = Settings.load(args.config, host=args.host, port=args.port, backend=args.backend,

@@ -20,8 +20,10 @@ import pytest
 
 from stereocam.overlays.emulated.replay import ReplaySource
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import captures, folder_store, store_files
-from stereocam.server.frames.captures import (
+from stereocam.server.http.errors import status_of
+from stereocam.server.stores import captures, folder_store
+from stereocam.server.stores import files as store_files
+from stereocam.server.stores.captures import (
     CaptureDamaged,
     CaptureDiskFull,
     CaptureError,
@@ -30,7 +32,6 @@ from stereocam.server.frames.captures import (
     CaptureStore,
     InvalidCaptureId,
 )
-from stereocam.server.http.errors import status_of
 
 W, H = 24, 16
 T0 = datetime(2026, 11, 22, 4, 5, 12, 345678, tzinfo=timezone.utc)

@@ -22,10 +22,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereocam.server.frames import captures as captures_module
-from stereocam.server.frames.captures import TRASH_DIR, TRASH_KEEP_S, CaptureNotFound, CaptureStore
 from stereocam.server.frames.views import disparity_map
 from stereocam.server.http.state import CALIBRATION, CAPTURES, FEED
+from stereocam.server.stores import captures as captures_module
+from stereocam.server.stores.captures import TRASH_DIR, TRASH_KEEP_S, CaptureNotFound, CaptureStore
 
 from .rig_truth import static_depth
 from .server_fixtures import (  # noqa: F401

@@ -21,13 +21,14 @@ from stereocam.overlays.backend import camera_source
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.emulated.replay import ReplayError, ReplaySource
 from stereocam.overlays.spec.pixel import pack, rgby
-from stereocam.server.frames import recording_files
-from stereocam.server.frames import recordings as recordings_module
+from stereocam.server.frames import recorder as recorder_module
 from stereocam.server.frames.pipeline import Pipeline
 from stereocam.server.http.app import program_default_calibration
 from stereocam.server.http.routes_recordings import RECORDER, RECORDINGS
 from stereocam.server.http.settings import Settings
 from stereocam.server.http.state import CALIBRATION, PIPELINE, VIRTUAL
+from stereocam.server.stores import recording_files
+from stereocam.server.stores import recordings as recordings_module
 
 from .server_fixtures import SMALL, WAIT_S, rig_frame, start_daemon_fixture, wait_for_frames  # noqa: F401
 
@@ -292,7 +293,7 @@ def test_a_raw_pair_that_comes_twice_is_recorded_once(tmp_path) -> None:
     source = CountingSource()
     pipeline = Pipeline(overlay, publish=lambda fs: None)
     store = recordings_module.RecordingStore(tmp_path / "recordings")
-    recorder = recordings_module.Recorder(store, pipeline, raw_stores=3)
+    recorder = recorder_module.Recorder(store, pipeline, raw_stores=3)
     rec = recorder.start(seconds=None, frame_size=SMALL, fps=REC_FPS, frame_no=100)
     assert pipeline.wants_raw
     processed = np.zeros((SMALL[1], SMALL[0], 8), np.uint8)

@@ -6,7 +6,7 @@ writer while recording or while the recording is finished: every recording keeps
 frames written before, 10 times over. Nothing recorded is removed but by ``DELETE``.
 
 The full disk is made two ways: in the process, as a model of a disk another writer fills
-(the writes, syncs and fsyncs of :mod:`stereocam.server.frames.recording_files` fail with
+(the writes, syncs and fsyncs of :mod:`stereocam.server.stores.recording_files` fail with
 ENOSPC exactly where a real disk's would: a write that needs new space), and, where the tests
 may mount one (root), on a real 8 MiB tmpfs filled by a real second writer.
 """
@@ -33,10 +33,11 @@ import pytest
 
 from stereocam.bench.serve import running_daemon
 from stereocam.overlays.emulated.replay import ReplaySource
-from stereocam.server.frames import recording_files
-from stereocam.server.frames import recordings as recordings_module
+from stereocam.server.frames import recorder as recorder_module
 from stereocam.server.frames.pipeline import FrameSet
-from stereocam.server.frames.recordings import Recorder, Recording, RecordingDiskFull, RecordingStore
+from stereocam.server.frames.recorder import Recorder, Recording
+from stereocam.server.stores import recording_files
+from stereocam.server.stores.recordings import RecordingDiskFull, RecordingStore
 
 from .server_fixtures import SMALL, WAIT_S
 from .test_recordings import CountingSource, stamp_of
@@ -345,8 +346,8 @@ def test_a_line_not_as_the_writer_writes_it_is_not_whole(tmp_path: Path, monkeyp
 def test_a_recovery_reads_only_the_files_written_since_the_last_sync(tmp_path: Path, monkeypatch) -> None:
     """The writer notes in recording.json the frames a sync put on the disk: a long recording is
     recovered in the time its lines take to read, not the time its thousands of files take."""
-    monkeypatch.setattr(recordings_module, "SYNC_FRAMES", 2)  # a sync after every second frame written
-    monkeypatch.setattr(recordings_module, "SYNC_S", 1e9)  # and never because time passed
+    monkeypatch.setattr(recorder_module, "SYNC_FRAMES", 2)  # a sync after every second frame written
+    monkeypatch.setattr(recorder_module, "SYNC_S", 1e9)  # and never because time passed
     root, rid = interrupted(tmp_path, monkeypatch, [1, 2, 3, 4, 5])
     assert json.loads((root / f".incoming-{rid}" / "recording.json").read_text())["synced_frames"] == 4
     read: List[str] = []

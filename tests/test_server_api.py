@@ -15,9 +15,9 @@ from aiohttp import FormData
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.model.fast import RectifyModel
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames import store_files
 from stereocam.server.http.metrics import METRICS
 from stereocam.server.http.state import CAPTURES, FEED, PIPELINE, VIRTUAL
+from stereocam.server.stores import files as store_files
 
 from .sample import png_claiming
 from .server_fixtures import (

@@ -22,11 +22,11 @@ from stereocam.calibration.calibrate import CalibrationReport, Pattern, detect_c
 from stereocam.calibration.file import Calibration, load_calibration
 from stereocam.calibration.stereo import rectify
 from stereocam.cli import main as cli_main
-from stereocam.server.frames.calibration_pairs import SETTINGS_FILE
 from stereocam.server.http import routes_calibration, routes_calibration_panel
 from stereocam.server.http.app import default_extensions, program_default_calibration
 from stereocam.server.http.routes_calibration_panel import PANEL, Candidate
 from stereocam.server.http.settings import Settings
+from stereocam.server.stores.calibration_pairs import SETTINGS_FILE
 
 from .sample import SYNTH_SQUARE, synthetic_views
 from .server_fixtures import FULL, WAIT_S, make_overlay, start_daemon_fixture  # noqa: F401

@@ -19,15 +19,16 @@ import numpy as np
 import pytest
 
 from stereocam.overlays.emulated.replay import MAX_LINE_BYTES, ReplayError, ReplaySource
-from stereocam.server.frames.calibration_pairs import (
+from stereocam.server.frames.recorder import Recorder
+from stereocam.server.stores.calibration_pairs import (
     SETTINGS_FILE,
     PanelError,
     PanelSettings,
     compute,
     load_settings,
 )
-from stereocam.server.frames.captures import CaptureStore
-from stereocam.server.frames.recordings import Recorder, RecordingStore
+from stereocam.server.stores.captures import CaptureStore
+from stereocam.server.stores.recordings import RecordingStore
 
 from .server_fixtures import SMALL, WAIT_S
 from .test_recordings_durable import HandFeed, write_frames

@@ -53,7 +53,8 @@ class ReplayEnded(IndexError):
     """``read`` past the last recorded frame of a ``ReplaySource(loop=False)``."""
 
 
-# A stereocam recording (stereocam/server/frames/recordings.py writes it): named here, so no server import.
+# A stereocam recording (server/stores/recordings.py and server/frames/recorder.py write it):
+# named here, so no server import.
 _RECORDING_FILE = "recording.json"
 _RECORDING_FORMAT = "stereocam-recording/"
 _COUNT_MOD = 1 << 32

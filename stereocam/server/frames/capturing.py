@@ -22,8 +22,8 @@ import numpy as np
 
 from ...overlays.interface import Overlay
 from ...overlays.spec import pixel
-from .captures import CaptureInfo, CaptureStore
-from .errors import ApiError, Kind
+from ..errors import ApiError, Kind
+from ..stores.captures import CaptureInfo, CaptureStore
 from .feed import BroadcastClosed, FrameFeed
 from .pipeline import FrameSet, Pipeline
 from .virtual_camera import VirtualCamera

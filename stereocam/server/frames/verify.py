@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from ...overlays.spec import pixel
-from .errors import ApiError
+from ..errors import ApiError
 
 __all__ = ["VerifyError", "VerifyReport", "ChannelStats", "compare", "difference_image"]
 

@@ -20,12 +20,12 @@ import numpy as np
 
 from ...overlays.interface import Channel, ChannelFault, DriverError, Overlay
 from ...overlays.model.fast import RectifyModel
-from .errors import ApiError, Kind
+from ..errors import ApiError, Kind
 from .feed import FrameFeed
 from .pipeline import COUNT_MOD, FrameSet, Pipeline, SourceState
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .recordings import RecordingPlayer
+    from .recorder import RecordingPlayer
 
 log = logging.getLogger(__name__)
 

@@ -33,13 +33,13 @@ from aiohttp import web
 
 from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
 from ...overlays.interface import Overlay
-from ..frames.captures import CaptureStore
 from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
 from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
 from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
 from ..frames.virtual_camera import VirtualCamera
+from ..stores.captures import CaptureStore
 from . import routes_faults
 from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors

@@ -3,7 +3,7 @@ the one writer of JSON responses, which never sends NaN or Infinity.
 
 The body's size is bounded before it is read (``client_max_size``, set from
 ``max_upload_bytes``; the guard middleware refuses a declared larger one first).
-Every refusal is an :class:`~..frames.errors.ApiError` the error middleware answers.
+Every refusal is an :class:`~..errors.ApiError` the error middleware answers.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Any, Mapping, Optional
 
 from aiohttp import web
 
-from ..frames.errors import ApiError, parse_json
+from ..errors import ApiError, parse_json
 from .errors import too_large
 
 __all__ = ["read_json", "json_response", "JSON"]

@@ -1,9 +1,9 @@
 """Errors as answers: every refusal, whoever raised it, becomes the same JSON answer here and nowhere else.
 
-Handlers, the frame path and the other middlewares raise: an :class:`~..frames.errors.ApiError`
+Handlers, the frame path and the other middlewares raise: an :class:`~..errors.ApiError`
 (``kind``, ``message``, ``headers``; handlers may set its ``status`` themselves) for a refusal of
 theirs, or aiohttp's ``web.HTTPException`` (its own 404, 405, 413, ...). The frame path never
-names a status: :data:`STATUS` says which each :class:`~..frames.errors.Kind` answers with
+names a status: :data:`STATUS` says which each :class:`~..errors.Kind` answers with
 (:func:`status_of`). :func:`json_errors`, the app's outermost middleware, answers both as
 ``{"error": message}`` with that status, and anything unexpected as a 500 that names the
 exception (the traceback goes to the daemon's log, once, never to the client).
@@ -18,7 +18,7 @@ from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web_protocol import RequestPayloadError
 
-from ..frames.errors import ApiError, Kind
+from ..errors import ApiError, Kind
 from .state import SETTINGS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -53,7 +53,7 @@ STATUS: Dict[Kind, int] = {
     Kind.TIMEOUT: 504,
     Kind.NO_SPACE: 507,
 }
-"""The HTTP status each kind of :class:`~..frames.errors.ApiError` answers with."""
+"""The HTTP status each kind of :class:`~..errors.ApiError` answers with."""
 
 
 def status_of(exc: ApiError) -> int:

@@ -20,15 +20,15 @@ import numpy as np
 from aiohttp import BodyPartReader, web
 
 from ...overlays.spec import pixel
-from ..frames.captures import CaptureError, CaptureStore
+from ..errors import ApiError
 from ..frames.encoders import png_for
-from ..frames.errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
-from ..frames.store_errors import NotFound
 from ..frames.verify import compare, difference_image
 from ..frames.views import REGISTRY
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
+from ..stores.captures import CaptureError, CaptureStore
+from ..stores.errors import NotFound
 from .bodies import json_response, read_json
 from .capture_service import capture_service
 from .downloads import stream_download
@@ -267,7 +267,7 @@ async def post_virtual_camera(request: web.Request) -> web.Response:
     if fit is not None:
         body["fit"] = fit.to_json()
     if replay is not None:
-        from ..frames.recordings import RecordingPlayer
+        from ..frames.recorder import RecordingPlayer
 
         source = replay
         player = RecordingPlayer(

@@ -40,7 +40,7 @@ from ...calibration.formats import CalibrationFileError, atomic_write_text
 from ...overlays.interface import DriverError
 from ...overlays.model.core_params import CoreParamsError
 from ...overlays.spec.rectify import DEFAULT_MAX_HEIGHT, DEFAULT_MAX_WIDTH, CoreConfig
-from ..frames.errors import ApiError
+from ..errors import ApiError
 from .bodies import JSON, json_response, read_json
 from .state import CALIBRATION, EXECUTORS, OVERLAY, SETTINGS, CalibrationState
 

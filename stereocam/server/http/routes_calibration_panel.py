@@ -32,7 +32,11 @@ from typing import Any, Dict, List, Optional, Set
 from aiohttp import web
 
 from ...calibration.calibrate import CalibrationReport
-from ..frames.calibration_pairs import (
+from ..errors import ApiError
+from ..frames.encoders import encode_image
+from ..frames.pipeline import FrameSet
+from ..frames.views import render
+from ..stores.calibration_pairs import (
     PAIRS_FOLDER,
     PURPOSE,
     PanelError,
@@ -48,11 +52,7 @@ from ..frames.calibration_pairs import (
     same_view,
     save_settings,
 )
-from ..frames.captures import CaptureError, CaptureStore
-from ..frames.encoders import encode_image
-from ..frames.errors import ApiError
-from ..frames.pipeline import FrameSet
-from ..frames.views import render
+from ..stores.captures import CaptureError, CaptureStore
 from .bodies import json_response, read_json
 from .capture_service import capture_service
 from .metrics import METRICS

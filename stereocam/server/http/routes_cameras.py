@@ -33,7 +33,7 @@ from prometheus_client.core import GaugeMetricFamily, Metric
 from ...board.profile import BoardProfile, load_profile
 from ...overlays.backend import sensor_bus
 from ...overlays.interface import CAMERAS, I2CBus, Overlay, SensorPair, SensorUnavailable, StereoSensors
-from ..frames.errors import ApiError
+from ..errors import ApiError
 from .bodies import json_response, read_json
 from .state import EXECUTORS, EXTENSIONS, OVERLAY, SETTINGS
 

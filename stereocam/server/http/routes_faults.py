@@ -14,7 +14,7 @@ from typing import Any, AsyncIterator
 from aiohttp import web
 
 from ...overlays.interface import FaultError, FaultInjection
-from ..frames.errors import ApiError
+from ..errors import ApiError
 from .bodies import json_response, read_json
 from .state import OVERLAY
 

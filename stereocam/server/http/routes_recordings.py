@@ -1,6 +1,7 @@
 """Recordings over HTTP: start, stop, list, download, delete; and opening one for the virtual camera.
 
-The recording itself (what is stored, how, and when it ends) is :mod:`..frames.recordings`;
+The recording itself (when it starts and ends) is :mod:`..frames.recorder`, what is stored
+:mod:`..stores.recordings`;
 these handlers check requests, answer, and run the blocking parts on the daemon's
 ``work`` threads. Recordings live in ``<state_dir>/recordings/`` and keep
 ``min_free_mb`` free on that disk, as captures do. See stereocam/server/API.md, "Recordings".
@@ -16,8 +17,9 @@ from aiohttp import web
 
 from ...overlays import backend
 from ...overlays.interface import Replay
-from ..frames.errors import ApiError
-from ..frames.recordings import MAX_SECONDS, Recorder, RecordingStore
+from ..errors import ApiError
+from ..frames.recorder import MAX_SECONDS, Recorder
+from ..stores.recordings import RecordingStore
 from .bodies import json_response, read_json
 from .downloads import stream_download
 from .security import refuse_if_gone

@@ -28,11 +28,11 @@ import numpy as np
 from aiohttp import web
 
 from ...overlays.spec import pixel
-from ..frames.captures import THUMB_FRAMES, CaptureStore, capture_file
-from ..frames.errors import ApiError
+from ..errors import ApiError
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
+from ..stores.captures import THUMB_FRAMES, CaptureStore, capture_file
 from .bodies import json_response
 from .errors import shutting_down
 from .security import TOKEN_PARAM

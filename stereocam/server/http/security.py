@@ -53,7 +53,7 @@ from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
 from aiohttp.web_protocol import RequestPayloadError
 
-from ..frames.errors import ApiError
+from ..errors import ApiError
 from .errors import too_large
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -22,13 +22,13 @@ from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional,
 from aiohttp import web
 
 from ...overlays.interface import Overlay
-from ..frames.captures import CaptureStore
 from ..frames.cpu_budget import CpuBudget
 from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
 from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
 from ..frames.virtual_camera import VirtualCamera
+from ..stores.captures import CaptureStore
 from .settings import Settings
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -28,8 +28,8 @@ from typing import Any, Awaitable, Callable, Dict, Iterator, Optional, Tuple
 
 from aiohttp import WSCloseCode, WSMsgType, web
 
+from ..errors import ApiError, parse_json
 from ..frames.encoders import BOUNDARY, Encoded, EncoderKey, Pacer, encoded_for, png_for
-from ..frames.errors import ApiError, parse_json
 from ..frames.feed import BroadcastClosed, Latest
 from ..frames.pipeline import FrameSet
 from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS

@@ -53,8 +53,8 @@ from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImag
 
 from ...calibration.image_files import MAX_IMAGE_PIXELS  # larger headers: decompression bombs
 from ...overlays.spec import pixel
-from ..frames.errors import ApiError
-from ..frames.store_ids import ID_EXAMPLE, valid_id
+from ..errors import ApiError
+from ..stores.ids import ID_EXAMPLE, valid_id
 
 __all__ = [
     "UploadError",

@@ -38,10 +38,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Callable, Generic, Iterator, List, Optional, Protocol, Tuple, TypeVar, Union
 
-from .store_errors import Conflict, InvalidId, NotFound, StoreError, gone
-from .store_files import CHUNK, fsync_dir, open_member, remove_tree, utcnow
-from .store_ids import ID_EXAMPLE, valid_id
-from .store_trash import TRASH_KEEP_S, purge_trash, trash_dir, trashed
+from .errors import Conflict, InvalidId, NotFound, StoreError, gone
+from .files import CHUNK, fsync_dir, open_member, remove_tree, utcnow
+from .ids import ID_EXAMPLE, valid_id
+from .trash import TRASH_KEEP_S, purge_trash, trash_dir, trashed
 from .zip_stream import close_all, zip_chunks
 
 __all__ = ["FolderStore", "Listed", "INCOMING_PREFIX", "DELETING_PREFIX", "shown"]

@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from ...calibration.image_files import CAPTURE_FILES
-from .store_errors import gone
-from .store_files import read_member
-from .store_ids import created_from_id
+from .errors import gone
+from .files import read_member
+from .ids import created_from_id
 
 __all__ = ["CaptureFile", "CaptureInfo", "META_FILE", "read_info"]
 

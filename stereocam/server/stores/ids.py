@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from datetime import datetime, timezone
 
-from .store_files import iso_utc
+from .files import iso_utc
 
 __all__ = ["ID_PATTERN", "ID_EXAMPLE", "MAX_FRAME_NUMBER", "MAX_ID_LENGTH", "valid_id", "created_from_id"]
 

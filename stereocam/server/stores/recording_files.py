@@ -40,8 +40,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
-from .store_files import fsync_dir, meta_dumps, open_member, read_member, remove_tree
-from .store_ids import ID_PATTERN, created_from_id
+from .files import fsync_dir, meta_dumps, open_member, read_member, remove_tree
+from .ids import ID_PATTERN, created_from_id
 
 log = logging.getLogger(__name__)
 

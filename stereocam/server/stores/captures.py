@@ -56,9 +56,8 @@ from ...calibration.image_files import CAPTURE_FILES, capture_file
 from .capture_images import FRAME_NAMES, encode_frames, read_raw_pair
 from .capture_info import META_FILE, CaptureFile, CaptureInfo, read_info
 from .capture_thumbnails import THUMB_FRAMES, THUMB_WIDTH, thumbnail_jpeg
-from .folder_store import DELETING_PREFIX, INCOMING_PREFIX, FolderStore, shown
-from .store_errors import Conflict, Damaged, DiskFull, InvalidId, NotFound, StoreError
-from .store_files import (
+from .errors import Conflict, Damaged, DiskFull, InvalidId, NotFound, StoreError
+from .files import (
     FULL_ERRNOS,
     fsync_dir,
     iso_utc,
@@ -68,8 +67,9 @@ from .store_files import (
     remove_tree,
     write_new_file,
 )
-from .store_ids import ID_PATTERN, MAX_FRAME_NUMBER, MAX_ID_LENGTH
-from .store_trash import TRASH_DIR, TRASH_KEEP_S
+from .folder_store import DELETING_PREFIX, INCOMING_PREFIX, FolderStore, shown
+from .ids import ID_PATTERN, MAX_FRAME_NUMBER, MAX_ID_LENGTH
+from .trash import TRASH_DIR, TRASH_KEEP_S
 
 __all__ = [
     "CaptureStore",

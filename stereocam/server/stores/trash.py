@@ -13,9 +13,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Callable, List, Optional, Tuple
 
-from .store_errors import StoreError
-from .store_files import remove_tree
-from .store_ids import ID_PATTERN
+from .errors import StoreError
+from .files import remove_tree
+from .ids import ID_PATTERN
 
 __all__ = ["TRASH_DIR", "TRASH_KEEP_S"]
 

@@ -27,8 +27,8 @@ from ...calibration.image_files import (
     check_image_header,
 )
 from ...overlays.spec import pixel
-from .store_errors import Damaged, StoreError
-from .store_files import MAX_IMAGE_FILE_BYTES, read_member
+from .errors import Damaged, StoreError
+from .files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["FRAME_NAMES", "read_raw_pair"]
 

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from ...calibration.image_files import ImageTooLarge, capture_file, check_image_header
-from .store_errors import Damaged, StoreError, gone
-from .store_files import MAX_IMAGE_FILE_BYTES, read_member
+from .errors import Damaged, StoreError, gone
+from .files import MAX_IMAGE_FILE_BYTES, read_member
 
 __all__ = ["THUMB_FRAMES", "THUMB_WIDTH", "thumbnail_jpeg"]
 

@@ -40,9 +40,9 @@ from ...calibration.calibrate import (
 from ...overlays.model.fast import RectifyModel
 from ...overlays.model.result import CoreOptions
 from ...overlays.spec import pixel
+from ..errors import ApiError, Kind
 from .captures import CAPTURE_FILES, CaptureInfo, CaptureStore
-from .errors import ApiError, Kind
-from .store_files import read_member
+from .files import read_member
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ capture ...", "no recording ...").
 """
 from __future__ import annotations
 
-from .errors import ApiError, Kind
+from ..errors import ApiError, Kind
 
 __all__ = ["StoreError", "InvalidId", "NotFound", "DiskFull", "Conflict", "Damaged", "gone"]
 
