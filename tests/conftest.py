@@ -66,79 +66,36 @@ def artifacts_dir(request: pytest.FixtureRequest) -> Path:
     return path
 
 
-# -- slow tests ----------------------------------------------------------------------------------
-# The fast loop (`./scripts/test --fast`: the current env, `-m "not slow"`) leaves out the tests
-# marked `slow` here, and only here: those that start another program (the daemon, a browser, a
-# player, a simulator, yosys, pip), drive the daemon through many frames, or time something; and
-# any test given a longer timeout than the default. A run without `-m` runs every test. An entry
-# is a folder ("tests/hdl/"), a module or a test (node id, all its parameters). Chosen from
-# `pytest --durations=0 -m "not slow" tests/`: keep the fast loop under a minute.
-SLOW = (
-    "tests/hdl/",  # Verilator builds, cocotb under Verilator and Icarus, yosys
-    # Chromium through playwright (their long timeouts mark them too)
-    "tests/test_browser.py",
-    "tests/test_browser_calibration.py",
-    "tests/test_browser_cameras.py",
-    "tests/test_browser_page.py",
-    "tests/test_browser_record.py",
-    "tests/test_browser_views.py",
-    # the daemon or scripts/serve as a subprocess, players (ffmpeg, VLC, OpenCV)
-    "tests/test_board_service.py",
-    "tests/test_hostile_clients.py",
-    "tests/test_quick_start.py",
-    "tests/test_server_service.py",
-    "tests/test_server_streams.py",
-    "tests/test_shutdown.py",
-    # benchmarks, and tests that time or load the daemon for seconds to minutes
-    "tests/test_bench.py",
-    "tests/test_bench_robustness.py",
-    "tests/test_bench_serve.py",
-    "tests/test_cpu_budget.py",
-    "tests/test_faults.py",
-    "tests/test_recordings.py",
-    "tests/test_recordings_durable.py",  # the daemon killed with SIGKILL, restarted; a disk filled 10 times
-    # the daemon in process, driven through many frames (the quicker HTTP modules stay in)
-    "tests/test_fit.py",
-    "tests/test_server_api.py",
-    "tests/test_server_calibration.py",
-    "tests/test_server_calibration_panel.py",
-    "tests/test_server_cameras.py",
-    # yosys, pip wheel builds
-    "tests/test_hw_synth.py",
-    "tests/test_packaging.py",
-    # single tests of a second or more in otherwise quick modules
-    "tests/test_calibrate.py::test_synthetic_rig_calibrates_back_to_its_known_model",
-    "tests/test_captures_viewer.py::test_point_reads_the_disparity_map_and_gives_depth_from_q",
-    "tests/test_fabric.py::test_live_frames_come_out_rectified_bit_exact",
-    "tests/test_stored_folders.py::test_a_huge_frames_file_is_indexed_not_held",
-    "tests/test_targets.py::test_eight_holds_calibrate_back_to_the_rigs_truth",
-    "tests/test_targets.py::test_target_is_a_camera_source_of_the_rigs_true_model",
-    "tests/test_vdma_emulated.py::test_timeouts_name_the_register_that_never_changed",
+# -- markers -------------------------------------------------------------------------------------
+# `slow`: the fast loop (`./scripts/test --fast`: the current env, `-m "not slow"`) leaves these out.
+# A module or test says so itself (`pytestmark = pytest.mark.slow`, `@pytest.mark.slow`): those that
+# start another program (the daemon, a browser, a player, a simulator, yosys, pip), drive the daemon
+# through many frames, or time something. tests/browser and tests/hdl mark all their tests in
+# their own conftest. A test given a longer timeout than the default is slow too. A run without
+# `-m` runs every test. Chosen from `pytest --durations=0 -m "not slow" tests/`: keep the fast loop
+# under a minute.
+# `armhf`: the module takes part in the armhf env's subset (below); `not_on_armhf(reason)`: this test
+# of such a module cannot pass there, and is deselected in that subset.
+MARKERS = (
+    "armhf: the module runs in the armhf env's subset (tests/conftest.py)",
+    "not_on_armhf(reason): deselected in the armhf env's subset, for the reason given",
 )
 
 
-def _is_slow(item: pytest.Item, default_timeout: float) -> bool:
-    nodeid = item.nodeid
-    for entry in SLOW:
-        if entry.endswith("/"):
-            if nodeid.startswith(entry):
-                return True
-        elif nodeid == entry or nodeid.startswith((entry + "::", entry + "[")):
-            return True
-    timeout = item.get_closest_marker("timeout")
-    return bool(timeout and timeout.args and float(timeout.args[0]) > default_timeout)
+def pytest_configure(config: pytest.Config) -> None:
+    for line in MARKERS:
+        config.addinivalue_line("markers", line)
 
 
 def _mark_slow(config: pytest.Config, items: list[pytest.Item]) -> None:
-    missing = sorted({e.split("::")[0] for e in SLOW if not (REPO_ROOT / e.split("::")[0]).exists()})
-    if missing:
-        raise pytest.UsageError(f"SLOW (tests/conftest.py) names missing paths: {', '.join(missing)}")
+    """Mark slow every test whose timeout is longer than the default (a long timeout says: slow)."""
     try:
         default_timeout = float(config.getini("timeout") or 0)
     except ValueError:  # no pytest-timeout: no timeout marks to compare either
-        default_timeout = float("inf")
+        return
     for item in items:
-        if _is_slow(item, default_timeout):
+        timeout = item.get_closest_marker("timeout")
+        if timeout and timeout.args and float(timeout.args[0]) > default_timeout:
             item.add_marker(pytest.mark.slow)
 
 
@@ -164,54 +121,13 @@ def _scale_timeouts(config: pytest.Config, items: list[pytest.Item]) -> None:
 # -- the armhf env's subset ---------------------------------------------------------------------
 # The armhf env (README, "Test environments") runs Debian's armhf Python under qemu-user, many
 # times slower than the host. When pytest gets no test paths there (./scripts/test, CI), it runs
-# the modules below: what 32-bit numpy, an older numpy and OpenCV could break, and needs no
-# browser, ffmpeg, VLC, systemd-analyze, Verilator, Icarus or pynq. The other modules are not
-# collected and the tests named in ARMHF_DESELECT are deselected: nothing there is skipped at run
-# time. Any module runs there when named: STEREOCAM_ENVS=armhf ./scripts/test tests/test_x.py.
-ARMHF_SUBSET = (
-    # the rectify core: model, register interface, camera input, the spec
-    "tests/test_model.py",
-    "tests/test_rectify_core.py",
-    "tests/test_camera_in_model.py",
-    "tests/test_spec_doc.py",
-    # DMA and memory: VDMA driver and emulation, the emulated DDR
-    "tests/test_vdma_driver.py",
-    "tests/test_vdma_emulated.py",
-    "tests/test_ddr.py",
-    "tests/test_ddr_memory.py",
-    # drivers and the emulated fabric around them
-    "tests/test_mt9v034_driver.py",
-    "tests/test_switch.py",
-    "tests/test_clock.py",
-    "tests/test_emulated_sensors.py",
-    "tests/test_fabric.py",
-    # calibration files, YAML, profiles, config, the rectify command
-    "tests/test_calibration_file.py",
-    "tests/test_safe_yaml.py",
-    "tests/test_board_profile.py",
-    "tests/test_server_settings.py",
-    "tests/test_cli_rectify.py",
-    # image decoding and capture files (Pillow, zip)
-    "tests/test_uploads.py",
-    "tests/test_captures.py",
-    "tests/test_verify.py",
-    # a Python start there finds the package on PYTHONPATH, every module at its path in git
-    "tests/test_python_start.py",
-)
-# Tests of those modules that cannot pass in the armhf env, by node id, with the reason.
-ARMHF_DESELECT: dict[str, str] = {
-    "tests/test_camera_in_model.py::test_demosaic_is_fast_enough_for_the_live_path":
-        "a time bound for the host's CPU, not for qemu",
-    "tests/test_cli_rectify.py::test_console_script_runs":
-        "the project is imported from the checkout there, not pip-installed: no console script",
-    # OpenCV 4.6 on armhf maps a few positions whose undistortion diverges into the image
-    # (x86 builds, 4.5.5 to 5.0, saturate them far outside): 24 of 1969 compared positions in
-    # the worse case. The model's own map is bit for bit the same as on x86.
-    "tests/test_model.py::test_positions_match_opencv_initundistortrectifymap[400--0.3-1.0]":
-        "OpenCV's armhf map, not the model, differs for diverging positions",
-    "tests/test_model.py::test_positions_match_opencv_initundistortrectifymap[700--0.45-1.0]":
-        "OpenCV's armhf map, not the model, differs for diverging positions",
-}
+# the modules marked `armhf` (`pytestmark`): what 32-bit numpy, an older numpy and OpenCV could
+# break, needing no browser, ffmpeg, VLC, systemd-analyze, Verilator, Icarus or pynq. The other
+# modules are not even imported (under qemu an import costs seconds, and some need packages armhf
+# lacks): a module's text is read for the mark first. Tests marked `not_on_armhf` are deselected:
+# nothing there is skipped at run time. Any module runs there when named:
+# STEREOCAM_ENVS=armhf ./scripts/test tests/server/test_x.py.
+ARMHF_MARK = "pytest.mark.armhf"
 
 
 def _armhf_subset_run(config: pytest.Config) -> bool:
@@ -227,11 +143,7 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
         return None
     if not _armhf_subset_run(config):
         return None
-    try:
-        rel = collection_path.resolve().relative_to(REPO_ROOT).as_posix()
-    except ValueError:
-        return None
-    return True if rel not in ARMHF_SUBSET else None
+    return True if ARMHF_MARK not in collection_path.read_text(encoding="utf-8") else None
 
 
 @pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
@@ -240,17 +152,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     _scale_timeouts(config, items)
     if not _armhf_subset_run(config):
         return
-    missing = [m for m in ARMHF_SUBSET if not (REPO_ROOT / m).is_file()]
-    if missing:
-        raise pytest.UsageError(f"ARMHF_SUBSET (tests/conftest.py) names missing files: {', '.join(missing)}")
-    dropped = [item for item in items if item.nodeid in ARMHF_DESELECT]
+    # The text check above only spares imports: the marks decide.
+    dropped = [item for item in items
+               if item.get_closest_marker("armhf") is None or item.get_closest_marker("not_on_armhf")]
     if dropped:
         config.hook.pytest_deselected(items=dropped)
-        items[:] = [item for item in items if item.nodeid not in ARMHF_DESELECT]
+        gone = {id(item) for item in dropped}
+        items[:] = [item for item in items if id(item) not in gone]
 
 
 def pytest_report_header(config: pytest.Config) -> str | None:
     if not _armhf_subset_run(config):
         return None
-    return (f"armhf subset: {len(ARMHF_SUBSET)} modules, {len(ARMHF_DESELECT)} tests deselected "
+    return ("armhf subset: the modules marked armhf, less the tests marked not_on_armhf "
             "(tests/conftest.py); name test paths to run others")

@@ -2,7 +2,7 @@
 
 The floor: every injected fault of every kind reported within 1 s and
 recovered within 2 s of its end, 100 times in a row, with no other stream
-stalling. ``tests/test_faults.py`` checks the behaviour (each reported, each
+stalling. ``tests/server/test_faults.py`` checks the behaviour (each reported, each
 recovered, frames going on) by waiting for conditions, so a busy machine makes
 it slower, not red; this benchmark measures the times against the floor.
 

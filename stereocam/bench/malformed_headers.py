@@ -112,7 +112,7 @@ def corrupt_encoding_cases(token: Optional[str]) -> List[Case]:
     """Bodies whose ``Content-Encoding`` does not decode (a "gzip" body that is not gzip): 400.
 
     Not part of :func:`malformed_requests` by default: aiohttp logs a traceback for each
-    (see ``tests/test_hostile_clients.py``, which checks these on their own).
+    (see ``tests/server/test_hostile_clients.py``, which checks these on their own).
     """
     b = CaseBuilder(token)
     for ctype, method, path in ((b"application/json", b"PUT", b"/api/source"),

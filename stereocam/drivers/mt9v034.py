@@ -7,7 +7,7 @@ Every setter validates before it writes and raises
 :class:`SensorRangeError` with the allowed range; every bus failure is the
 bus's :class:`~.i2c.I2CError` (a :class:`I2CNack` names the address).
 
-Sequences (the exact transactions are pinned by ``tests/test_mt9v034_driver.py``):
+Sequences (the exact transactions are pinned by ``tests/drivers/test_mt9v034_driver.py``):
 
 ``reset``             write ``RESET.SOFT_RESET=1``, then ``RESET=0`` (as Linux's mt9v032 driver)
 ``check_id``          read ``CHIP_VERSION``; anything but 0x1324 raises :class:`ChipIdError`

@@ -7,7 +7,7 @@ written from the register table (:mod:`stereocam.overlays.spec.vdma`), with
 every poll bounded (:func:`~stereocam.drivers.mmio.wait_for`) and every
 failure a named exception.
 
-Sequences (exact register accesses are pinned by ``tests/test_vdma_driver.py``):
+Sequences (exact register accesses are pinned by ``tests/drivers/test_vdma_driver.py``):
 
 ``start``   soft reset (write ``VDMACR.Reset``, poll until it clears), then
             PG020's register-direct programming sequence: park pointer,

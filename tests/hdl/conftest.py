@@ -20,12 +20,14 @@ on an idle one, and the timeout is only the last-resort bound of a hang.
 """
 
 
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(items: List[pytest.Item]) -> None:
-    """Give every test under ``tests/hdl`` a timeout of at least :data:`HDL_TIMEOUT_S`."""
+    """Mark every test under ``tests/hdl`` slow, with a timeout of at least :data:`HDL_TIMEOUT_S`."""
     here = Path(__file__).parent
     for item in items:
         if here not in Path(str(item.path)).parents:
             continue
+        item.add_marker(pytest.mark.slow)
         marker = item.get_closest_marker("timeout")
         current = None
         if marker is not None:

@@ -32,7 +32,7 @@ from cocotb.simtime import get_sim_time
 from cocotb.triggers import ClockCycles, FallingEdge, RisingEdge, with_timeout
 from cocotbext.axi import AxiStreamBus, AxiStreamFrame, AxiStreamSink, AxiStreamSource
 
-from ..test_model import random_frame, random_params  # the model tests' calibrations and frames
+from ..overlays.test_model import random_frame, random_params  # the model tests' calibrations and frames
 
 CLOCK_NS = 10
 FULL = os.environ.get("STEREOCAM_COSIM_FULL") == "1"

@@ -38,7 +38,7 @@ from stereocam.overlays.spec.rectify import (
     param_offset,
 )
 
-from ..test_model import camera_frame, random_frame, random_params
+from ..overlays.test_model import camera_frame, random_frame, random_params
 
 SMALL = {"colour": Build("small-colour", 96, 64, 16, colour=True),
          "gray": Build("small-gray", 96, 64, 16, colour=False)}
@@ -217,8 +217,8 @@ def sample_rig(w: int, h: int) -> Tuple[CameraParams, CameraParams]:
 
 
 def calibrations(w: int, h: int) -> List[Tuple[str, CameraParams, CameraParams]]:
-    """Two random camera pairs (tests/test_model.py; milder than its default, to fit 16 rows at 96x64)
-    and OpenCV's sample rig."""
+    """Two random camera pairs (tests/overlays/test_model.py; milder than its default, to fit 16
+    rows at 96x64) and OpenCV's sample rig."""
     rng = np.random.default_rng(11)
     out = [(f"random{i}", random_params(rng, w, h, strength=0.5), random_params(rng, w, h, strength=0.5))
            for i in range(2)]

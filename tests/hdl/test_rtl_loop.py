@@ -25,8 +25,8 @@ from stereocam.server.http.app import RTL_TIMEOUT_S, ServeError, open_configured
 from stereocam.server.http.settings import Settings
 
 from ..sample import SampleCalibration, calibrate_sample, pair_paths, write_opencv_files
-from ..server_fixtures import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture, wait_for_frames  # noqa: F401
-from ..test_server_api import decode_png, encode, model_output, pair_form, pattern_pair
+from ..server.daemon import SMALL, TEST_FPS, StillSource, read_parts, start_daemon_fixture, wait_for_frames  # noqa: F401
+from ..server.test_server_api import decode_png, encode, model_output, pair_form, pattern_pair
 
 # A first run builds the RTL (and the faulty copy) with Verilator: a minute each on a busy machine.
 pytestmark = pytest.mark.timeout(900)

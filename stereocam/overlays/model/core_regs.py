@@ -7,7 +7,7 @@ CAPS.COLOUR and the active LB_DELAY gives the :class:`~.result.CoreOptions` a
 frame is processed with. The driver, the fabric and the emulated core all
 decode through this module, and the driver encodes through it, so a register
 added to :data:`~..spec.rectify.RECTIFY_MAP` is handled here or nowhere
-(``tests/test_core_regs.py`` checks that every writable field round-trips).
+(``tests/overlays/test_core_regs.py`` checks that every writable field round-trips).
 
 Decoding takes ``read``: a function from register name to its 32-bit word
 (``Registers.read`` of the driver, ``RegisterBlock.get`` of the emulated

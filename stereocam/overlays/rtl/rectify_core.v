@@ -10,7 +10,7 @@
  * rectify_core: the stereocam rectify core 2.0 (stereocam/overlays/RECTIFY_CORE.md), top level.
  *
  * AXI4-Lite slave (rc_regs: 12-bit byte address, checked against RECTIFY_MAP.size by
- * tests/test_overlay_build.py, 32-bit data), AXI4-Stream slave
+ * tests/overlays/test_overlay_build.py, 32-bit data), AXI4-Stream slave
  * (from the mux) and master (to VDMA "proc" S2MM), 64-bit TDATA, TUSER start of
  * frame, TLAST end of line. The parts:
  *   rc_regs      register block: shadow and active sets, APPLY, flags, frame counter

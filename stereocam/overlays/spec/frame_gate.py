@@ -1,8 +1,9 @@
 """The frame gate: an AXI4-Stream stage that takes every beat and forwards whole frames, or none.
 
 Written once: the RTL (``stereocam/overlays/rtl/camera/frame_gate.v``), its model
-(``stereocam/overlays/model/frame_gate.py``), the co-simulation (``tests/hdl/tb_frame_gate.py``) and the
-Vivado scripts (``stereocam/overlays/vivado/``, checked by ``tests/test_overlay_build.py``) read it from here.
+(``stereocam/overlays/model/frame_gate.py``), the co-simulation (``tests/hdl/tb_frame_gate.py``)
+and the Vivado scripts (``stereocam/overlays/vivado/``, checked by
+``tests/overlays/test_overlay_build.py``) read it from here.
 
 Why: the camera stream goes through an AXI4-Stream broadcaster to two consumers, ``vdma_raw``
 (raw frames to DDR) and the mux's live input (the rectify core). A broadcaster passes a beat only

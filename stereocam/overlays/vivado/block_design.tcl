@@ -9,7 +9,7 @@
 # Written in the style of Vivado's write_bd_tcl (PYNQ's boards/*/base/base.tcl): one cell per
 # create_bd_cell, its configuration in one set_property -dict, literal values. The names, VLNVs,
 # parameters and addresses are the ones stereocam/overlays/spec/ gives the drivers and the emulated fabric;
-# tests/test_overlay_build.py checks them against it.
+# tests/overlays/test_overlay_build.py checks them against it.
 #
 # One clock, FCLK_CLK0 ($STEREOCAM_FCLK0_MHZ MHz, settings.tcl), runs everything but the cameras'
 # pixel clocks, which camera_in crosses into it; one proc_sys_reset drives every reset.

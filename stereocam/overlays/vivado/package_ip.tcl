@@ -15,7 +15,7 @@
 #   vivado -mode batch -source stereocam/overlays/vivado/package_ip.tcl -tclargs <ip_repo_dir>
 #
 # The packager infers the bus interfaces from the port names (s_axil_*, s_axis_*, m_axis_*, aclk,
-# aresetn); the checks below fail loudly when it did not. tests/test_overlay_build.py checks the
+# aresetn); the checks below fail loudly when it did not. tests/overlays/test_overlay_build.py checks the
 # identities and parameters here against stereocam/overlays/spec/ and the RTL's module headers.
 
 source [file join [file dirname [file normalize [info script]]] settings.tcl]

@@ -1,7 +1,7 @@
 # settings.tcl: the constants every stereocam Vivado script shares. Sourced by package_ip.tcl,
 # block_design.tcl and build.tcl; sourcing it twice changes nothing.
 #
-# tests/test_overlay_build.py reads these lines as text and checks them against stereocam/overlays/spec/.
+# tests/overlays/test_overlay_build.py reads these lines as text and checks them against stereocam/overlays/spec/.
 
 # The Vivado release these scripts were written for: the one PYNQ 3.0's board images were built with.
 # Other releases warn (build.tcl); their IP versions may differ from the VLNVs in block_design.tcl.
@@ -22,7 +22,7 @@ set STEREOCAM_BD_NAME stereocam
 set STEREOCAM_OVERLAY stereocam
 
 # The one fabric clock, FCLK_CLK0, for the AXI4-Lite registers, the streams and the HP port
-# (stereocam/overlays/spec/overlay.py: FABRIC_CLOCK_HZ; tests/test_overlay_build.py checks they agree).
+# (stereocam/overlays/spec/overlay.py: FABRIC_CLOCK_HZ; tests/overlays/test_overlay_build.py checks they agree).
 # The rectify core takes 2 clocks per beat (stereocam/overlays/spec/rectify.py: CLOCKS_PER_BEAT): 100 MHz
 # is 50 Mbeat/s, 1.9x the MT9V034's pixel clock (26.6 MHz, a beat per pixel clock within a line)
 # and 2.3x a 752x480 frame at 60 fps (21.7 Mbeat/s). The HP port then carries 64 bits x 100 MHz

@@ -70,7 +70,7 @@ DISPARITY_WORKER = "disparity"  # the one worker: DisparityWorker, held while su
 
 # The one list of views, in the page's order (its figures, the 1..N shortcuts). A new view is a
 # line here (and, for a new ``renders``, a branch of _render): the page (GET /api/views), the
-# bench and the tests read this; tests/test_view_registry.py fails on a list of views elsewhere.
+# bench and the tests read this; tests/server/test_view_registry.py fails on a list of views elsewhere.
 REGISTRY: Tuple[View, ...] = (
     View("raw_left", "raw left", "raw left camera", "camera", gray=True, raw=True),
     View("raw_right", "raw right", "raw right camera", "camera", gray=True, raw=True),

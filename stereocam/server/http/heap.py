@@ -3,7 +3,7 @@
 glibc gives every thread that allocates its own arena (up to 8 per core) and keeps what is freed
 in them. A burst of large uploads handled on the executor threads then leaves tens of MB resident
 that a 512 MB board needs back. Two arenas and a periodic ``malloc_trim`` hold the daemon near
-its working set (measured in ``tests/test_hostile_clients.py``: about 40 MB less after 2,000
+its working set (measured in ``tests/server/test_hostile_clients.py``: about 40 MB less after 2,000
 malformed requests). Where the C library is not glibc, both do nothing.
 """
 from __future__ import annotations

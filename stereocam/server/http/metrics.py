@@ -27,18 +27,20 @@ import collections
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Deque, Dict, Iterable, Iterator, List, Set, Tuple
+from dataclasses import dataclass
+from typing import Any, Deque, Dict, Iterable, Iterator, List, Set, Tuple
 
 from aiohttp import web
 from prometheus_client import CollectorRegistry, PlatformCollector, ProcessCollector, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric, SummaryMetricFamily
 from prometheus_client.registry import Collector
 
-from .state import BUDGET, ENCODERS, EXTENSIONS, FEED, PIPELINE, SETTINGS
-from .streams import STREAMS
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..frames.cpu_budget import CpuBudget
+from ..frames.cpu_budget import CpuBudget
+from ..frames.encoders import Encoders
+from ..frames.feed import FrameFeed
+from ..frames.pipeline import Pipeline
+from .state import BUDGET, ENCODERS, EXTENSIONS, FEED, PIPELINE, SETTINGS, Extensions
+from .streams import STREAMS, StreamClients
 
 __all__ = ["Metrics", "DaemonCollector", "METRICS", "REGISTRY", "CONTENT_TYPE", "make_registry", "render",
            "setup_routes", "healthy"]
@@ -92,20 +94,33 @@ METRICS: "web.AppKey[Metrics]" = web.AppKey("stereocam.metrics", Metrics)
 REGISTRY: "web.AppKey[CollectorRegistry]" = web.AppKey("stereocam.metrics_registry", CollectorRegistry)
 
 
+@dataclass(frozen=True)
+class DaemonParts:
+    """What :class:`DaemonCollector` reads at each scrape: the daemon's counters and stages."""
+
+    metrics: Metrics
+    pipeline: Pipeline
+    encoders: Encoders
+    streams: StreamClients
+    feed: FrameFeed
+    budget: CpuBudget
+    extensions: Extensions
+
+
 class DaemonCollector(Collector):
-    """The daemon's families, read from ``app``'s state at each scrape (loop thread; never blocks).
+    """The daemon's families, read from the parts it is handed at each scrape (loop thread; never blocks).
 
     Extension families (``Extensions.metrics``) follow the daemon's own; a family whose name is
     already taken is left out with a warning (two families of one name fail the whole scrape in
     Prometheus), and so is anything that is not a prometheus_client ``Metric``.
     """
 
-    def __init__(self, app: web.Application) -> None:
-        self._app = app
+    def __init__(self, parts: "DaemonParts") -> None:
+        self._parts = parts
 
     def collect(self) -> Iterator[Metric]:
         seen: Set[str] = set()
-        for family in (*self._daemon(), *self._app[EXTENSIONS].metric_families()):
+        for family in (*self._daemon(), *self._parts.extensions.metric_families()):
             if not isinstance(family, Metric):
                 log.warning("metrics: an extension gave %r, not a prometheus_client metric family: left out",
                             family)
@@ -117,9 +132,9 @@ class DaemonCollector(Collector):
             yield family
 
     def _daemon(self) -> Iterable[Metric]:
-        app = self._app
-        metrics = app[METRICS]
-        pipeline, encoders, streams, feed = app[PIPELINE], app[ENCODERS], app[STREAMS], app[FEED]
+        parts = self._parts
+        metrics, pipeline, encoders, streams, feed = (parts.metrics, parts.pipeline, parts.encoders,
+                                                      parts.streams, parts.feed)
         out: List[Metric] = []
 
         stages = GaugeMetricFamily("stereocam_stage_frames_per_second",
@@ -137,7 +152,7 @@ class DaemonCollector(Collector):
         for view, rate in sorted(encoders.fps_by_view().items()):
             views.add_metric([view], rate)
         out.append(views)
-        out.extend(_budget_families(app[BUDGET], encoders.status()))
+        out.extend(_budget_families(parts.budget, encoders.status()))
         out.append(CounterMetricFamily("stereocam_frames", "Frame sets the pipeline published.",
                                        value=pipeline.frames))
         out.append(CounterMetricFamily("stereocam_frames_seen",
@@ -177,7 +192,7 @@ class DaemonCollector(Collector):
         out.append(CounterMetricFamily("stereocam_captures", "Captures stored since start.", value=captures))
         out.append(GaugeMetricFamily("stereocam_uptime_seconds", "Seconds since the daemon started.",
                                      value=time.time() - metrics.started))
-        faults = app[EXTENSIONS].active_faults()
+        faults = parts.extensions.active_faults()
         out.append(GaugeMetricFamily("stereocam_faults_active", "Faults active now (see stereocam_fault).",
                                      value=len(faults)))
         fault = GaugeMetricFamily("stereocam_fault", "1 for each fault active now, by the part it is on.",
@@ -235,7 +250,9 @@ def _counter_by(name: str, documentation: str, label: str, counts: Dict[str, int
 def make_registry(app: web.Application) -> CollectorRegistry:
     """A registry of ``app``'s own: the daemon's families, the process's and the platform's."""
     registry = CollectorRegistry()
-    registry.register(DaemonCollector(app))
+    registry.register(DaemonCollector(DaemonParts(
+        metrics=app[METRICS], pipeline=app[PIPELINE], encoders=app[ENCODERS], streams=app[STREAMS],
+        feed=app[FEED], budget=app[BUDGET], extensions=app[EXTENSIONS])))
     ProcessCollector(registry=registry)
     PlatformCollector(registry=registry)
     return registry
@@ -246,14 +263,14 @@ def render(app: web.Application) -> bytes:
     return generate_latest(app[REGISTRY])
 
 
-def healthy(app: web.Application) -> Tuple[bool, str]:
+def healthy(feed: FrameFeed, extensions: Extensions, no_signal_s: float) -> Tuple[bool, str]:
     """True while frames flow (one within ``no_signal_s``, at least a second) and no fault is active.
 
     The text names every active fault, one per line, so a monitor's log says what is wrong.
     """
-    limit = max(1.0, app[SETTINGS].no_signal_s)
-    age = app[FEED].frame_age()
-    problems = [f"{f['what']}: {f['text']}" for f in app[EXTENSIONS].active_faults()]
+    limit = max(1.0, no_signal_s)
+    age = feed.frame_age()
+    problems = [f"{f['what']}: {f['text']}" for f in extensions.active_faults()]
     if age is None:
         problems.insert(0, "no frame yet")
     elif age > limit and not any(p.startswith("cameras:") for p in problems):
@@ -269,7 +286,8 @@ async def metrics_handler(request: web.Request) -> web.Response:
 
 
 async def healthz_handler(request: web.Request) -> web.Response:
-    ok, text = healthy(request.app)
+    app = request.app
+    ok, text = healthy(app[FEED], app[EXTENSIONS], app[SETTINGS].no_signal_s)
     return web.Response(text=text + "\n", status=200 if ok else 503, headers={"Cache-Control": "no-store"})
 
 

@@ -1,0 +1,1092 @@
+"""The Vivado scripts of ``stereocam/overlays/vivado/`` against the spec the drivers and the emulated fabric
+read.
+
+Vivado is not installed where the tests run, so no bitstream is built here. Instead:
+
+* the scripts are read as text: a small Tcl word splitter (they are written in the regular style of
+  Vivado's ``write_bd_tcl``) gives their commands, whose cell names, VLNVs, parameters, connections
+  and addresses are checked against ``stereocam/overlays/spec/``, the RTL's module headers and the drivers;
+* each script is then run in a plain Tcl interpreter (Python's ``tkinter.Tcl``, else ``tclsh``) with
+  every Vivado command replaced by a recorder: that proves the scripts are valid Tcl, that their
+  control flow (options, placeholder checks, output names) works, and that what they hand Vivado is
+  what the text says.
+
+Expected values always come from the spec modules, never from this file.
+"""
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Set, Tuple
+
+import pytest
+
+from stereocam.drivers.vdma import VDMA
+from stereocam.overlays import backend
+from stereocam.overlays.emulated.logic import EmulatedFabric, StreamCore
+from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
+from stereocam.overlays.fabric import bind
+from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+VIVADO_DIR = REPO_ROOT / "stereocam" / "overlays" / "vivado"
+RTL_DIR = REPO_ROOT / "stereocam" / "overlays" / "rtl"
+SCRIPTS = ("settings.tcl", "package_ip.tcl", "block_design.tcl", "build.tcl")
+PS7 = "processing_system7_0"
+PS7_DATA = f"{PS7}/Data"  # the PS7's address space: GP0's register windows
+GP0_RANGE = (0x4000_0000, 0x8000_0000)  # Zynq-7000 M_AXI_GP0 (UG585, "System Address Map")
+HP0_DDR = f"{PS7}/S_AXI_HP0/HP0_DDR_LOWOCM"
+CHANNELS = {  # VDMA channel -> (include parameter, stream interface, memory interface, address space)
+    "S2MM": ("c_include_s2mm", "S_AXIS_S2MM", "M_AXI_S2MM", "Data_S2MM"),
+    "MM2S": ("c_include_mm2s", "M_AXIS_MM2S", "M_AXI_MM2S", "Data_MM2S"),
+}
+STREAM_WIDTH = {"S2MM": "c_s_axis_s2mm_tdata_width", "MM2S": "c_m_axis_mm2s_tdata_width"}
+USE_FSYNC_TUSER = "2"  # PG020 "Fsync Options": c_use_s2mm_fsync 2 = "s2mm tuser" (start of frame on TUSER)
+
+
+# ---- a small Tcl reader -----------------------------------------------------------------------------
+
+Command = List[str]
+
+
+def _word_end(text: str, i: int) -> int:
+    """Index just past the Tcl word that starts at ``text[i]`` (braced, quoted or bare)."""
+    n = len(text)
+    if text[i] == "{":
+        depth = 0
+        while i < n:
+            c = text[i]
+            if c == "\\":
+                i += 2
+                continue
+            if c == "{":
+                depth += 1
+            elif c == "}":
+                depth -= 1
+                if depth == 0:
+                    return i + 1
+            i += 1
+        raise ValueError("unbalanced braces")
+    quoted = text[i] == '"'
+    j = i + 1 if quoted else i
+    brackets = 0
+    while j < n:
+        c = text[j]
+        if c == "\\":
+            j += 2
+            continue
+        if c == "[":
+            brackets += 1
+        elif c == "]":
+            brackets -= 1
+        elif c == "{" and brackets > 0:
+            j = _word_end(text, j)
+            continue
+        elif quoted and c == '"' and brackets == 0:
+            return j + 1
+        elif not quoted and brackets == 0 and c in " \t\n;":
+            return j
+        j += 1
+    if quoted or brackets:
+        raise ValueError("unbalanced quotes or brackets")
+    return j
+
+
+def tcl_commands(text: str) -> List[Command]:
+    """The commands of a Tcl script (top level only), each as its words with braces and brackets kept."""
+    text = re.sub(r"\\\n[ \t]*", " ", text)
+    commands: List[Command] = []
+    words: Command = []
+    i = 0
+    while i < len(text):
+        c = text[i]
+        if c in " \t\r":
+            i += 1
+        elif c in "\n;":
+            if words:
+                commands.append(words)
+                words = []
+            i += 1
+        elif c == "#" and not words:
+            while i < len(text) and text[i] != "\n":
+                i += 1
+        else:
+            end = _word_end(text, i)
+            words.append(text[i:end])
+            i = end
+    if words:
+        commands.append(words)
+    return commands
+
+
+def unbrace(word: str) -> str:
+    """The value of a braced or quoted word."""
+    if len(word) >= 2 and (word[0], word[-1]) in (("{", "}"), ('"', '"')):
+        return word[1:-1]
+    return word
+
+
+def tcl_list(word: str) -> List[str]:
+    """The elements of a Tcl list value."""
+    commands = tcl_commands(unbrace(word).replace("\n", " "))
+    return [unbrace(w) for w in commands[0]] if commands else []
+
+
+def bracketed(word: str) -> Command:
+    """The command inside ``[...]`` (one command), its words unbraced."""
+    assert word.startswith("[") and word.endswith("]"), f"expected [command], got {word!r}"
+    (command,) = tcl_commands(word[1:-1])
+    return [unbrace(w) for w in command]
+
+
+def options(words: Sequence[str], valued: Set[str]) -> Tuple[Dict[str, str], List[str]]:
+    """``-flag value`` pairs (for the flags in ``valued``; other flags count as switches) and the rest."""
+    opts: Dict[str, str] = {}
+    rest: List[str] = []
+    it = iter(words)
+    for w in it:
+        if w.startswith("-") and w in valued:
+            opts[w] = next(it)
+        elif w.startswith("-") and not w[1:2].isdigit():
+            opts[w] = ""
+        else:
+            rest.append(w)
+    return opts, rest
+
+
+def read_script(name: str) -> str:
+    return (VIVADO_DIR / name).read_text()
+
+
+def settings() -> Dict[str, str]:
+    """The plain ``set NAME value`` lines of settings.tcl."""
+    out: Dict[str, str] = {}
+    for words in tcl_commands(read_script("settings.tcl")):
+        if words[0] == "set" and len(words) == 3 and not words[2].startswith("["):
+            out[words[1]] = unbrace(words[2])
+    return out
+
+
+def substitute(word: str, variables: Dict[str, str]) -> str:
+    """``$NAME`` and ``${NAME}`` of settings.tcl replaced by their values (others left as written)."""
+    return re.sub(r"\$\{?(\w+)\}?", lambda m: variables.get(m.group(1), m.group(0)), word)
+
+
+# ---- the block design, as block_design.tcl writes it ------------------------------------------------
+
+@dataclass
+class Address:
+    space: str
+    segment: str
+    offset: int
+    range: int
+
+
+@dataclass
+class BlockDesign:
+    cells: Dict[str, str] = field(default_factory=dict)  # name -> VLNV
+    config: Dict[str, Dict[str, str]] = field(default_factory=dict)  # name -> CONFIG.<key> -> value
+    intf_nets: List[Tuple[str, str]] = field(default_factory=list)  # interface pin pairs
+    nets: List[List[str]] = field(default_factory=list)  # "cell/pin" or "port" per net
+    ports: Dict[str, Dict[str, str]] = field(default_factory=dict)  # external port -> its options
+    addresses: List[Address] = field(default_factory=list)
+
+    def connected(self, pin: str) -> Set[str]:
+        """Interface pins joined to ``pin``."""
+        return {b if a == pin else a for a, b in self.intf_nets if pin in (a, b)}
+
+    def net_of(self, pin: str) -> List[str]:
+        """The net that holds ``pin`` (empty if none)."""
+        nets = [net for net in self.nets if pin in net]
+        assert len(nets) <= 1, f"{pin} is on {len(nets)} nets"
+        return nets[0] if nets else []
+
+    def address(self, space: str, segment: str) -> Address:
+        found = [a for a in self.addresses if a.space == space and a.segment == segment]
+        assert len(found) == 1, f"{segment} is assigned {len(found)} times in {space}"
+        return found[0]
+
+
+def parse_block_design(text: str, variables: Dict[str, str]) -> BlockDesign:
+    bd = BlockDesign()
+    for raw in tcl_commands(text):
+        words = [substitute(w, variables) for w in raw]
+        verb = words[0]
+        if verb == "create_bd_cell":
+            opts, rest = options(words[1:], {"-type", "-vlnv"})
+            assert opts["-type"] == "ip", words
+            bd.cells[rest[-1]] = opts["-vlnv"]
+        elif verb == "set_property" and words[1] == "-dict":
+            pairs = bracketed(words[2])
+            assert pairs[0] == "list" and len(pairs) % 2 == 1, words
+            target = bracketed(words[3])
+            assert target[0] == "get_bd_cells", words
+            cfg = bd.config.setdefault(target[1], {})
+            for key, value in zip(pairs[1::2], pairs[2::2], strict=True):
+                assert key.startswith("CONFIG."), key
+                cfg[key[len("CONFIG."):]] = value
+        elif verb == "set_property" and words[1].startswith("CONFIG."):
+            target = bracketed(words[3])
+            bd.config.setdefault(target[1], {})[words[1][len("CONFIG."):]] = unbrace(words[2])
+        elif verb == "connect_bd_intf_net":
+            pins = [bracketed(w)[1] for w in words[1:] if w.startswith("[")]
+            assert len(pins) == 2, words
+            bd.intf_nets.append((pins[0], pins[1]))
+        elif verb == "connect_bd_net":
+            bd.nets.append([bracketed(w)[1] for w in words[1:] if w.startswith("[")])
+        elif verb == "create_bd_port":
+            opts, rest = options(words[1:], {"-dir", "-from", "-to", "-type", "-freq_hz"})
+            bd.ports[rest[-1]] = opts
+        elif verb == "assign_bd_address":
+            opts, rest = options(words[1:], {"-offset", "-range", "-target_address_space"})
+            space = bracketed(opts["-target_address_space"])
+            segment = bracketed(rest[-1])
+            assert space[0] == "get_bd_addr_spaces" and segment[0] == "get_bd_addr_segs", words
+            offset, size = int(opts["-offset"], 0), int(opts["-range"], 0)
+            bd.addresses.append(Address(space[1], segment[1], offset, size))
+    return bd
+
+
+# ---- the packaged IP, as package_ip.tcl describes it -------------------------------------------------
+
+@dataclass
+class PackagedIP:
+    project: str
+    top: str
+    vlnv: str = ""
+    params: Dict[str, Tuple[int, int, int]] = field(default_factory=dict)  # name -> (default, min, max)
+    interfaces: List[str] = field(default_factory=list)  # bus interfaces the script requires
+    clock: Tuple[str, str, List[str]] = ("", "", [])  # clock, reset, the interfaces it runs
+    free_clocks: List[str] = field(default_factory=list)
+    windows: Dict[str, int] = field(default_factory=dict)  # AXI4-Lite interface -> register window bytes
+
+
+def parse_package(text: str) -> Dict[str, PackagedIP]:
+    """The IPs package_ip.tcl packages, by VLNV; a section starts at stereocam_packaging_project."""
+    ips: List[PackagedIP] = []
+    vendor = library = name = version = ""
+    for words in tcl_commands(text):
+        verb = words[0]
+        if verb == "stereocam_packaging_project":
+            if ips:
+                ips[-1].vlnv = f"{vendor}:{library}:{name}:{version}"
+            ips.append(PackagedIP(project=words[1], top=words[2]))
+            vendor = library = name = version = ""
+        elif not ips:
+            continue
+        elif verb == "ipx::package_project":
+            opts, _ = options(words[1:], {"-root_dir", "-vendor", "-library", "-taxonomy"})
+            vendor, library = opts["-vendor"], opts["-library"]
+        elif verb == "set_property" and words[1] == "name" and words[-1] == "$core":
+            name = words[2]
+        elif verb == "set_property" and words[1] == "version" and words[-1] == "$core":
+            version = words[2]
+        elif verb == "stereocam_user_param":
+            ips[-1].params[words[2]] = (int(words[3]), int(words[4]), int(words[5]))
+        elif verb == "stereocam_require_interfaces":
+            ips[-1].interfaces = tcl_list(words[2])
+        elif verb == "stereocam_clock":
+            ips[-1].clock = (words[2], words[3], tcl_list(words[4]))
+        elif verb == "stereocam_free_clock":
+            ips[-1].free_clocks.append(words[2])
+        elif verb == "stereocam_register_window":
+            ips[-1].windows[words[2]] = int(words[3], 0)
+    if ips:
+        ips[-1].vlnv = f"{vendor}:{library}:{name}:{version}"
+    return {ip.vlnv: ip for ip in ips}
+
+
+# ---- Verilog module headers ---------------------------------------------------------------------------
+
+@dataclass
+class Module:
+    parameters: List[str]
+    ports: Dict[str, Tuple[str, Optional[int]]]  # name -> (direction, width if numeric)
+
+
+def header_defines() -> Dict[str, str]:
+    """Every numeric ```define`` of the RTL's headers (the generated ``*_spec.vh``), by name."""
+    out: Dict[str, str] = {}
+    for path in sorted(RTL_DIR.rglob("*.vh")):
+        for name, value in re.findall(r"^`define\s+(\w+)\s+(\d+)\b", path.read_text(), re.M):
+            out[name] = value
+    return out
+
+
+def _bound(text: str) -> Optional[int]:
+    """A range bound of digits, ``+`` and ``-`` (``12-1``, after the header's macros are expanded)."""
+    if not re.fullmatch(r"[\d\s+-]+", text):
+        return None
+    total, sign = 0, 1
+    for token in re.findall(r"\d+|[+-]", text):
+        if token in "+-":
+            sign = 1 if token == "+" else -1
+        else:
+            total += sign * int(token)
+    return total
+
+
+def verilog_module(text: str, name: str) -> Optional[Module]:
+    """Parameters and ports of module ``name``'s ANSI header in ``text`` (None if it is not there).
+
+    Macros of the RTL's headers are expanded, so a port ``[`RC_ADDR_W-1:0]`` has its width."""
+    defines = header_defines()
+    text = re.sub(r"`(\w+)", lambda d: defines.get(d.group(1), d.group(0)), text)
+    m = re.search(rf"\bmodule\s+{name}\b(.*?)\);", re.sub(r"//[^\n]*|/\*.*?\*/", "", text, flags=re.S), re.S)
+    if m is None:
+        return None
+    header = m.group(1)
+    params = re.findall(r"\bparameter\s+(?:integer\s+)?(\w+)\s*=", header)
+    ports: Dict[str, Tuple[str, Optional[int]]] = {}
+    for direction, rng, port in re.findall(
+            r"\b(input|output|inout)\s+(?:wire\s+|reg\s+)?(?:signed\s+)?(\[[^\]]*\])?\s*(\w+)", header):
+        width: Optional[int] = 1
+        if rng:
+            msb, _, lsb = rng[1:-1].partition(":")
+            hi, lo = _bound(msb), _bound(lsb)
+            width = abs(hi - lo) + 1 if hi is not None and lo is not None else None
+        ports[port] = (direction, width)
+    return Module(params, ports)
+
+
+# ---- fixtures ---------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def variables() -> Dict[str, str]:
+    return settings()
+
+
+@pytest.fixture(scope="module")
+def bd(variables: Dict[str, str]) -> BlockDesign:
+    return parse_block_design(read_script("block_design.tcl"), variables)
+
+
+@pytest.fixture(scope="module")
+def packaged() -> Dict[str, PackagedIP]:
+    return parse_package(read_script("package_ip.tcl"))
+
+
+def vdma_channels(bd: BlockDesign, name: str) -> List[str]:
+    """The channels a VDMA cell is built with."""
+    return [ch for ch, (include, *_) in CHANNELS.items() if bd.config[name].get(include) == "1"]
+
+
+# ---- identities ---------------------------------------------------------------------------------------
+
+def test_every_instance_the_drivers_bind_is_in_the_design_with_an_accepted_vlnv(bd: BlockDesign) -> None:
+    for name, accepted in overlay.INSTANCES.items():
+        assert name in bd.cells, f"the block design has no cell {name!r}"
+        assert bd.cells[name] in accepted, f"{name} is {bd.cells[name]}, the drivers accept {accepted}"
+    assert bd.cells["vdma_raw"] in vdma.VLNV and bd.cells["vdma_proc"] in vdma.VLNV
+    assert bd.cells["mux"] == axis_switch.VLNV
+    assert bd.cells["rectify"] == rectify.VLNV
+    assert bd.cells[camera_in.INSTANCE] == camera_in.VLNV
+    for gate in frame_gate.INSTANCES:
+        assert bd.cells[gate] == frame_gate.VLNV, gate
+
+
+def test_the_packaged_ip_are_the_cores_the_design_instantiates(packaged: Dict[str, PackagedIP],
+                                                               bd: BlockDesign) -> None:
+    assert set(packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
+    assert packaged[rectify.VLNV].top == "rectify_core"
+    assert packaged[camera_in.VLNV].top == camera_in.TOP
+    assert packaged[frame_gate.VLNV].top == frame_gate.TOP
+    user_cells = {vlnv for vlnv in bd.cells.values() if not vlnv.startswith("xilinx.com:")}
+    assert user_cells == set(packaged)
+
+
+# ---- the rectify core and the camera input IP ---------------------------------------------------------
+
+def test_rectify_build_parameters_are_the_default_build(packaged: Dict[str, PackagedIP],
+                                                        bd: BlockDesign) -> None:
+    build = rectify.DEFAULT_BUILD
+    expected = {"MAX_WIDTH": build.max_width, "MAX_HEIGHT": build.max_height, "LB_ROWS": build.lb_rows,
+                "COLOUR": int(build.colour)}
+    params = packaged[rectify.VLNV].params
+    assert {name: default for name, (default, _, _) in params.items()} == expected
+    assert {name: int(value) for name, value in bd.config["rectify"].items()} == expected
+    for name, (default, low, high) in params.items():
+        assert low <= default <= high, name
+    for name in ("MAX_WIDTH", "MAX_HEIGHT"):
+        assert params[name][2] < 2 ** rectify.SIZE_BITS, f"{name} must stay below 2**SIZE_BITS"
+    other = rectify.BUILDS["gray"] if build.colour else rectify.BUILDS["colour"]
+    assert params["COLOUR"][1] <= int(other.colour) <= params["COLOUR"][2], "both builds must be allowed"
+
+
+def test_every_verilog_parameter_of_each_top_is_a_user_parameter(packaged: Dict[str, PackagedIP]) -> None:
+    module = verilog_module((RTL_DIR / "rectify_core.v").read_text(), "rectify_core")
+    assert module is not None
+    assert set(packaged[rectify.VLNV].params) == set(module.parameters)
+    cam = packaged[camera_in.VLNV].params
+    assert {name: default for name, (default, _, _) in cam.items()} == camera_in.PARAMETERS
+    module = verilog_module((RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text(), frame_gate.TOP)
+    assert module is not None
+    assert set(packaged[frame_gate.VLNV].params) == set(module.parameters) == set(frame_gate.PARAMETERS)
+
+
+def test_camera_parameters_in_the_design_are_the_spec_defaults(bd: BlockDesign,
+                                                                packaged: Dict[str, PackagedIP]) -> None:
+    assert {k: int(v) for k, v in bd.config[camera_in.INSTANCE].items()} == camera_in.PARAMETERS
+    params = packaged[camera_in.VLNV].params
+    for name, (default, low, high) in params.items():
+        assert low <= default <= high, name
+    # The limits the spec states, where it states them (the camera spec is being written alongside).
+    if hasattr(camera_in, "MAX_WIDTH_LIMIT"):
+        assert params["MAX_WIDTH"][1:] == (camera_in.MIN_WIDTH, camera_in.MAX_WIDTH_LIMIT)
+    if "BAYER_PHASE" in camera_in.PARAMETERS:
+        phases = len(camera_in.CFA_PHASES)
+        assert params["BAYER_PHASE"][1:] == (0, phases - 1), "every phase must be buildable"
+
+
+def test_frame_gate_parameters_are_the_spec_defaults(bd: BlockDesign,
+                                                     packaged: Dict[str, PackagedIP]) -> None:
+    params = packaged[frame_gate.VLNV].params
+    assert {name: default for name, (default, _, _) in params.items()} == frame_gate.PARAMETERS
+    assert params["DEPTH"][1:] == frame_gate.DEPTH_RANGE
+    for gate in frame_gate.INSTANCES:
+        assert {k: int(v) for k, v in bd.config[gate].items()} == frame_gate.PARAMETERS, gate
+        # a line passes a gate only if it fits (the gate forwards whole lines only)
+        depth = int(bd.config[gate]["DEPTH"])
+        assert depth >= int(bd.config[camera_in.INSTANCE]["MAX_WIDTH"]), gate
+
+
+def test_frame_gate_interfaces_are_the_spec_ports(packaged: Dict[str, PackagedIP]) -> None:
+    ip = packaged[frame_gate.VLNV]
+    clock, reset, busifs = ip.clock
+    assert frame_gate.PORTS[clock] == frame_gate.PORTS[reset] == ("input", 1)
+    assert set(ip.interfaces) == {clock, reset, *busifs}
+    assert sorted(busifs) == ["m_axis", "s_axis"]
+    for busif in busifs:
+        out = "output" if busif == "m_axis" else "input"
+        assert frame_gate.PORTS[f"{busif}_tdata"] == (out, pixel.BYTES_PER_PIXEL * 8)
+        assert frame_gate.PORTS[f"{busif}_tready"][0] == ("input" if out == "output" else "output")
+        assert {f"{busif}_{s}" for s in ("tvalid", "tuser", "tlast")} <= set(frame_gate.PORTS)
+    module = verilog_module((RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text(), frame_gate.TOP)
+    assert module is not None
+    assert {name: (d, w) for name, (d, w) in module.ports.items()} == frame_gate.PORTS
+    assert not ip.windows and not ip.free_clocks
+
+
+def test_rectify_interfaces_match_the_rtl_ports(packaged: Dict[str, PackagedIP]) -> None:
+    ip = packaged[rectify.VLNV]
+    module = verilog_module((RTL_DIR / "rectify_core.v").read_text(), "rectify_core")
+    assert module is not None
+    clock, reset, busifs = ip.clock
+    assert module.ports[clock][0] == "input" and module.ports[reset][0] == "input"
+    assert set(ip.interfaces) == {clock, reset, *busifs}
+    for busif in busifs:
+        assert any(port.startswith(busif + "_") for port in module.ports), f"no {busif}_* ports"
+    (lite,) = ip.windows
+    assert ip.windows[lite] == rectify.RECTIFY_MAP.size
+    assert module.ports[f"{lite}_awaddr"][1] == int(math.log2(rectify.RECTIFY_MAP.size))
+    streams = [b for b in busifs if b != lite]
+    assert sorted(streams) == ["m_axis", "s_axis"]
+    for busif in streams:
+        assert module.ports[f"{busif}_tdata"][1] == pixel.BYTES_PER_PIXEL * 8
+        assert module.ports[f"{busif}_tuser"][1] == 1 and module.ports[f"{busif}_tlast"][1] == 1
+
+
+def test_camera_interfaces_are_the_spec_ports(packaged: Dict[str, PackagedIP]) -> None:
+    ip = packaged[camera_in.VLNV]
+    clock, reset, busifs = ip.clock
+    for port in (clock, reset, *ip.free_clocks):
+        assert camera_in.PORTS[port] == ("input", 1), port
+    assert set(ip.interfaces) == {clock, reset, *busifs}
+    for busif in busifs:
+        assert camera_in.PORTS[f"{busif}_tdata"] == ("output", pixel.BYTES_PER_PIXEL * 8)
+        assert {f"{busif}_{s}" for s in ("tvalid", "tready", "tuser", "tlast")} <= set(camera_in.PORTS)
+    assert sorted(ip.free_clocks) == sorted(f"{cam}_pclk" for cam in camera_in.CAMERAS)
+
+
+def test_camera_rtl_when_present_has_the_spec_ports() -> None:
+    """The camera RTL is written elsewhere; whatever top module it has must keep the spec's ports."""
+    for path in sorted((RTL_DIR / "camera").glob("*.v")):
+        module = verilog_module(path.read_text(), camera_in.TOP)
+        if module is not None:
+            assert set(module.ports) == set(camera_in.PORTS), path
+            for name, (direction, width) in module.ports.items():
+                assert direction == camera_in.PORTS[name][0], name
+                assert width in (None, camera_in.PORTS[name][1]), name
+            assert set(module.parameters) >= set(camera_in.PARAMETERS)
+
+
+def test_the_packaged_rtl_is_every_file_of_the_core() -> None:
+    """package_ip.tcl globs rc_*.v and *.vh: a module file named otherwise would be left out of the IP."""
+    text = read_script("package_ip.tcl")
+    assert "rectify_core.v" in text and "*.vh" in text and "rc_*.v" in text
+    names = {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh", ".sv")}
+    assert "rectify_spec.vh" in names and "rc_regs_decode.vh" in names
+    assert names == ({"rectify_core.v"} | {p.name for p in RTL_DIR.glob("rc_*.v")}
+                     | {p.name for p in RTL_DIR.glob("*.vh")})
+
+
+# ---- VDMAs, mux, broadcaster ------------------------------------------------------------------------------
+
+def test_vdma_frame_stores_stream_widths_and_start_of_frame(bd: BlockDesign) -> None:
+    hp_width = bd.config[PS7]["PCW_S_AXI_HP0_DATA_WIDTH"]
+    for name in ("vdma_raw", "vdma_proc"):
+        cfg = bd.config[name]
+        assert int(cfg["c_num_fstores"]) == overlay.NUM_FSTORES
+        assert 1 <= overlay.NUM_FSTORES <= vdma.MAX_FSTORES
+        assert cfg["c_include_sg"] == "0", "the drivers use register direct mode"
+        for ch in vdma_channels(bd, name):
+            low = ch.lower()
+            assert int(cfg[STREAM_WIDTH[ch]]) == pixel.BYTES_PER_PIXEL * 8, (name, ch)
+            assert cfg[f"c_m_axi_{low}_data_width"] == hp_width, (name, ch)
+            assert cfg[f"c_{low}_sof_enable"] == "1", (name, ch)
+        if "S2MM" in vdma_channels(bd, name):
+            assert cfg["c_use_s2mm_fsync"] == USE_FSYNC_TUSER, name
+            assert cfg["c_s_axis_s2mm_tdata_width.VALUE_SRC"] == "USER", name
+
+
+def test_vdma_channels_are_the_ones_the_streams_use(bd: BlockDesign) -> None:
+    assert vdma_channels(bd, "vdma_raw") == ["S2MM"], "vdma_raw only writes the raw frames"
+    assert sorted(vdma_channels(bd, "vdma_proc")) == ["MM2S", "S2MM"]
+    for name in ("vdma_raw", "vdma_proc"):
+        for ch, (_, stream, memory, _) in CHANNELS.items():
+            used = bool(bd.connected(f"{name}/{stream}")) and bool(bd.connected(f"{name}/{memory}"))
+            assert used == (ch in vdma_channels(bd, name)), (name, ch)
+
+
+def test_the_driver_accepts_the_vdma_build(bd: BlockDesign) -> None:
+    fabric = EmulatedFabric(clock="stepped")
+    try:
+        for name in ("vdma_raw", "vdma_proc"):
+            cfg = bd.config[name]
+            VDMA(fabric.blocks[name], fabric.ddr, num_fstores=int(cfg["c_num_fstores"]),
+                 addr_width=int(cfg["c_addr_width"]), name=name)
+    finally:
+        fabric.close()
+
+
+def test_mux_is_a_control_register_switch_of_the_spec_size(bd: BlockDesign) -> None:
+    cfg = bd.config["mux"]
+    assert int(cfg["NUM_SI"]) == axis_switch.NUM_INPUTS
+    assert int(cfg["NUM_MI"]) == axis_switch.NUM_OUTPUTS
+    # The driver writes CTRL and MI0_MUX (PG085): they exist only with control register routing.
+    assert "CTRL" in axis_switch.AXIS_SWITCH_MAP and cfg["ROUTING_MODE"] == "1"
+
+
+STREAM_MASTER = re.compile(r"(^m_axis$|^M\d\d_AXIS$|^M_AXIS_)")  # our cores, broadcaster/switch, VDMA
+
+
+def stream_edges(bd: BlockDesign) -> Set[Tuple[str, str]]:
+    """The design's AXI4-Stream connections as (master pin, slave pin)."""
+    edges = set()
+    for a, b in bd.intf_nets:
+        masters = [p for p in (a, b) if STREAM_MASTER.search(p.split("/")[1])]
+        slaves = [p for p in (a, b) if re.search(r"(^s_axis$|^S\d\d_AXIS$|^S_AXIS)", p.split("/")[1])]
+        if masters or slaves:
+            assert len(masters) == len(slaves) == 1, f"{a} -- {b}: not one stream master and one slave"
+            edges.add((masters[0], slaves[0]))
+    return edges
+
+
+def test_stream_graph_is_camera_to_gates_to_raw_vdma_and_mux(bd: BlockDesign) -> None:
+    """Every stream connection, exactly: camera_in -> broadcaster; M00 -> gate_raw -> vdma_raw S2MM;
+    M01 -> gate_live -> mux live input; virtual camera -> mux; mux -> rectify -> vdma_proc S2MM."""
+    (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
+    split = split_in.split("/")[0]
+    assert bd.cells[split].startswith("xilinx.com:ip:axis_broadcaster:")
+    assert int(bd.config[split]["NUM_MI"]) == len(frame_gate.INSTANCES)
+    expected = {
+        (f"{camera_in.INSTANCE}/m_axis", f"{split}/S_AXIS"),
+        *((f"{split}/M{i:02d}_AXIS", f"{gate}/s_axis") for i, gate in enumerate(frame_gate.INSTANCES)),
+        (f"{frame_gate.GATE_RAW}/m_axis", "vdma_raw/S_AXIS_S2MM"),
+        (f"{frame_gate.GATE_LIVE}/m_axis", f"mux/S{axis_switch.LIVE:02d}_AXIS"),
+        ("vdma_proc/M_AXIS_MM2S", f"mux/S{axis_switch.VIRTUAL:02d}_AXIS"),
+        ("mux/M00_AXIS", "rectify/s_axis"),
+        ("rectify/m_axis", "vdma_proc/S_AXIS_S2MM"),
+    }
+    assert stream_edges(bd) == expected
+    assert frame_gate.INSTANCES[0] == frame_gate.GATE_RAW and frame_gate.INSTANCES[1] == frame_gate.GATE_LIVE
+    cfg = bd.config[split]
+    assert int(cfg["S_TDATA_NUM_BYTES"]) == int(cfg["M_TDATA_NUM_BYTES"]) == pixel.BYTES_PER_PIXEL
+    assert cfg["S_TUSER_WIDTH"] == cfg["M_TUSER_WIDTH"] == "1" and cfg["HAS_TLAST"] == "1"
+
+
+def test_nothing_downstream_can_hold_the_broadcaster(bd: BlockDesign) -> None:
+    """A broadcaster passes a beat only when every output takes it: each output must be a frame gate,
+    whose s_axis_tready is tied high in its RTL (never logic that could fall)."""
+    (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
+    split = split_in.split("/")[0]
+    consumers = [slave for master, slave in stream_edges(bd) if master.startswith(f"{split}/")]
+    assert consumers and all(bd.cells[c.split("/")[0]] == frame_gate.VLNV for c in consumers), consumers
+    text = (RTL_DIR / "camera" / f"{frame_gate.TOP}.v").read_text()
+    assert re.findall(r"^\s*assign\s+s_axis_tready\s*=\s*(.+?);", text, re.M) == ["1'b1"]
+
+
+# ---- memory, interrupts, clocks, resets ------------------------------------------------------------------
+
+def test_every_vdma_channel_reaches_ddr_through_hp0(bd: BlockDesign) -> None:
+    masters = []
+    for name in ("vdma_raw", "vdma_proc"):
+        for ch in vdma_channels(bd, name):
+            _, _, memory, space = CHANNELS[ch]
+            (port,) = bd.connected(f"{name}/{memory}")
+            masters.append(port)
+            address = bd.address(f"{name}/{space}", HP0_DDR)
+            assert address.offset == 0 and address.range & (address.range - 1) == 0
+    hub = {port.split("/")[0] for port in masters}
+    assert len(hub) == 1
+    (mem,) = hub
+    assert int(bd.config[mem]["NUM_SI"]) == len(masters)
+    assert sorted(masters) == [f"{mem}/S{i:02d}_AXI" for i in range(len(masters))]
+    assert bd.connected(f"{mem}/M00_AXI") == {f"{PS7}/S_AXI_HP0"}
+    assert bd.config[PS7]["PCW_USE_S_AXI_HP0"] == "1"
+
+
+def test_every_vdma_interrupt_reaches_irq_f2p_in_the_spec_order(bd: BlockDesign) -> None:
+    introuts = {f"{name}/{ch.lower()}_introut"
+                for name in ("vdma_raw", "vdma_proc") for ch in vdma_channels(bd, name)}
+    assert introuts == {f"{cell}/{pin}" for cell, pin in overlay.INTERRUPTS}
+    concat = [name for name, vlnv in bd.cells.items() if vlnv.startswith("xilinx.com:ip:xlconcat:")]
+    assert len(concat) == 1
+    inputs = []
+    for cell, pin in overlay.INTERRUPTS:
+        (other,) = [p for p in bd.net_of(f"{cell}/{pin}") if p != f"{cell}/{pin}"]
+        assert other.startswith(concat[0] + "/In"), pin
+        inputs.append(int(other.rsplit("In", 1)[1]))
+    assert inputs == list(range(len(overlay.INTERRUPTS))), "In0.. in the order of overlay.INTERRUPTS"
+    assert int(bd.config[concat[0]]["NUM_PORTS"]) == len(overlay.INTERRUPTS)
+    assert set(bd.net_of(f"{concat[0]}/dout")) == {f"{concat[0]}/dout", f"{PS7}/IRQ_F2P"}
+    assert bd.config[PS7]["PCW_USE_FABRIC_INTERRUPT"] == "1" and bd.config[PS7]["PCW_IRQ_F2P_INTR"] == "1"
+
+
+def test_one_clock_runs_every_interface(bd: BlockDesign, variables: Dict[str, str]) -> None:
+    clock = bd.net_of(f"{PS7}/FCLK_CLK0")
+    expected = {f"{PS7}/M_AXI_GP0_ACLK", f"{PS7}/S_AXI_HP0_ACLK", "rectify/aclk",
+                f"{camera_in.INSTANCE}/aclk", "mux/aclk", "mux/s_axi_ctrl_aclk",
+                *(f"{gate}/aclk" for gate in frame_gate.INSTANCES)}
+    (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
+    expected.add(f"{split_in.split('/')[0]}/aclk")
+    for name in ("vdma_raw", "vdma_proc"):
+        expected.add(f"{name}/s_axi_lite_aclk")
+        for ch in vdma_channels(bd, name):
+            low = ch.lower()
+            expected.add(f"{name}/m_axi_{low}_aclk")
+            expected.add(f"{name}/{'s_axis_s2mm' if ch == 'S2MM' else 'm_axis_mm2s'}_aclk")
+    assert expected <= set(clock), expected - set(clock)
+    assert bd.config[PS7]["PCW_FPGA0_PERIPHERAL_FREQMHZ"] == variables["STEREOCAM_FCLK0_MHZ"]
+    assert float(variables["STEREOCAM_FCLK0_MHZ"]) * 1e6 == overlay.FABRIC_CLOCK_HZ
+    assert bd.config[PS7]["PCW_USE_M_AXI_GP0"] == "1"
+
+
+def test_the_stream_clock_keeps_up_with_the_cameras() -> None:
+    aclk = overlay.FABRIC_CLOCK_HZ
+    assert aclk / rectify.CLOCKS_PER_BEAT >= mt9v034.PIXEL_CLOCK_HZ, "the core: a beat per pixel clock"
+    # camera_in: aclk >= pclk * (WIDTH + LINE_OVERHEAD_CLOCKS) / (WIDTH + horizontal blanking), blanking >= 0
+    width = camera_in.PARAMETERS["MAX_WIDTH"]
+    overhead = getattr(camera_in, "LINE_OVERHEAD_CLOCKS", 0)
+    assert aclk >= mt9v034.PIXEL_CLOCK_HZ * (width + overhead) / width
+
+
+def test_every_core_reset_is_the_peripheral_reset(bd: BlockDesign) -> None:
+    resets = [net for net in bd.nets if any(p.endswith("/peripheral_aresetn") for p in net)]
+    assert len(resets) == 1
+    pins = set(resets[0])
+    assert {"rectify/aresetn", f"{camera_in.INSTANCE}/aresetn", "mux/aresetn", "vdma_raw/axi_resetn",
+            "vdma_proc/axi_resetn", *(f"{gate}/aresetn" for gate in frame_gate.INSTANCES)} <= pins
+
+
+# ---- addresses -------------------------------------------------------------------------------------------
+
+def test_register_windows_are_the_address_map(bd: BlockDesign) -> None:
+    windows = [a for a in bd.addresses if a.space == PS7_DATA]
+    assert {a.segment.split("/")[0] for a in windows} == set(overlay.ADDRESS_MAP)
+    assert len(windows) == len(overlay.ADDRESS_MAP)
+    sizes = {"vdma_raw": vdma.VDMA_MAP.size, "vdma_proc": vdma.VDMA_MAP.size,
+             "mux": axis_switch.AXIS_SWITCH_MAP.size, "rectify": rectify.RECTIFY_MAP.size}
+    for a in windows:
+        name = a.segment.split("/")[0]
+        assert a.offset == overlay.ADDRESS_MAP[name], f"{name} at {a.offset:#x}"
+        assert a.range == overlay.WINDOW_SIZE, f"{name} window {a.range:#x}"
+        assert a.range >= sizes[name] and a.offset % a.range == 0
+        assert GP0_RANGE[0] <= a.offset and a.offset + a.range <= GP0_RANGE[1]
+    ends = sorted((a.offset, a.offset + a.range) for a in windows)
+    assert all(e0 <= s1 for (_, e0), (s1, _) in zip(ends, ends[1:], strict=False)), "windows overlap"
+
+
+def test_every_register_window_hangs_off_gp0(bd: BlockDesign) -> None:
+    windows = [a for a in bd.addresses if a.space == PS7_DATA]
+    (ctrl_in,) = bd.connected(f"{PS7}/M_AXI_GP0")
+    ctrl = ctrl_in.split("/")[0]
+    assert int(bd.config[ctrl]["NUM_MI"]) == len(windows)
+    masters = set()
+    for a in windows:
+        cell, busif, _ = a.segment.split("/")
+        (port,) = bd.connected(f"{cell}/{busif}")
+        masters.add(port)
+    assert masters == {f"{ctrl}/M{i:02d}_AXI" for i in range(len(windows))}
+
+
+def test_rectify_segment_is_the_packaged_register_block(bd: BlockDesign,
+                                                        packaged: Dict[str, PackagedIP]) -> None:
+    (segment,) = [a.segment for a in bd.addresses if a.segment.startswith("rectify/")]
+    (lite,) = packaged[rectify.VLNV].windows
+    assert segment == f"rectify/{lite}/reg0"
+    assert "add_address_block reg0" in read_script("package_ip.tcl")
+
+
+# ---- camera pins and constraints --------------------------------------------------------------------------
+
+def camera_pins() -> Dict[str, Tuple[str, int]]:
+    return {n: p for n, p in camera_in.PORTS.items() if n.split("_")[0] in camera_in.CAMERAS}
+
+
+def test_camera_pins_are_external_ports_wired_to_the_camera_ip(bd: BlockDesign) -> None:
+    assert set(bd.ports) == set(camera_pins())
+    for name, (direction, width) in camera_pins().items():
+        opts = bd.ports[name]
+        assert opts["-dir"] == {"input": "I", "output": "O"}[direction], name
+        got = int(opts["-from"]) - int(opts["-to"]) + 1 if "-from" in opts else 1
+        assert got == width, name
+        assert set(bd.net_of(name)) == {name, f"{camera_in.INSTANCE}/{name}"}
+        if name.endswith("_pclk"):
+            assert opts["-type"] == "clk" and int(opts["-freq_hz"]) >= mt9v034.PIXEL_CLOCK_HZ
+
+
+def test_xdc_places_every_camera_pin_and_clocks_the_pixel_clocks(bd: BlockDesign) -> None:
+    xdc = tcl_commands(read_script("stereocam.xdc"))
+    placed: Dict[str, str] = {}
+    clocks: Dict[str, float] = {}
+    for words in xdc:
+        if words[:2] == ["set_property", "-dict"]:
+            values = tcl_list(words[2])
+            props = dict(zip(values[::2], values[1::2], strict=True))
+            (port,) = tcl_list(bracketed(words[3])[1])
+            placed[port] = props["PACKAGE_PIN"]
+            assert props["IOSTANDARD"], port
+        elif words[0] == "create_clock":
+            opts, rest = options(words[1:], {"-period", "-name"})
+            (port,) = bracketed(rest[-1])[1:]
+            clocks[port] = float(opts["-period"])
+    bits = {f"{n}[{i}]" if w > 1 else n for n, (_, w) in camera_pins().items() for i in range(w)}
+    assert set(placed) == bits
+    pclks = {n for n in camera_pins() if n.endswith("_pclk")}
+    assert set(clocks) == pclks
+    for port, period in clocks.items():
+        assert period <= 1e9 / mt9v034.PIXEL_CLOCK_HZ, port
+        assert period == pytest.approx(1e9 / int(bd.ports[port]["-freq_hz"]), abs=1e-3), port
+    assert set(placed.values()) == {"FILL_IN"}, "a board's copy fills in the placeholders"
+
+
+# ---- settings, outputs, documentation ---------------------------------------------------------------------
+
+def test_settings_name_the_overlay_files_the_backend_looks_for(variables: Dict[str, str]) -> None:
+    assert variables["STEREOCAM_OVERLAY"] + ".bit" == overlay.BITSTREAM
+    assert variables["STEREOCAM_PART"] in (VIVADO_DIR / "README.md").read_text()
+
+
+def test_one_vivado_version_is_named_everywhere(variables: Dict[str, str]) -> None:
+    version = variables["STEREOCAM_VIVADO_VERSION"]
+    assert re.fullmatch(r"20\d\d\.\d", version)
+    for path in sorted(VIVADO_DIR.iterdir()):
+        if path.is_file():
+            named = set(re.findall(r"\b20[12]\d\.\d\b", path.read_text()))
+            assert named <= {version}, f"{path.name} names Vivado {named - {version}}"
+    assert version in (VIVADO_DIR / "README.md").read_text()
+    assert version in (VIVADO_DIR / "build.sh").read_text()
+
+
+def test_readme_states_the_address_map_and_that_nothing_was_built(variables: Dict[str, str]) -> None:
+    text = (VIVADO_DIR / "README.md").read_text()
+    for name, base in overlay.ADDRESS_MAP.items():
+        assert re.search(rf"`{name}`.*0x{base:08X}", text, re.I), f"README: {name} at 0x{base:08X}"
+    assert "has not yet been built or run on a board" in text
+    assert frame_gate.VLNV in text
+    for gate in frame_gate.INSTANCES:
+        assert f"`{gate}`" in text, f"README does not describe {gate}"
+    assert "placeholder" in text and "FILL_IN" in text
+    for script in (*SCRIPTS, "build.sh", "stereocam.xdc"):
+        assert f"`{script}`" in text, f"README does not describe {script}"
+
+
+def test_scripts_keep_lines_short() -> None:
+    for path in sorted(VIVADO_DIR.iterdir()):
+        if path.is_file():
+            for number, line in enumerate(path.read_text().splitlines(), 1):
+                assert len(line) <= 120, f"{path.name}:{number} is {len(line)} characters"
+
+
+# ---- the drivers bind to what the design builds --------------------------------------------------------
+
+def test_the_drivers_bind_to_the_block_design(bd: BlockDesign) -> None:
+    """The ip_dict pynq would read from this design's .hwh, handed to the real bind() over emulated IP."""
+    ip_dict = {}
+    for a in (a for a in bd.addresses if a.space == PS7_DATA):
+        name = a.segment.split("/")[0]
+        cfg = bd.config.get(name, {})
+        parameters = {"C_NUM_FSTORES": cfg.get("c_num_fstores", ""), "NUM_SI": cfg.get("NUM_SI", "")}
+        ip_dict[name] = {"phys_addr": a.offset, "addr_range": a.range, "type": bd.cells[name],
+                         "parameters": {k: v for k, v in parameters.items() if v}}
+    hw = EmulatedFabric(clock="stepped", num_fstores=int(bd.config["vdma_raw"]["c_num_fstores"]))
+    by_address = {overlay.ADDRESS_MAP[name]: block for name, block in hw.blocks.items()}
+
+    def open_window(address: int, length: int) -> "RegisterBlock | StreamCore":
+        if address not in by_address:
+            raise EmulationError(f"no IP at {address:#x}")
+        block = by_address[address]
+        assert isinstance(block, RegisterBlock) and length >= block.map.size
+        return block
+
+    try:
+        fabric = bind(ip_dict, open_window, hw.ddr.allocate, backend="emulated", frame_size=hw.frame_size)
+        assert fabric.raw_vdma.num_fstores == fabric.proc_vdma.num_fstores == overlay.NUM_FSTORES
+        assert fabric.mux.inputs == axis_switch.NUM_INPUTS
+        fabric.close()
+    finally:
+        hw.close()
+
+
+# ---- running the scripts in Tcl, Vivado's commands recorded -----------------------------------------------
+
+# Every Vivado command the scripts may call, and what the stand-in returns (a Tcl body; $args are the
+# command's arguments). Any other command that is not Tcl's own fails as "invalid command name".
+_FIRST = "return [lindex $args 0]"
+_LAST = "return [lindex $args end]"
+VIVADO_COMMANDS: Dict[str, str] = {
+    # project
+    "version": "return $::stereocam_fake_version",
+    "create_project": "", "close_project": "", "current_project": "return project",
+    "add_files": "", "get_files": _LAST, "current_fileset": "return sources_1", "update_compile_order": "",
+    "update_ip_catalog": "", "get_property": "return [stereocam_fake_property {*}$args]", "set_property": "",
+    # block design
+    "create_bd_design": "", "create_bd_cell": _LAST, "get_bd_cells": _FIRST, "apply_bd_automation": "",
+    "create_bd_port": _LAST, "get_bd_ports": _FIRST, "get_bd_pins": _FIRST, "get_bd_intf_pins": _FIRST,
+    "connect_bd_net": "", "connect_bd_intf_net": "", "assign_bd_address": "",
+    "get_bd_addr_spaces": _FIRST, "get_bd_addr_segs": _FIRST,
+    "validate_bd_design": "", "save_bd_design": "", "make_wrapper": "return /nowhere/stereocam_wrapper.v",
+    "generate_target": "",
+    # runs
+    "launch_runs": "", "wait_on_run": "", "get_runs": _FIRST,
+    # IP packaging
+    "ipx::package_project": "", "ipx::current_core": "return core",
+    "ipx::get_bus_interfaces": _FIRST, "ipx::get_bus_parameters": _FIRST, "ipx::add_bus_parameter": _FIRST,
+    "ipx::associate_bus_interfaces": "", "ipx::infer_bus_interface": "",
+    "ipx::get_memory_maps": "", "ipx::remove_memory_map": "", "ipx::add_memory_map": _FIRST,
+    "ipx::add_address_block": _FIRST, "ipx::get_user_parameters": _FIRST, "ipx::get_hdl_parameters": _FIRST,
+    "ipx::create_xgui_files": "", "ipx::update_checksums": "", "ipx::check_integrity": "",
+    "ipx::save_core": "",
+}
+
+_PRELUDE = r"""
+set ::stereocam_calls {}
+set ::stereocam_fake_version 2022.1
+namespace eval ipx {}
+proc stereocam_fake_property {name object} {
+    switch -- $name {
+        PROGRESS {return 100%}
+        STATUS {return {write_bitstream Complete!}}
+        DIRECTORY {return [file join $::stereocam_proj $::STEREOCAM_BD_NAME.runs $object]}
+        default {return $object}
+    }
+}
+"""
+
+
+@dataclass
+class TclRun:
+    calls: List[List[str]]
+    error: str
+    variables: Dict[str, str]
+
+    def of(self, verb: str) -> List[List[str]]:
+        return [c[1:] for c in self.calls if c[0] == verb]
+
+    def projects(self) -> List[str]:
+        """The names of the projects created, in order (create_project -force NAME DIR -part PART)."""
+        return [options(c, {"-part"})[1][0] for c in self.of("create_project")]
+
+
+def _brace(value: str) -> str:
+    assert not re.search(r"[{}\\]", value), value
+    return "{" + value + "}"
+
+
+def run_tcl(script: Path, tmp: Path, *, argv: Sequence[str] = (), preset: Optional[Dict[str, str]] = None,
+            read: Sequence[str] = ()) -> TclRun:
+    """Source ``script`` with Vivado's commands recorded: the calls, its error, the variables ``read``."""
+    out = tmp / "tcl-run.txt"
+    stubs = "\n".join(f"proc {name} args {{lappend ::stereocam_calls [list {name} {{*}}$args]; {body}}}"
+                      for name, body in VIVADO_COMMANDS.items())
+    lines = [_PRELUDE, stubs, f"set argv [list {' '.join(_brace(a) for a in argv)}]"]
+    lines += [f"set {k} {_brace(v)}" for k, v in (preset or {}).items()]
+    lines.append(f"""
+set stereocam_status [catch {{source {_brace(str(script))}}} stereocam_message]
+set f [open {_brace(str(out))} w]
+proc hex {{s}} {{return [binary encode hex [encoding convertto utf-8 $s]]}}
+foreach c $::stereocam_calls {{puts $f [join [lmap w $c {{hex $w}}] " "]}}
+puts $f "= [hex [expr {{$stereocam_status == 1 ? $stereocam_message : {{}}}}]]"
+foreach v {{{' '.join(read)}}} {{
+    puts $f "$ [hex $v] [hex [expr {{[info exists ::$v] ? [set ::$v] : {{}}}}]]"
+}}
+close $f
+""")
+    driver = tmp / "tcl-driver.tcl"
+    driver.write_text("\n".join(lines))
+    interp = None
+    try:
+        import tkinter
+        interp = tkinter.Tcl()
+    except Exception as exc:  # no _tkinter, or a Tcl without its library: try tclsh
+        reason = str(exc)
+    if interp is not None:
+        interp.eval(f"source {_brace(str(driver))}")
+    else:
+        tclsh = shutil.which("tclsh")
+        if tclsh is None:
+            pytest.fail(f"the Vivado scripts need Tcl: Python's tkinter ({reason}) or tclsh (Debian: tcl)")
+        subprocess.run([tclsh, str(driver)], check=True, timeout=120)
+
+    def unhex(word: str) -> str:
+        return bytes.fromhex(word).decode()
+
+    run = TclRun([], "", {})
+    for line in out.read_text().splitlines():
+        if line.startswith("= "):
+            run.error = unhex(line[2:].strip())
+        elif line.startswith("$ "):
+            _, name, value = (line.split(" ") + [""])[:3]
+            run.variables[unhex(name)] = unhex(value)
+        else:
+            run.calls.append([unhex(w) for w in line.split(" ")])
+    return run
+
+
+@pytest.fixture
+def rtl_copy(tmp_path: Path) -> Path:
+    """The RTL folder as package_ip.tcl reads it, with a stand-in camera top until the real one exists."""
+    rtl = tmp_path / "rtl"
+    (rtl / "camera").mkdir(parents=True)
+    for path in RTL_DIR.iterdir():
+        if path.is_file():
+            (rtl / path.name).symlink_to(path)
+    cams = sorted((RTL_DIR / "camera").glob("*.v")) if (RTL_DIR / "camera").is_dir() else []
+    for path in [*cams, *sorted((RTL_DIR / "camera").glob("*.vh"))]:
+        (rtl / "camera" / path.name).symlink_to(path)
+    if not cams:
+        (rtl / "camera" / "camera_in.v").write_text(f"module {camera_in.TOP}; endmodule\n")
+    return rtl
+
+
+def _fake_vivado_outputs(proj: Path, variables: Dict[str, str]) -> Tuple[Path, Path]:
+    """The bitstream and handoff impl_1 and the block design would leave in the project."""
+    bd_name = variables["STEREOCAM_BD_NAME"]
+    bit = proj / f"{bd_name}.runs" / "impl_1" / f"{bd_name}_wrapper.bit"
+    hwh = proj / f"{bd_name}.gen" / "sources_1" / "bd" / bd_name / "hw_handoff" / f"{bd_name}.hwh"
+    for path, data in ((bit, "bitstream"), (hwh, "<MODULES/>")):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(data)
+    return bit, hwh
+
+
+def _filled_xdc(tmp_path: Path) -> Path:
+    xdc = tmp_path / "board.xdc"
+    xdc.write_text(read_script("stereocam.xdc").replace("FILL_IN", "Y18"))
+    return xdc
+
+
+def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
+        tmp_path: Path, rtl_copy: Path, variables: Dict[str, str], bd: BlockDesign,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    proj, out = tmp_path / "proj", tmp_path / "out"
+    bit, hwh = _fake_vivado_outputs(proj, variables)
+    xdc = _filled_xdc(tmp_path)
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, preset={"STEREOCAM_RTL_DIR": str(rtl_copy)},
+                  argv=["-out", str(out), "--proj", str(proj), "-xdc", str(xdc), "-jobs", "1"])
+    assert run.error == ""
+    # the packaged IP
+    assert run.projects() == ["pkg_rectify", "pkg_camera_in", "pkg_frame_gate",
+                              variables["STEREOCAM_BD_NAME"]]
+    packaged_rtl = [{Path(p).name for p in tcl_list(c[-1])} for c in run.of("add_files")[:3]]
+    assert packaged_rtl[0] == {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh")}
+    camera = {p.name for p in (RTL_DIR / "camera").iterdir() if p.suffix in (".v", ".vh")}
+    shared = {"rc_ram.v", "rc_fifo.v"}  # the rectify core's RAM and FIFO, used by both camera IPs
+    assert packaged_rtl[1] == camera - {f"{frame_gate.TOP}.v"} | shared, "camera_in: its top, ci_*.v, headers"
+    assert packaged_rtl[2] == {Path(name).name for name in frame_gate.SOURCES}
+    names = [c[1] for c in run.of("set_property") if c[0] in ("name", "version") and c[-1] == "core"]
+    assert names == [part for ip in (rectify, camera_in, frame_gate) for part in ip.VLNV.split(":")[2:]]
+    # the block design as the text says
+    assert {c[-1]: c[c.index("-vlnv") + 1] for c in run.of("create_bd_cell")} == bd.cells
+    recorded: Dict[str, Dict[str, str]] = {}
+    for c in run.of("set_property"):
+        if c[0] == "-dict" and c[-1] in bd.cells:
+            pairs = tcl_list(c[1])
+            recorded.setdefault(c[-1], {}).update(
+                (k[len("CONFIG."):], v) for k, v in zip(pairs[::2], pairs[1::2], strict=True))
+    assert recorded == bd.config
+    assigned = [(c[c.index("-target_address_space") + 1], c[-2], int(c[c.index("-offset") + 1], 0))
+                for c in run.of("assign_bd_address")]
+    assert assigned == [(a.space, a.segment, a.offset) for a in bd.addresses]
+    # the flow
+    verbs = [c[0] for c in run.calls]
+    order = ["validate_bd_design", "make_wrapper", "launch_runs", "wait_on_run", "launch_runs", "wait_on_run"]
+    assert [v for v in verbs if v in order] == order
+    assert run.of("launch_runs")[1][:3] == ["impl_1", "-to_step", "write_bitstream"]
+    assert ["-fileset", "constrs_1", "-norecurse", str(xdc)] in run.of("add_files")
+    # the outputs, found by the backend's own search
+    assert (out / overlay.BITSTREAM).read_text() == bit.read_text()
+    assert (out / overlay.BITSTREAM).with_suffix(".hwh").read_text() == hwh.read_text()
+    monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
+    monkeypatch.setattr(backend, "DEFAULT_BITSTREAM_DIRS", (out,))
+    assert backend.find_bitstream() == out / overlay.BITSTREAM
+
+
+def test_build_tcl_writes_into_the_checkouts_overlays_folder(tmp_path: Path, rtl_copy: Path) -> None:
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=["-to", "package", "-proj", str(tmp_path / "p")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)}, read=["stereocam_out"])
+    assert run.error == ""
+    assert Path(run.variables["stereocam_out"]) == REPO_ROOT / "stereocam" / "overlays"
+    # backend.py's first folder is its own (the installed stereocam/overlays/ package, this folder in a
+    # checkout)
+    assert backend.DEFAULT_BITSTREAM_DIRS[0] == Path(backend.__file__).parent
+    assert (REPO_ROOT / "stereocam" / "overlays" / Path(backend.__file__).name).is_file()
+    assert "launch_runs" not in [c[0] for c in run.calls], "-to package stops after packaging"
+
+
+def test_build_tcl_refuses_placeholder_pins_except_for_synthesis(tmp_path: Path, rtl_copy: Path) -> None:
+    common = ["-out", str(tmp_path / "out"), "-proj", str(tmp_path / "p")]
+    preset = {"STEREOCAM_RTL_DIR": str(rtl_copy)}
+    refused = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=common, preset=preset)
+    assert "placeholder pin locations (FILL_IN)" in refused.error
+    assert not refused.projects(), "refused before any work"
+    synth = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=[*common, "-to", "synth"], preset=preset)
+    assert synth.error == ""
+    assert [c[0] for c in synth.of("launch_runs")] == ["synth_1"]
+    assert not [c for c in synth.of("add_files") if "constrs_1" in c]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["-bogus", "1"], "unknown option '-bogus'"),
+    (["-to"], "option '-to' needs a value"),
+    (["-to", "everything"], "-to must be one of package, bd, synth, impl, bit"),
+    (["-jobs", "0"], "-jobs must be a positive number"),
+])
+def test_build_tcl_rejects_bad_options(tmp_path: Path, argv: List[str], message: str) -> None:
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=argv)
+    assert message in run.error
+    assert run.calls == [], "options are checked before Vivado is asked anything"
+
+
+def test_package_ip_refuses_a_missing_camera_rtl(tmp_path: Path, rtl_copy: Path) -> None:
+    for path in (rtl_copy / "camera").iterdir():
+        path.unlink()
+    run = run_tcl(VIVADO_DIR / "package_ip.tcl", tmp_path, argv=[str(tmp_path / "repo")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)}, read=["STEREOCAM_IP_REPO"])
+    assert "no camera input RTL" in run.error
+    assert run.variables["STEREOCAM_IP_REPO"] == str(tmp_path / "repo")
+    assert run.projects() == ["pkg_rectify"], "the rectify core was packaged before"
+
+
+def test_package_ip_refuses_a_missing_frame_gate_rtl(tmp_path: Path, rtl_copy: Path) -> None:
+    (rtl_copy / "camera" / f"{frame_gate.TOP}.v").unlink()
+    run = run_tcl(VIVADO_DIR / "package_ip.tcl", tmp_path, argv=[str(tmp_path / "repo")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
+    assert f"no {frame_gate.TOP}.v in" in run.error and "frame_gate IP cannot be packaged" in run.error
+    assert run.projects() == ["pkg_rectify", "pkg_camera_in"], "the other cores were packaged before"
