@@ -260,18 +260,18 @@ def test_frames_are_labelled_with_the_calibration_they_ran_with() -> None:
     from stereocam.server.http.state import CalibrationState
 
     state = CalibrationState(id="A")
-    assert state.for_frame(5)["id"] == "A"  # type: ignore[index]
+    assert state.for_frame(5).id == "A"  # type: ignore[union-attr]
     changing = state.changing_from_count(6)
     assert changing.for_frame(7) is None  # registers being programmed: either set
-    assert changing.unchanged().for_frame(7)["id"] == "A"  # type: ignore[index]  # a change that failed
+    assert changing.unchanged().for_frame(7).id == "A"  # type: ignore[union-attr]  # a change that failed
     state = changing.succeeded_by(CalibrationState(id="B"), 10, 14)
-    labels = [(state.for_frame(c) or {}).get("id") for c in (9, 10, 11, 13, 14, 20)]
+    labels = [getattr(state.for_frame(c), "id", None) for c in (9, 10, 11, 13, 14, 20)]
     assert labels == ["A", "A", None, None, "B", "B"]
     assert not state.changing and changing.id == "A"  # each state is a value: nothing changed in place
     wrap = CalibrationState(id="A").succeeded_by(CalibrationState(id="B"), (1 << 32) - 10, (1 << 32) - 6)
     wrap = wrap.succeeded_by(CalibrationState(id="C"), (1 << 32) - 2, 1)  # FRAME_COUNT wraps at 2**32
     counts = [(1 << 32) - 11, (1 << 32) - 6, (1 << 32) - 2, (1 << 32) - 1, 0, 1, 2]
-    assert [(wrap.for_frame(c) or {}).get("id") for c in counts] == ["A", "B", "B", None, None, "C", "C"]
+    assert [getattr(wrap.for_frame(c), "id", None) for c in counts] == ["A", "B", "B", None, None, "C", "C"]
     with pytest.raises(dataclasses.FrozenInstanceError):
         wrap.id = "D"  # type: ignore[misc]
 
@@ -303,7 +303,8 @@ async def test_the_calibration_in_effect_is_read_whole_while_it_changes(start_da
     torn: list = []
 
     def label() -> None:  # what the pipeline thread does for each frame of a recording
-        got = in_effect.for_frame(later)
+        record = in_effect.for_frame(later)
+        got = None if record is None else record.to_json()
         if got is not None:
             seen[got["id"]] = seen.get(got["id"], 0) + 1
             if got != wholes.get(got["id"]):

@@ -24,6 +24,7 @@ from ...overlays.interface import Overlay
 from ...overlays.spec import pixel
 from ..errors import ApiError, Kind
 from ..stores.captures import CaptureInfo, CaptureStore
+from ..stores.frame_calibration import FrameCalibration
 from .feed import BroadcastClosed, FrameFeed
 from .pipeline import FrameSet, Pipeline
 from .virtual_camera import VirtualCamera
@@ -40,12 +41,12 @@ class _Changing(Protocol):
 
 
 class CalibrationSource(Protocol):
-    """The calibration in effect: which one a frame ran with, and whether a change is in progress."""
+    """The calibration in effect: which one a frame ran with (None: unknown), and whether one is changing."""
 
     @property
     def now(self) -> _Changing: ...
 
-    def for_frame(self, count: int) -> Optional[Dict[str, Any]]: ...
+    def for_frame(self, count: int) -> Optional[FrameCalibration]: ...
 
 
 class Run(Protocol):
@@ -132,8 +133,7 @@ class CaptureService:
         except Exception as exc:
             registers = {"error": str(exc)}
         # The calibration this frame ran with (a change since it was grabbed does not relabel it).
-        calibration = self.calibration.for_frame(fs.fabric_count) or {
-            "id": None, "description": "unknown: the calibration changed while this frame was processed"}
+        calibration = self.calibration.for_frame(fs.fabric_count) or FrameCalibration.unknown()
         assert fs.raw is not None
         try:
             raw, pairing = await self.run(self.paired_raw, fs)
@@ -146,8 +146,8 @@ class CaptureService:
             "time": fs.timestamp,
             "time_utc": datetime.fromtimestamp(fs.timestamp, timezone.utc).isoformat(timespec="milliseconds"),
             "source": fs.source,
-            "calibration_id": calibration["id"],
-            "calibration": calibration,
+            "calibration_id": calibration.id,
+            "calibration": calibration.to_json(),
             "backend": overlay.backend,
             "frame_size": list(fs.size),
             "registers": registers,

@@ -35,6 +35,7 @@ import numpy as np
 from ...overlays.spec import pixel
 from ..stores.capture_images import encode_frame
 from ..stores.files import FULL_ERRNOS, fsync_dir, iso_utc, mb, meta_dumps, remove_tree, utcnow
+from ..stores.frame_calibration import FrameCalibration
 from ..stores.recording_files import (
     FORMAT,
     FRAMES_FILE,
@@ -93,7 +94,7 @@ class Recording:
 
     def __init__(self, store: RecordingStore, rid: str, folder: Path, *, seconds: Optional[float],
                  frame_size: Tuple[int, int], meta: Mapping[str, Any],
-                 calibration_for: Callable[[int], Optional[Dict[str, Any]]],
+                 calibration_for: Callable[[int], Optional[FrameCalibration]],
                  on_end: Callable[["Recording"], None], started: float, fps_hint: Optional[float],
                  raw_stores: int = 3) -> None:
         self.store = store
@@ -109,7 +110,7 @@ class Recording:
         self._calibration_for = calibration_for
         self._on_end = on_end
         w, h = frame_size
-        self._queue: "queue.Queue[Tuple[FrameSet, Optional[Dict[str, Any]]]]" = queue.Queue(
+        self._queue: "queue.Queue[Tuple[FrameSet, Optional[FrameCalibration]]]" = queue.Queue(
             max(2, QUEUE_BYTES // max(1, w * h * 8)))
         self._stop = threading.Event()
         self._accepting = True
@@ -125,7 +126,7 @@ class Recording:
         self._stats = FrameStats()
         self._last: Optional[FrameSet] = None
         self._t0: Optional[float] = None  # the first frame's monotonic time
-        self._first_calibration: Optional[Dict[str, Any]] = None
+        self._first_calibration: Optional[FrameCalibration] = None  # None: the first frame's was not known
         self._lines: Optional[FramesFile] = None
         self._unsynced = 0
         self._synced = 0  # frames known to be on the disk (recording.json says so, for a recovery)
@@ -179,15 +180,16 @@ class Recording:
     # -- files (Recorder.start, then the writer thread) ----------------------------------------------------
     def _doc(self, **finished: Any) -> "builtins.bytes":  # (``bytes`` here is the property above)
         """recording.json: at the start what is known then (``state`` ``recording``); finished, all of it."""
+        first = self._first_calibration
         if finished:
             return meta_dumps(self._stats.doc(
                 rid=self.id, created=self.created, seconds=self.seconds, frame_size=list(self.frame_size),
-                calibration=self._first_calibration, fps_hint=self.fps_hint, meta=self.meta, **finished))
+                calibration=first, fps_hint=self.fps_hint, meta=self.meta, **finished))
         return meta_dumps({
             "format": FORMAT, "state": "recording", "id": self.id, "created": self.created,
             "seconds": self.seconds, "frame_size": list(self.frame_size), "fps_hint": self.fps_hint,
-            "calibration": self._first_calibration, "frames_file": FRAMES_FILE, "meta": self.meta,
-            "synced_frames": self._synced})
+            "calibration": None if first is None else first.to_json(), "frames_file": FRAMES_FILE,
+            "meta": self.meta, "synced_frames": self._synced})
 
     def begin(self) -> None:
         """Create ``recording.json`` (with the room finishing needs) and ``frames.jsonl`` (blocks).
@@ -273,7 +275,7 @@ class Recording:
                         exc.strerror or exc)
         return True
 
-    def _write(self, fs: FrameSet, calibration: Optional[Dict[str, Any]]) -> bool:
+    def _write(self, fs: FrameSet, calibration: Optional[FrameCalibration]) -> bool:
         """Encode and write one frame, whole or not at all; False when the recording must end (disk full)."""
         assert fs.raw is not None
         last = self._last
@@ -305,7 +307,7 @@ class Recording:
         t0 = fs.monotonic if self._t0 is None else self._t0
         line = {"index": index, "frame": fs.frame, "fabric_count": fs.fabric_count, "time": fs.timestamp,
                 "t": round(fs.monotonic - t0, 6), "source": fs.source,
-                "calibration_id": calibration.get("id") if calibration else None,
+                "calibration_id": calibration.id if calibration else None,
                 **entry, "color": color, "bytes": sum(len(d) for _, d in files)}
         written: List[Path] = []
         try:
@@ -380,7 +382,7 @@ class Recorder:
     """
 
     def __init__(self, store: RecordingStore, pipeline: FrameSource, *,
-                 calibration_for: Callable[[int], Optional[Dict[str, Any]]] = lambda count: None,
+                 calibration_for: Callable[[int], Optional[FrameCalibration]] = lambda count: None,
                  raw_stores: int = 3) -> None:
         self.store = store
         self.raw_stores = raw_stores  # frame stores of the raw channel (duplicates: see Recording)

@@ -9,6 +9,9 @@
 - ``GET /api/disparity``: what the disparity view's colours mean (its range and colour map) and
   the depth of each disparity (``focal_px`` x ``baseline_m`` / d) under the active calibration.
 
+Both read the calibration as the :class:`..stores.frame_calibration.FrameCalibration` record
+captures and recordings store: the point's is the one its frame ran with.
+
 Handlers parse and answer on the event loop; decoding, block matching and disk run on the
 daemon's ``work`` threads.
 """
@@ -33,17 +36,17 @@ from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
 from ..stores.captures import THUMB_FRAMES, CaptureStore, capture_file
+from ..stores.frame_calibration import DepthScale, FrameCalibration
 from .bodies import json_response
 from .errors import shutting_down
 from .security import TOKEN_PARAM
 from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
-__all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_scale"]
+__all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_readout"]
 
 THUMB_CACHE_ENTRIES = 256  # about 5 KB each
 FRESH_S = 1.0  # a frame set older than this is not "the newest": /api/point waits for the next one
 POINT_QUERY = ("x", "y", "frame")
-_UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 class ThumbnailCache:
@@ -95,26 +98,25 @@ async def restore_capture(request: web.Request) -> web.Response:
 
 # -- depth -------------------------------------------------------------------------------------
 
-def depth_scale(calibration: Any) -> Optional[Dict[str, Any]]:
-    """``focal_px``, ``baseline_m`` and ``Q`` of a calibration (None without one, or with no known unit).
+def depth_readout(ran: Optional[FrameCalibration], now: FrameCalibration) -> Dict[str, Any]:
+    """A point readout's calibration fields for a frame that ran with ``ran`` (None: unknown).
 
-    From Q (OpenCV's ``stereoRectify``): Z = Q[2][3] / (Q[3][2] d + Q[3][3]) in the unit of T;
-    f = Q[2][3] and B = 1 / |Q[3][2]|, so Z = f B / d where both rectified principal points agree
-    (``CALIB_ZERO_DISPARITY``, what stereocam writes).
+    Depth only under the calibration in effect (``now``): a frame of another is told to hover
+    again, whose next frame runs with it.
     """
-    if calibration is None:
-        return None
-    Q = np.asarray(calibration.rect.Q, dtype=np.float64)
-    unit = _UNITS_TO_M.get(str(getattr(calibration, "units", "unknown")))
-    if Q.shape != (4, 4) or Q[3, 2] == 0:
-        return None
-    return {"focal_px": float(Q[2, 3]), "baseline_m": None if unit is None else float(unit / abs(Q[3, 2])),
-            "units": getattr(calibration, "units", "unknown"), "unit_m": unit, "Q": Q.tolist(),
-            "doffs_px": float(Q[3, 3] / Q[3, 2])}
+    record = ran if ran is not None and ran.id == now.id else FrameCalibration.unknown()
+    depth = record.depth
+    out: Dict[str, Any] = {"calibration_id": ran.id if ran is not None else None,
+                           "focal_px": depth.focal_px if depth else None,
+                           "baseline_m": depth.baseline_m if depth else None}
+    if record.depth_unavailable is not None:
+        out["depth_unavailable"] = record.depth_unavailable
+    return out
 
 
-def point_at(fs: FrameSet, x: int, y: int, scale: Optional[Dict[str, Any]]) -> Dict[str, Any]:
-    """The readout of rectified pixel (x, y) of ``fs`` (blocks: the disparity map may be computed)."""
+def point_at(fs: FrameSet, x: int, y: int, depth: Optional[DepthScale]) -> Dict[str, Any]:
+    """The readout of rectified pixel (x, y) of ``fs``, its depth by ``depth`` (blocks: the disparity map
+    may be computed)."""
     p = fs.processed
     out: Dict[str, Any] = {
         "x": x, "y": y, "frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
@@ -128,11 +130,11 @@ def point_at(fs: FrameSet, x: int, y: int, scale: Optional[Dict[str, Any]]) -> D
     out["disparity_px"] = d
     out["depth_m"] = None
     out["point_m"] = None
-    if d is not None and scale is not None and scale["unit_m"] is not None:
-        Q = np.asarray(scale["Q"], dtype=np.float64)
+    unit = depth.unit_m if depth is not None else None
+    if d is not None and depth is not None and unit is not None:
+        Q = np.asarray(depth.Q, dtype=np.float64)
         X, Y, Z, W = Q @ np.array([x, y, d, 1.0])
         if W != 0 and math.isfinite(W) and Z / W > 0:
-            unit = scale["unit_m"]
             out["depth_m"] = float(Z / W * unit)
             out["point_m"] = [float(X / W * unit), float(Y / W * unit), float(Z / W * unit)]
     return out
@@ -190,36 +192,23 @@ async def get_point(request: web.Request) -> web.Response:
             raise shutting_down() from None
     state = app[CALIBRATION].now  # one calibration, whole: the label, the id and the Q matrix agree
     ran = state.for_frame(fs.fabric_count)
-    same = ran is not None and ran.get("id") == state.id
-    scale = depth_scale(state.calibration) if same else None
-    body = await app[EXECUTORS].run(point_at, fs, x, y, scale)
-    body["calibration_id"] = ran.get("id") if ran else None
-    body["focal_px"] = scale["focal_px"] if scale else None
-    body["baseline_m"] = scale["baseline_m"] if scale else None
-    why = None
-    if not same:
-        why = "the calibration changed while this frame was processed: hover again"
-    elif state.calibration is None:
-        why = "no calibration is known: the core passes frames through (apply one in the calibration panel)"
-    elif scale is None:
-        why = "the calibration's Q matrix gives no depth (Q[3][2] is 0)"
-    elif scale["unit_m"] is None:
-        why = "the calibration does not say the unit of its baseline (units: unknown)"
-    if why is not None:
-        body["depth_unavailable"] = why
+    readout = depth_readout(ran, state.frame_calibration)
+    depth = ran.depth if ran is not None and "depth_unavailable" not in readout else None
+    body = await app[EXECUTORS].run(point_at, fs, x, y, depth)
+    body.update(readout)
     return json_response(body, headers={"Cache-Control": "no-store"})
 
 
 async def get_disparity(request: web.Request) -> web.Response:
-    state = request.app[CALIBRATION].now
-    scale = depth_scale(state.calibration)
+    record = request.app[CALIBRATION].now.frame_calibration
+    depth = record.depth
     body: Dict[str, Any] = {
         "min_disparity": STEREO_BM["min_disparity"], "num_disparities": STEREO_BM["num_disparities"],
         "block_size": STEREO_BM["block_size"], "colormap": "jet",
-        "calibration_id": state.id,
-        "focal_px": scale["focal_px"] if scale else None,
-        "baseline_m": scale["baseline_m"] if scale else None,
-        "doffs_px": scale["doffs_px"] if scale else None,
+        "calibration_id": record.id,
+        "focal_px": depth.focal_px if depth else None,
+        "baseline_m": depth.baseline_m if depth else None,
+        "doffs_px": depth.doffs_px if depth else None,
         "frame_size": list(request.app[FEED].frame_size),
         "colors": _jet_colours(),
     }

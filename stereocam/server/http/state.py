@@ -29,6 +29,7 @@ from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
 from ..frames.virtual_camera import VirtualCamera
 from ..stores.captures import CaptureStore
+from ..stores.frame_calibration import FrameCalibration
 from .settings import Settings
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -177,6 +178,8 @@ class CalibrationState:
     :meth:`succeeded_by`) and :class:`CalibrationInEffect` swaps it in with one
     assignment, so a reader on another thread (the pipeline's, labelling a
     recorded frame) holding one reference sees every field of one calibration.
+    What a frame ran with is :attr:`frame_calibration` (:meth:`for_frame`), the one
+    record captures, recordings and the page's readouts take.
     """
 
     id: Optional[str] = None
@@ -190,10 +193,17 @@ class CalibrationState:
     changing: bool = field(default=False, compare=False)
     changing_from: Optional[int] = field(default=None, compare=False)  # FRAME_COUNT read before it began
     history: Tuple[Tuple[int, int, "CalibrationState"], ...] = field(default=(), repr=False, compare=False)
+    # The record of a frame that ran with this calibration: made once here, with the state.
+    frame_calibration: FrameCalibration = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "frame_calibration", FrameCalibration.of(
+            self.calibration, id=self.id, description=self.description, rows_needed=self.rows_needed,
+            lb_rows=self.lb_rows, lb_delay=self.lb_delay))
 
     def to_json(self) -> Dict[str, Any]:
-        return {"id": self.id, "description": self.description, "rows_needed": self.rows_needed,
-                "lb_rows": self.lb_rows, "lb_delay": self.lb_delay}
+        """The calibration in effect as ``/api/status`` reports it: its record's stored form."""
+        return self.frame_calibration.to_json()
 
     def changing_from_count(self, before: int) -> "CalibrationState":
         """This calibration while a change begun at FRAME_COUNT ``before`` is programmed."""
@@ -213,8 +223,8 @@ class CalibrationState:
         history = (self.history + ((before, effective, previous),))[-HISTORY:]
         return replace(new, changing=False, changing_from=None, history=history)
 
-    def for_frame(self, count: int) -> Optional[Dict[str, Any]]:
-        """``to_json()`` of the calibration frame ``count`` (its FRAME_COUNT) ran with; None when unknown.
+    def for_frame(self, count: int) -> Optional[FrameCalibration]:
+        """The calibration frame ``count`` (its FRAME_COUNT) ran with; None when unknown.
 
         Unknown: a frame of a change in progress, or between a change's two counts.
         """
@@ -224,12 +234,12 @@ class CalibrationState:
         after: CalibrationState = self  # during a change still the old one: the new one is swapped in whole
         for before, effective, previous in reversed(self.history):
             if _not_before(count, effective):
-                return after.to_json()
+                return after.frame_calibration
             if not _not_before(count, before + 1):
                 after = previous
                 continue
             return None
-        return after.to_json()
+        return after.frame_calibration
 
 
 class CalibrationInEffect:
@@ -251,7 +261,7 @@ class CalibrationInEffect:
         """Put ``state`` in effect (loop thread): one assignment, so no reader sees half of it."""
         self._now = state
 
-    def for_frame(self, count: int) -> Optional[Dict[str, Any]]:
+    def for_frame(self, count: int) -> Optional[FrameCalibration]:
         """:meth:`CalibrationState.for_frame` of the state in effect (safe from any thread)."""
         return self._now.for_frame(count)
 

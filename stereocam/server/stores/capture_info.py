@@ -15,6 +15,7 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 from ...calibration.image_files import CAPTURE_FILES
 from .errors import gone
 from .files import read_member
+from .frame_calibration import FrameCalibration
 from .ids import created_from_id
 
 __all__ = ["CaptureFile", "CaptureInfo", "META_FILE", "read_info"]
@@ -42,7 +43,8 @@ class CaptureInfo:
     capture, else a one-line description of what is wrong with it (meta.json
     missing or not JSON, a file missing or of the wrong size): damaged
     captures are listed, never hidden. ``meta`` is the parsed meta.json
-    (empty when it cannot be read).
+    (empty when it cannot be read); :attr:`calibration` the record of the
+    calibration the frame ran with, read from it.
     """
 
     id: str
@@ -54,6 +56,17 @@ class CaptureInfo:
     bytes: int
     error: Optional[str] = None
     meta: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def calibration(self) -> Optional[FrameCalibration]:
+        """The calibration the frame ran with (meta.json's ``calibration``); None when absent or not one.
+
+        A damaged field reads as absent, as ``calibration_id`` does: a listing never fails on it.
+        """
+        try:
+            return FrameCalibration.from_json(self.meta.get("calibration"))
+        except ValueError:
+            return None
 
     def to_json(self, *, meta: bool = False) -> Dict[str, Any]:
         """A JSON-ready dict; ``meta=True`` adds the whole meta.json under ``"meta"``."""

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 from .files import fsync_dir, meta_dumps, open_member, read_member, remove_tree
+from .frame_calibration import FrameCalibration
 from .ids import ID_PATTERN, created_from_id
 
 log = logging.getLogger(__name__)
@@ -270,10 +271,10 @@ class FrameStats:
         return (self.counts + 1) / fps if self.frames and fps else 0.0
 
     def doc(self, *, rid: str, created: str, seconds: Optional[float], frame_size: List[int],
-            calibration: Optional[Mapping[str, Any]], fps_hint: Optional[float], end: str,
+            calibration: Optional[FrameCalibration], fps_hint: Optional[float], end: str,
             end_text: Optional[str], duplicates: Optional[int], skipped: Optional[int],
             meta: Mapping[str, Any]) -> Dict[str, Any]:
-        """The finished ``recording.json`` (see :mod:`.recordings`)."""
+        """The finished ``recording.json`` (see :mod:`.recordings`); ``calibration``: the first frame's."""
         first = self.first
         assert first is not None, "a recording without a frame has no recording.json"
         fps = self.fps(fps_hint)
@@ -285,7 +286,8 @@ class FrameStats:
             "fps": None if fps is None else round(fps, 3), "frame_size": list(frame_size),
             "color": self.color, "source": first["source"], "sources": self.sources,
             "calibration_id": self.calibration_ids[0] if self.calibration_ids else None,
-            "calibration_ids": self.calibration_ids, "calibration": calibration,
+            "calibration_ids": self.calibration_ids,
+            "calibration": None if calibration is None else calibration.to_json(),
             "end": end, "complete": end in ("duration", "stopped"), "end_text": end_text,
             "missed": self.missed, "duplicates": duplicates, "skipped": skipped, "bytes": self.bytes,
             "frames_file": FRAMES_FILE,
@@ -457,6 +459,18 @@ def _start_doc(folder: Path) -> Tuple[Dict[str, Any], bool]:
     return doc, finished
 
 
+def _first_calibration(stored: Any, rid: str) -> Optional[FrameCalibration]:
+    """The first frame's calibration as the start's ``recording.json`` had it; None when absent or not one."""
+    if stored is None:
+        return None
+    try:
+        return FrameCalibration.from_json(stored)
+    except ValueError as exc:
+        log.warning("recording %s: its calibration in %s is not one (%s): recovered without it",
+                    rid, META_FILE, exc)
+        return None
+
+
 def _interrupted_text(kept: int, dropped: int) -> str:
     text = (f"the daemon stopped without finishing the recording (killed, or the power was cut); the {kept} "
             f"whole frames written before were recovered when it started again")
@@ -493,7 +507,7 @@ def recover(root: Path, folder: Path, rid: str) -> Recovered:
     doc = stats.doc(
         rid=rid, created=created or created_from_id(rid), seconds=_number(start.get("seconds")),
         frame_size=size or _png_size(folder, frame_names(0)[0]) or [0, 0],
-        calibration=given("calibration", lambda v: isinstance(v, dict)), fps_hint=fps_hint,
+        calibration=_first_calibration(start.get("calibration"), rid), fps_hint=fps_hint,
         end="interrupted", end_text=_interrupted_text(stats.frames, dropped), duplicates=None, skipped=None,
         meta=given("meta", lambda v: isinstance(v, dict)) or {})
     data = meta_dumps(doc)

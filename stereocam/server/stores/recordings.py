@@ -33,7 +33,8 @@ store) is recorded once and counted in ``duplicates``.
 ``time_utc`` (of the first frame), ``seconds`` (asked; None: until stopped),
 ``duration_s``, ``frames``, ``fps`` (the cameras' rate while recording, from
 FRAME_COUNT over time), ``frame_size``, ``source`` and ``calibration_id`` (of the
-first frame; ``sources``/``calibration_ids`` every one seen), ``calibration``,
+first frame; ``sources``/``calibration_ids`` every one seen), ``calibration`` (the
+first frame's :class:`.frame_calibration.FrameCalibration`, as captures store it),
 ``backend``, ``end`` (``duration``, ``stopped``, ``disk_full``, ``shutdown``,
 ``error``, ``interrupted``), ``complete`` (false when it ended before the seconds
 asked: the disk filled, the daemon stopped, failed or was killed), ``end_text``,
