@@ -30,7 +30,7 @@ from stereocam.server.stores.captures import CaptureStore
 from stereocam.server.stores.frame_calibration import FrameCalibration
 from stereocam.server.stores.recordings import RecordingStore
 
-from .server_fixtures import SMALL, WAIT_S, rig_frame, start_daemon_fixture, wait_for_frames  # noqa: F401
+from .daemon import SMALL, WAIT_S, rig_frame, wait_for_frames
 
 # The two shapes stereocam has written as a capture's (and recording.json's) "calibration", as in
 # the files: a known calibration, and a frame that ran while one was being programmed.
