@@ -25,6 +25,7 @@ from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import pytest
 
+from stereocam.board.profile import load_profile
 from stereocam.drivers.vdma import VDMA
 from stereocam.overlays import backend
 from stereocam.overlays.emulated.logic import EmulatedFabric, StreamCore
@@ -193,6 +194,7 @@ class BlockDesign:
     intf_nets: List[Tuple[str, str]] = field(default_factory=list)  # interface pin pairs
     nets: List[List[str]] = field(default_factory=list)  # "cell/pin" or "port" per net
     ports: Dict[str, Dict[str, str]] = field(default_factory=dict)  # external port -> its options
+    intf_ports: Dict[str, Dict[str, str]] = field(default_factory=dict)  # external interface port -> options
     addresses: List[Address] = field(default_factory=list)
 
     def connected(self, pin: str) -> Set[str]:
@@ -241,6 +243,9 @@ def parse_block_design(text: str, variables: Dict[str, str]) -> BlockDesign:
         elif verb == "create_bd_port":
             opts, rest = options(words[1:], {"-dir", "-from", "-to", "-type", "-freq_hz"})
             bd.ports[rest[-1]] = opts
+        elif verb == "create_bd_intf_port":
+            opts, rest = options(words[1:], {"-mode", "-vlnv"})
+            bd.intf_ports[rest[-1]] = opts
         elif verb == "assign_bd_address":
             opts, rest = options(words[1:], {"-offset", "-range", "-target_address_space"})
             space = bracketed(opts["-target_address_space"])
@@ -578,8 +583,9 @@ def stream_edges(bd: BlockDesign) -> Set[Tuple[str, str]]:
     """The design's AXI4-Stream connections as (master pin, slave pin)."""
     edges = set()
     for a, b in bd.intf_nets:
-        masters = [p for p in (a, b) if STREAM_MASTER.search(p.split("/")[1])]
-        slaves = [p for p in (a, b) if re.search(r"(^s_axis$|^S\d\d_AXIS$|^S_AXIS)", p.split("/")[1])]
+        # an external interface port has no cell: its name is its pin
+        masters = [p for p in (a, b) if STREAM_MASTER.search(p.split("/")[-1])]
+        slaves = [p for p in (a, b) if re.search(r"(^s_axis$|^S\d\d_AXIS$|^S_AXIS)", p.split("/")[-1])]
         if masters or slaves:
             assert len(masters) == len(slaves) == 1, f"{a} -- {b}: not one stream master and one slave"
             edges.add((masters[0], slaves[0]))
@@ -750,29 +756,83 @@ def test_camera_pins_are_external_ports_wired_to_the_camera_ip(bd: BlockDesign) 
             assert opts["-type"] == "clk" and int(opts["-freq_hz"]) >= mt9v034.PIXEL_CLOCK_HZ
 
 
-def test_xdc_places_every_camera_pin_and_clocks_the_pixel_clocks(bd: BlockDesign) -> None:
+def test_xdc_clocks_the_pixel_clocks_and_leaves_the_pins_to_the_pin_map(bd: BlockDesign) -> None:
     xdc = tcl_commands(read_script("stereocam.xdc"))
-    placed: Dict[str, str] = {}
     clocks: Dict[str, float] = {}
     for words in xdc:
-        if words[:2] == ["set_property", "-dict"]:
-            values = tcl_list(words[2])
-            props = dict(zip(values[::2], values[1::2], strict=True))
-            (port,) = tcl_list(bracketed(words[3])[1])
-            placed[port] = props["PACKAGE_PIN"]
-            assert props["IOSTANDARD"], port
-        elif words[0] == "create_clock":
+        assert "PACKAGE_PIN" not in " ".join(words), "pins are the board's pin map's, not the xdc's"
+        if words[0] == "create_clock":
             opts, rest = options(words[1:], {"-period", "-name"})
             (port,) = bracketed(rest[-1])[1:]
             clocks[port] = float(opts["-period"])
-    bits = {f"{n}[{i}]" if w > 1 else n for n, (_, w) in camera_pins().items() for i in range(w)}
-    assert set(placed) == bits
     pclks = {n for n in camera_pins() if n.endswith("_pclk")}
     assert set(clocks) == pclks
     for port, period in clocks.items():
         assert period <= 1e9 / mt9v034.PIXEL_CLOCK_HZ, port
         assert period == pytest.approx(1e9 / int(bd.ports[port]["-freq_hz"]), abs=1e-3), port
-    assert set(placed.values()) == {"FILL_IN"}, "a board's copy fills in the placeholders"
+
+
+# ---- the sensors' I2C, and the board's pin map -----------------------------------------------------------
+
+IIC_VLNV = "xilinx.com:interface:iic_rtl:1.0"
+PINS_DIR = VIVADO_DIR / "pins"
+
+
+def read_pin_map(text: str) -> Dict[str, Tuple[str, str, Dict[str, str]]]:
+    """A pin map as build.tcl reads it: port -> (package pin, I/O standard, other properties)."""
+    entries: Dict[str, Tuple[str, str, Dict[str, str]]] = {}
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        assert len(words) >= 3, f"line {number}: {line}"
+        props = dict(w.split("=", 1) for w in words[3:])
+        assert words[0] not in entries, f"line {number}: {words[0]} placed twice"
+        entries[words[0]] = (words[1], words[2], props)
+    return entries
+
+
+def external_port_bits(bd: BlockDesign) -> Set[str]:
+    """Every bit of the design's external ports as the wrapper names it (an IIC interface: its IOBUFs)."""
+    bits = {f"{name}[{i}]" if "-from" in opts else name
+            for name, opts in bd.ports.items()
+            for i in range(int(opts.get("-to", 0)), int(opts.get("-from", 0)) + 1)}
+    for name, opts in bd.intf_ports.items():
+        assert opts["-vlnv"] == IIC_VLNV, f"{name}: the wrapper's pins of {opts['-vlnv']} are not known here"
+        bits |= {f"{name}_scl_io", f"{name}_sda_io"}
+    return bits
+
+
+def test_the_ps7_i2c0_reaches_the_sensors_through_emio(bd: BlockDesign) -> None:
+    ps7 = bd.config[PS7]
+    controller = overlay.SENSOR_I2C_CONTROLLER
+    assert ps7[f"PCW_{controller}_PERIPHERAL_ENABLE"] == "1"
+    assert ps7[f"PCW_{controller}_{controller}_IO"] == "EMIO", "the sensors hang off the PL's pins"
+    port = overlay.SENSOR_I2C_PORT
+    assert bd.intf_ports[port] == {"-mode": "Master", "-vlnv": IIC_VLNV}
+    assert bd.connected(port) == {f"{PS7}/IIC_{controller[-1]}"}
+
+
+def test_the_board_profile_opens_the_bus_the_overlay_wires() -> None:
+    board = load_profile()
+    assert board.i2c_bus == overlay.SENSOR_I2C_BUS
+    assert board.i2c_device == f"/dev/i2c-{overlay.SENSOR_I2C_BUS}"
+    assert {board.left_address, board.right_address} <= set(mt9v034.I2C_ADDRESSES)
+    assert board.left_address != board.right_address, "both sensors share the bus: two addresses"
+    assert (PINS_DIR / f"{board.name}{overlay.PIN_MAP_SUFFIX}").is_file(), "the board's pin map"
+
+
+def test_the_pin_map_places_every_external_port_bit_and_nothing_else(
+        bd: BlockDesign, variables: Dict[str, str]) -> None:
+    path = PINS_DIR / f"{variables['STEREOCAM_BOARD']}{overlay.PIN_MAP_SUFFIX}"
+    pins = read_pin_map(path.read_text())
+    assert set(pins) == external_port_bits(bd)
+    assert {pin for pin, _, _ in pins.values()} == {overlay.PIN_PLACEHOLDER}, "the user fills them in"
+    for port, (_, standard, props) in pins.items():
+        assert standard.startswith("LVCMOS"), port
+        if port.startswith(overlay.SENSOR_I2C_PORT):
+            assert props == {"PULLUP": "true"}, port
+    assert variables["STEREOCAM_BOARD"] == load_profile().name
 
 
 # ---- settings, outputs, documentation ---------------------------------------------------------------------
@@ -858,6 +918,7 @@ VIVADO_COMMANDS: Dict[str, str] = {
     # block design
     "create_bd_design": "", "create_bd_cell": _LAST, "get_bd_cells": _FIRST, "apply_bd_automation": "",
     "create_bd_port": _LAST, "get_bd_ports": _FIRST, "get_bd_pins": _FIRST, "get_bd_intf_pins": _FIRST,
+    "create_bd_intf_port": _LAST, "get_bd_intf_ports": _FIRST,
     "connect_bd_net": "", "connect_bd_intf_net": "", "assign_bd_address": "",
     "get_bd_addr_spaces": _FIRST, "get_bd_addr_segs": _FIRST,
     "validate_bd_design": "", "save_bd_design": "", "make_wrapper": "return /nowhere/stereocam_wrapper.v",
@@ -985,10 +1046,19 @@ def _fake_vivado_outputs(proj: Path, variables: Dict[str, str]) -> Tuple[Path, P
     return bit, hwh
 
 
-def _filled_xdc(tmp_path: Path) -> Path:
-    xdc = tmp_path / "board.xdc"
-    xdc.write_text(read_script("stereocam.xdc").replace("FILL_IN", "Y18"))
-    return xdc
+def _filled_pins(tmp_path: Path) -> Tuple[Path, Dict[str, str]]:
+    """A copy of the board's pin map with a made-up pin per port, and what it places where."""
+    text = (PINS_DIR / "zynq-stereo.pins").read_text()
+    lines, placed = [], {}
+    for line in text.splitlines():
+        words = line.split()
+        if words and not words[0].startswith("#"):
+            placed[words[0]] = f"P{len(placed)}"
+            line = line.replace(overlay.PIN_PLACEHOLDER, placed[words[0]])
+        lines.append(line)
+    path = tmp_path / "board.pins"
+    path.write_text("\n".join(lines) + "\n")
+    return path, placed
 
 
 def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
@@ -996,9 +1066,9 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
         monkeypatch: pytest.MonkeyPatch) -> None:
     proj, out = tmp_path / "proj", tmp_path / "out"
     bit, hwh = _fake_vivado_outputs(proj, variables)
-    xdc = _filled_xdc(tmp_path)
+    pins, placed = _filled_pins(tmp_path)
     run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, preset={"STEREOCAM_RTL_DIR": str(rtl_copy)},
-                  argv=["-out", str(out), "--proj", str(proj), "-xdc", str(xdc), "-jobs", "1"])
+                  argv=["-out", str(out), "--proj", str(proj), "-pins", str(pins), "-jobs", "1"])
     assert run.error == ""
     # the packaged IP
     assert run.projects() == ["pkg_rectify", "pkg_camera_in", "pkg_frame_gate",
@@ -1028,7 +1098,19 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
     order = ["validate_bd_design", "make_wrapper", "launch_runs", "wait_on_run", "launch_runs", "wait_on_run"]
     assert [v for v in verbs if v in order] == order
     assert run.of("launch_runs")[1][:3] == ["impl_1", "-to_step", "write_bitstream"]
-    assert ["-fileset", "constrs_1", "-norecurse", str(xdc)] in run.of("add_files")
+    assert ["-fileset", "constrs_1", "-norecurse", str(VIVADO_DIR / "stereocam.xdc")] in run.of("add_files")
+    pins_xdc = proj / "pins.xdc"
+    assert ["-fileset", "constrs_1", "-norecurse", str(pins_xdc)] in run.of("add_files")
+    written: Dict[str, str] = {}
+    for words in tcl_commands(pins_xdc.read_text()):
+        assert words[:2] == ["set_property", "-dict"], words
+        values = tcl_list(words[2])
+        props = dict(zip(values[::2], values[1::2], strict=True))
+        (port,) = tcl_list(bracketed(words[3])[1])
+        written[port] = props["PACKAGE_PIN"]
+        assert props["IOSTANDARD"] == "LVCMOS33", port
+        assert props.get("PULLUP") == ("true" if port.startswith(overlay.SENSOR_I2C_PORT) else None), port
+    assert written == placed
     # the outputs, found by the backend's own search
     assert (out / overlay.BITSTREAM).read_text() == bit.read_text()
     assert (out / overlay.BITSTREAM).with_suffix(".hwh").read_text() == hwh.read_text()
@@ -1049,17 +1131,37 @@ def test_build_tcl_writes_into_the_checkouts_overlays_folder(tmp_path: Path, rtl
     assert "launch_runs" not in [c[0] for c in run.calls], "-to package stops after packaging"
 
 
-def test_build_tcl_refuses_placeholder_pins_except_for_synthesis(tmp_path: Path, rtl_copy: Path) -> None:
+def test_build_tcl_refuses_placeholder_pins_naming_them_except_for_synthesis(
+        tmp_path: Path, rtl_copy: Path, bd: BlockDesign) -> None:
     common = ["-out", str(tmp_path / "out"), "-proj", str(tmp_path / "p")]
     preset = {"STEREOCAM_RTL_DIR": str(rtl_copy)}
     refused = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=common, preset=preset)
-    assert "placeholder pin locations (FILL_IN)" in refused.error
+    assert "still has placeholder pins (FILL_IN)" in refused.error
+    named = refused.error.split(" ports: ", 1)[1].split(". Fill in", 1)[0]
+    assert set(named.split(", ")) == external_port_bits(bd)
     assert not refused.projects(), "refused before any work"
+    # one line left: only that port is named
+    pins, _ = _filled_pins(tmp_path)
+    pins.write_text(pins.read_text().replace("cam1_frame_valid    P25", "cam1_frame_valid    FILL_IN"))
+    one = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=[*common, "-pins", str(pins)], preset=preset)
+    assert "for 1 ports: cam1_frame_valid." in one.error
     synth = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=[*common, "-to", "synth"], preset=preset)
     assert synth.error == ""
     assert [c[0] for c in synth.of("launch_runs")] == ["synth_1"]
-    assert not [c for c in synth.of("add_files") if "constrs_1" in c]
+    assert [c for c in synth.of("add_files") if "constrs_1" in c] == [
+        ["-fileset", "constrs_1", "-norecurse", str(VIVADO_DIR / "stereocam.xdc")]], "timing, no pins"
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("line, message", [
+    ("cam0_pclk Y18", "line 2: expected 'port package_pin iostandard"),
+    ("cam0_pclk Y18 LVCMOS33 PULLUP", "line 2: 'PULLUP' is not a NAME=value property"),
+])
+def test_build_tcl_names_a_malformed_pin_map_line(tmp_path: Path, line: str, message: str) -> None:
+    pins = tmp_path / "bad.pins"
+    pins.write_text(f"# a board\n{line}\n")
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=["-pins", str(pins), "-proj", str(tmp_path / "p")])
+    assert f"{pins} {message}" in run.error
 
 
 @pytest.mark.parametrize("argv, message", [

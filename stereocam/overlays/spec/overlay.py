@@ -46,3 +46,17 @@ INTERRUPTS: Tuple[Tuple[str, str], ...] = (
     ("vdma_proc", "mm2s_introut"),
     ("vdma_proc", "s2mm_introut"),
 )
+
+#: The sensors' two-wire interface: both MT9V034s on one bus, the PS7's I2C0 routed through EMIO
+#: to the external interface port :data:`SENSOR_I2C_PORT` (the block design's; Vivado's wrapper
+#: names its pins ``<port>_scl_io`` and ``<port>_sda_io``, each an IOBUF). Linux names the PS's
+#: I2C0 ``/dev/i2c-0`` (the cadence driver, its node ``i2c0`` enabled in the boot image's device
+#: tree); the board profile's ``i2c.bus`` must be :data:`SENSOR_I2C_BUS` (a test checks).
+SENSOR_I2C_CONTROLLER = "I2C0"
+SENSOR_I2C_PORT = "cam_iic"
+SENSOR_I2C_BUS = 0
+
+#: The board's pin map (stereocam/overlays/vivado/pins/<board>.pins, one line per external port
+#: bit: port, package pin, I/O standard) is named for the board profile (``name:``) it serves.
+PIN_MAP_SUFFIX = ".pins"
+PIN_PLACEHOLDER = "FILL_IN"

@@ -18,7 +18,8 @@ source [file join [file dirname [file normalize [info script]]] settings.tcl]
 
 create_bd_design $STEREOCAM_BD_NAME
 
-# ---- Zynq PS7: M_AXI_GP0 for the registers, S_AXI_HP0 for the frames, FCLK_CLK0, IRQ_F2P --------------
+# ---- Zynq PS7: M_AXI_GP0 for the registers, S_AXI_HP0 for the frames, FCLK_CLK0, IRQ_F2P, and I2C0
+# through EMIO to the sensors' two-wire interface ----------------------------------------------------------
 
 create_bd_cell -type ip -vlnv xilinx.com:ip:processing_system7:5.5 processing_system7_0
 if {$STEREOCAM_BOARD_PART ne ""} {
@@ -40,6 +41,8 @@ set_property -dict [list \
     CONFIG.PCW_FPGA0_PERIPHERAL_FREQMHZ $STEREOCAM_FCLK0_MHZ \
     CONFIG.PCW_USE_FABRIC_INTERRUPT {1} \
     CONFIG.PCW_IRQ_F2P_INTR {1} \
+    CONFIG.PCW_I2C0_PERIPHERAL_ENABLE {1} \
+    CONFIG.PCW_I2C0_I2C0_IO {EMIO} \
 ] [get_bd_cells processing_system7_0]
 
 create_bd_cell -type ip -vlnv xilinx.com:ip:proc_sys_reset:5.0 rst_ps7_0
@@ -178,7 +181,7 @@ set_property -dict [list \
     CONFIG.NUM_PORTS {3} \
 ] [get_bd_cells irq_concat]
 
-# ---- Camera pins: external ports of the design (stereocam.xdc places them; the MT9V034's PIXCLK,
+# ---- Camera pins: external ports of the design (the board's pin map places them; the MT9V034's PIXCLK,
 # DOUT[9:0], LINE_VALID, FRAME_VALID of the left (cam0) and right (cam1) sensor) ----------------------
 create_bd_port -dir I -type clk -freq_hz 27000000 cam0_pclk
 create_bd_port -dir I -from 9 -to 0 cam0_data
@@ -196,6 +199,12 @@ connect_bd_net [get_bd_ports cam1_pclk] [get_bd_pins camera_in/cam1_pclk]
 connect_bd_net [get_bd_ports cam1_data] [get_bd_pins camera_in/cam1_data]
 connect_bd_net [get_bd_ports cam1_line_valid] [get_bd_pins camera_in/cam1_line_valid]
 connect_bd_net [get_bd_ports cam1_frame_valid] [get_bd_pins camera_in/cam1_frame_valid]
+
+# ---- The sensors' I2C: the PS7's I2C0 (EMIO) as the external interface port cam_iic, both sensors on it
+# (stereocam/overlays/spec/overlay.py: SENSOR_I2C_*; the wrapper's IOBUFs give cam_iic_scl_io and
+# cam_iic_sda_io, which the board's pin map places) ---------------------------------------------------
+create_bd_intf_port -mode Master -vlnv xilinx.com:interface:iic_rtl:1.0 cam_iic
+connect_bd_intf_net [get_bd_intf_pins processing_system7_0/IIC_0] [get_bd_intf_ports cam_iic]
 
 # ---- Streams -----------------------------------------------------------------------------------------
 connect_bd_intf_net [get_bd_intf_pins camera_in/m_axis] [get_bd_intf_pins camera_split/S_AXIS]

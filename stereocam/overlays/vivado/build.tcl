@@ -7,8 +7,10 @@
 #   -out DIR    where stereocam.bit and stereocam.hwh go. Default: stereocam/overlays/ of this checkout, the first
 #               folder `stereocam --backend pynq` looks in (stereocam/overlays/backend.py: DEFAULT_BITSTREAM_DIRS).
 #   -proj DIR   the Vivado project and the packaged IP. Default: stereocam/overlays/vivado/build/stereocam.
-#   -xdc FILE   the pin constraints. Default: stereocam.xdc beside this script, whose pin locations are
-#               placeholders: implementation refuses it until they are filled in.
+#   -pins FILE  the board's pin map: one line per external port bit (port, package pin, I/O standard,
+#               properties). Default: pins/$STEREOCAM_BOARD.pins beside this script (settings.tcl), whose
+#               pins are placeholders (FILL_IN): implementation refuses it until they are filled in.
+#   -xdc FILE   the timing constraints. Default: stereocam.xdc beside this script.
 #   -jobs N     parallel synthesis/implementation jobs. Default: 2.
 #   -to STEP    stop after STEP: package (the IP), bd (block design, wrapper, output products),
 #               synth, impl (placed and routed), bit (the default: bitstream and .hwh copied to -out).
@@ -49,6 +51,38 @@ proc stereocam_path {path} {
     return [file normalize $path]
 }
 
+# The pin map $path as a list of {port pin iostandard {NAME value ...}}, one per line that is not a
+# comment; a malformed line stops the build with its number.
+proc stereocam_read_pins {path} {
+    set fd [open $path r]
+    set text [read $fd]
+    close $fd
+    set entries {}
+    set number 0
+    foreach line [split $text "\n"] {
+        incr number
+        set line [string trim $line]
+        if {$line eq "" || [string index $line 0] eq "#"} {
+            continue
+        }
+        set words [regexp -all -inline {\S+} $line]
+        if {[llength $words] < 3} {
+            error "build.tcl: $path line $number: expected 'port package_pin iostandard \[NAME=value ...\]',\
+                   got '$line'"
+        }
+        set props {}
+        foreach word [lrange $words 3 end] {
+            set eq [string first = $word]
+            if {$eq < 1} {
+                error "build.tcl: $path line $number: '$word' is not a NAME=value property"
+            }
+            lappend props [string range $word 0 [expr {$eq - 1}]] [string range $word [expr {$eq + 1}] end]
+        }
+        lappend entries [list [lindex $words 0] [lindex $words 1] [lindex $words 2] $props]
+    }
+    return $entries
+}
+
 # Fail unless run $run completed.
 proc stereocam_check_run {run} {
     set progress [get_property PROGRESS [get_runs $run]]
@@ -64,12 +98,14 @@ if {![info exists argv]} {
 set stereocam_opts [stereocam_parse_args $argv [dict create \
     out $STEREOCAM_OVERLAYS_DIR \
     proj [file join $STEREOCAM_VIVADO_DIR build $STEREOCAM_BD_NAME] \
+    pins [file join $STEREOCAM_VIVADO_DIR pins $STEREOCAM_BOARD.pins] \
     xdc [file join $STEREOCAM_VIVADO_DIR stereocam.xdc] \
     jobs 2 \
     to bit]]
 set stereocam_out [stereocam_path [dict get $stereocam_opts out]]
 set stereocam_proj [stereocam_path [dict get $stereocam_opts proj]]
 set stereocam_xdc [stereocam_path [dict get $stereocam_opts xdc]]
+set stereocam_pins [stereocam_path [dict get $stereocam_opts pins]]
 set stereocam_jobs [dict get $stereocam_opts jobs]
 set stereocam_last [lsearch -exact $stereocam_steps [dict get $stereocam_opts to]]
 if {$stereocam_last < 0} {
@@ -85,24 +121,34 @@ if {[string first $STEREOCAM_VIVADO_VERSION $stereocam_found] != 0} {
           $stereocam_found: if an IP version differs, create_bd_cell names the VLNV it could not find."
 }
 
-# The constraints: refuse placeholder pins before hours of work, unless only synthesis was asked for.
+# The constraints: the timing constraints, and the board's pins, whose placeholders are refused before
+# hours of work, unless only synthesis was asked for.
 set stereocam_synth [lsearch -exact $stereocam_steps synth]
 if {$stereocam_last >= $stereocam_synth && ![file isfile $stereocam_xdc]} {
     error "build.tcl: no constraints file $stereocam_xdc"
 }
-set stereocam_use_xdc 0
-if {[file isfile $stereocam_xdc]} {
-    set stereocam_fd [open $stereocam_xdc r]
-    set stereocam_xdc_text [read $stereocam_fd]
-    close $stereocam_fd
-    if {[string first FILL_IN $stereocam_xdc_text] < 0} {
-        set stereocam_use_xdc 1
+set stereocam_use_pins 0
+if {![file isfile $stereocam_pins]} {
+    if {$stereocam_last > $stereocam_synth} {
+        error "build.tcl: no pin map $stereocam_pins: copy pins/zynq-stereo.pins beside this script, fill in\
+               your board's pins and pass -pins <your copy>"
+    }
+} else {
+    set stereocam_pin_map [stereocam_read_pins $stereocam_pins]
+    set stereocam_unfilled {}
+    foreach stereocam_entry $stereocam_pin_map {
+        if {[lindex $stereocam_entry 1] eq "FILL_IN"} {
+            lappend stereocam_unfilled [lindex $stereocam_entry 0]
+        }
+    }
+    if {[llength $stereocam_unfilled] == 0} {
+        set stereocam_use_pins 1
     } elseif {$stereocam_last > $stereocam_synth} {
-        error "build.tcl: $stereocam_xdc still has placeholder pin locations (FILL_IN). Copy it, fill in\
-               your board's pins (see the comments at its top) and pass -xdc <your copy>; or stop after\
-               synthesis with -to synth."
+        error "build.tcl: the pin map $stereocam_pins still has placeholder pins (FILL_IN) for\
+               [llength $stereocam_unfilled] ports: [join $stereocam_unfilled {, }]. Fill in your board's\
+               pins (see the comments at its top), or stop after synthesis with -to synth."
     } else {
-        puts "WARNING: stereocam: $stereocam_xdc has placeholder pins (FILL_IN): leaving it out."
+        puts "WARNING: stereocam: $stereocam_pins has placeholder pins (FILL_IN): synthesis without them."
     }
 }
 
@@ -135,8 +181,21 @@ add_files -norecurse [make_wrapper -files $stereocam_bd -top]
 set_property top ${STEREOCAM_BD_NAME}_wrapper [current_fileset]
 update_compile_order -fileset sources_1
 generate_target all $stereocam_bd
-if {$stereocam_use_xdc} {
+if {[file isfile $stereocam_xdc]} {
     add_files -fileset constrs_1 -norecurse $stereocam_xdc
+}
+if {$stereocam_use_pins} {
+    # The pin map as constraints, in the project: what Vivado places is what the map says.
+    set stereocam_pins_xdc [file join $stereocam_proj pins.xdc]
+    set stereocam_fd [open $stereocam_pins_xdc w]
+    puts $stereocam_fd "# Written by build.tcl from $stereocam_pins: edit that file, not this one."
+    foreach stereocam_entry $stereocam_pin_map {
+        lassign $stereocam_entry stereocam_port stereocam_pin stereocam_std stereocam_props
+        set stereocam_dict [dict create PACKAGE_PIN $stereocam_pin IOSTANDARD $stereocam_std {*}$stereocam_props]
+        puts $stereocam_fd "set_property -dict {$stereocam_dict} \[get_ports {$stereocam_port}\]"
+    }
+    close $stereocam_fd
+    add_files -fileset constrs_1 -norecurse $stereocam_pins_xdc
 }
 if {$stereocam_last == [lsearch -exact $stereocam_steps bd]} {
     puts "stereocam: block design ready in $stereocam_proj"

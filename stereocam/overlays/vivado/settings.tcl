@@ -16,6 +16,10 @@ set STEREOCAM_PART xc7z020clg400-1
 # the PL clock frequencies from the .hwh), but a hardware platform (.xsa) for a boot image would.
 set STEREOCAM_BOARD_PART ""
 
+# The board: its pin map is pins/$STEREOCAM_BOARD.pins (build.tcl -pins), named for the board profile
+# (stereocam/board/<name>.yaml, name:) whose sensors and I2C bus it wires.
+set STEREOCAM_BOARD zynq-stereo
+
 # Block design name, and the overlay's file names: stereocam.bit + stereocam.hwh
 # (stereocam/overlays/spec/overlay.py: BITSTREAM; pynq needs the .hwh beside the .bit under the same name).
 set STEREOCAM_BD_NAME stereocam

@@ -1,15 +1,8 @@
-# stereocam.xdc: pin and clock constraints of the camera inputs (the block design's external ports).
+# stereocam.xdc: the timing constraints of the camera inputs (the block design's external ports).
 #
-# A TEMPLATE. The pin locations below are placeholders (FILL_IN): where the two MT9V034 sensors'
-# PIXCLK, DOUT[9:0], LINE_VALID and FRAME_VALID reach the Zynq depends on the board and on how the
-# cameras are wired to it (PMOD, Arduino or FMC headers, a custom carrier). Nobody has filled them
-# in for a real board yet. Copy this file, replace every FILL_IN with the package pin (e.g. Y18)
-# from your board's schematic or master XDC, check IOSTANDARD against the bank voltage (PYNQ-Z1/Z2
-# headers are 3.3 V banks: LVCMOS33), and build with build.sh -xdc <your copy>. build.tcl refuses
-# to implement with a FILL_IN left (synthesis alone, -to synth, runs without this file).
-#
-# Put each PIXCLK on a clock-capable pin (MRCC/SRCC) of the bank its data pins are in; otherwise
-# Vivado stops at placement and the CLOCK_DEDICATED_ROUTE line at the end becomes necessary.
+# The pins are placed by the board's pin map, not here (stereocam/overlays/vivado/pins/<board>.pins,
+# which build.tcl reads and writes as the build's own pins.xdc): this file holds what does not
+# depend on the board's wiring, and build.tcl always adds it.
 
 # ---- Clocks ------------------------------------------------------------------------------------
 # The MT9V034's pixel clock follows its SYSCLK: 26.6 MHz on the reference design
@@ -27,37 +20,3 @@ set_clock_groups -asynchronous -group [get_clocks cam0_pclk] -group [get_clocks 
 # set_input_delay -clock cam0_pclk -min <ns> [get_ports {cam0_data[*] cam0_line_valid cam0_frame_valid}]
 # set_input_delay -clock cam1_pclk -max <ns> [get_ports {cam1_data[*] cam1_line_valid cam1_frame_valid}]
 # set_input_delay -clock cam1_pclk -min <ns> [get_ports {cam1_data[*] cam1_line_valid cam1_frame_valid}]
-
-# ---- cam0: the left camera ---------------------------------------------------
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam0_pclk]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[0]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[1]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[2]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[3]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[4]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[5]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[6]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[7]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[8]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam0_data[9]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam0_line_valid]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam0_frame_valid]
-
-# ---- cam1: the right camera --------------------------------------------------
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam1_pclk]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[0]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[1]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[2]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[3]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[4]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[5]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[6]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[7]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[8]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports {cam1_data[9]}]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam1_line_valid]
-set_property -dict {PACKAGE_PIN FILL_IN IOSTANDARD LVCMOS33} [get_ports cam1_frame_valid]
-
-# Only if a PIXCLK cannot be on a clock-capable pin (costs clock skew on the data capture):
-# set_property CLOCK_DEDICATED_ROUTE FALSE [get_nets cam0_pclk_IBUF]
-# set_property CLOCK_DEDICATED_ROUTE FALSE [get_nets cam1_pclk_IBUF]
