@@ -33,6 +33,7 @@ from aiohttp import web
 
 from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
 from ...overlays.interface import Overlay
+from ..frames.capturing import CaptureService
 from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
 from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
@@ -53,6 +54,7 @@ from .state import (
     BUDGET,
     CALIBRATION,
     CAPTURES,
+    CAPTURING,
     ENCODERS,
     EXECUTORS,
     EXTENSIONS,
@@ -166,8 +168,13 @@ def create_app(
                                            round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0,
                                            mux_refused=health.mux_refused, mux_committed=health.mux_committed)
     app[CALIBRATION] = CalibrationInEffect(calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows))
-    app[EXTENSIONS] = Extensions(faults=[health.faults], metrics=[health.metrics])
+    app[EXTENSIONS] = extended = Extensions(faults=[health.faults], metrics=[health.metrics])
     app[FABRIC_HEALTH] = health
+    # What POST /api/captures and the calibration panel's pairs capture with: made once, its
+    # collaborators fixed; the frame wait is read from the settings at each grab.
+    app[CAPTURING] = CaptureService(
+        feed=feed, pipeline=pipeline, overlay=overlay, virtual=virtual, calibration=app[CALIBRATION],
+        run=executors.run, frame_wait_s=lambda: config.frame_wait_s, sections=extended.capture_sections)
 
     app.router.add_get("/", _index)
     app.router.add_get("/static/{path:.+}", _static)

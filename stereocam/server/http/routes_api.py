@@ -30,7 +30,6 @@ from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from ..stores.captures import CaptureError, CaptureStore
 from ..stores.errors import NotFound
 from .bodies import json_response, read_json
-from .capture_service import capture_service
 from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
@@ -39,6 +38,7 @@ from .state import (
     BUDGET,
     CALIBRATION,
     CAPTURES,
+    CAPTURING,
     ENCODERS,
     EXECUTORS,
     EXTENSIONS,
@@ -371,7 +371,7 @@ async def verify_difference(request: web.Request) -> web.Response:
 async def post_capture(request: web.Request) -> web.Response:
     app = request.app
     metrics = app[METRICS]
-    capturing = capture_service(app)
+    capturing = app[CAPTURING]
     fs = await capturing.fresh_raw_frame()
     store: CaptureStore = app[CAPTURES]
     try:

@@ -54,10 +54,9 @@ from ..stores.calibration_pairs import (
 )
 from ..stores.captures import CaptureError, CaptureStore
 from .bodies import json_response, read_json
-from .capture_service import capture_service
 from .metrics import METRICS
 from .routes_calibration import activate, check_runnable
-from .state import EXECUTORS, FEED, OVERLAY, SETTINGS
+from .state import CAPTURING, EXECUTORS, FEED, OVERLAY, SETTINGS
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +166,7 @@ async def get_corners(request: web.Request) -> web.Response:
         raise ApiError(f"no signal: no frame has come for {asked - since:.1f} s", status=503)
     async with panel.live_lock:
         if panel.live is None or panel.live_at < asked - LIVE_MIN_INTERVAL_S:
-            fs = await capture_service(app).fresh_raw_frame()
+            fs = await app[CAPTURING].fresh_raw_frame()
             settings = panel.settings
             raw = fs.raw
             assert raw is not None
@@ -206,7 +205,7 @@ async def post_pair(request: web.Request) -> web.Response:
     panel = app[PANEL]
     async with panel.pairs_lock:
         settings = panel.settings
-        fs = await capture_service(app).fresh_raw_frame()
+        fs = await app[CAPTURING].fresh_raw_frame()
         raw = fs.raw
         assert raw is not None
         found = await app[EXECUTORS].run(lambda: detect_frame(raw, settings.pattern, thorough=True))
@@ -224,7 +223,7 @@ async def post_pair(request: web.Request) -> web.Response:
                  "square_mm": settings.pattern.square * 1000.0,
                  "corners": {"left": found["left"], "right": found["right"]}}
         try:
-            info = await capture_service(app).store(panel.store, fs, extra)
+            info = await app[CAPTURING].store(panel.store, fs, extra)
         except CaptureError as exc:
             app[METRICS].error(exc.message, "calibration")
             raise

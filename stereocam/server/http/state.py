@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, List, Optional,
 from aiohttp import web
 
 from ...overlays.interface import Overlay
+from ..frames.capturing import CaptureService
 from ..frames.cpu_budget import CpuBudget
 from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
@@ -360,5 +361,6 @@ FEED: "web.AppKey[FrameFeed]" = web.AppKey("stereocam.feed", FrameFeed)
 BUDGET: "web.AppKey[CpuBudget]" = web.AppKey("stereocam.cpu_budget", CpuBudget)
 ENCODERS: "web.AppKey[Encoders]" = web.AppKey("stereocam.encoders", Encoders)
 CAPTURES: "web.AppKey[CaptureStore]" = web.AppKey("stereocam.captures", CaptureStore)
+CAPTURING: "web.AppKey[CaptureService]" = web.AppKey("stereocam.capturing", CaptureService)
 VIRTUAL: "web.AppKey[VirtualCamera]" = web.AppKey("stereocam.virtual", VirtualCamera)
 FABRIC_HEALTH: "web.AppKey[FabricHealth]" = web.AppKey("stereocam.fabric_health", FabricHealth)
