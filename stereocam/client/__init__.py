@@ -6,6 +6,6 @@ recordings, the source, the virtual camera, the camera controls and Verify. It s
 """
 from __future__ import annotations
 
-from .client import Client, ClientError, Frame, FrameStream, Recording, decode_image
+from .client import Client, ClientError, Frame, FrameStream, Recording, decode_image, encode_png
 
-__all__ = ["Client", "ClientError", "Frame", "FrameStream", "Recording", "decode_image"]
+__all__ = ["Client", "ClientError", "Frame", "FrameStream", "Recording", "decode_image", "encode_png"]

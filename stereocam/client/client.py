@@ -1,8 +1,8 @@
 """The client: one :class:`Client` per daemon, plain blocking calls (what a notebook cell wants).
 
 Requests use the standard library (``urllib``); the WebSocket stream runs aiohttp on a private
-event loop that each ``next()`` drives, so nothing runs in the background between frames and
-``close()`` ends it all. Images come back as numpy arrays in RGB order (``(H, W, 3)``, uint8) or
+event loop in a thread of its own (a notebook's kernel already runs a loop in the main thread),
+which ``close()`` ends. Images come back as numpy arrays in RGB order (``(H, W, 3)``, uint8) or
 gray (``(H, W)``): PNG where the API gives it (lossless, the daemon's pixels exactly), JPEG for
 the streams (``Frame.lossy`` says so).
 """
@@ -12,6 +12,7 @@ import asyncio
 import io
 import json
 import struct
+import threading
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -20,7 +21,20 @@ import zipfile
 from dataclasses import dataclass
 from http.client import HTTPResponse
 from pathlib import Path
-from typing import Any, BinaryIO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import (
+    Any,
+    BinaryIO,
+    Coroutine,
+    Dict,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    Tuple,
+    TypeVar,
+    Union,
+)
 
 import cv2
 import numpy as np
@@ -29,6 +43,7 @@ from stereocam.calibration.file import Calibration, parse_yaml
 
 Image = Union[np.ndarray, bytes, str, Path]  # an array (RGB or gray), encoded image bytes, or a file
 JSON = Dict[str, Any]
+T = TypeVar("T")
 
 
 class ClientError(Exception):
@@ -474,7 +489,12 @@ class _MjpegStream(FrameStream):
 
 
 class _WebSocketStream(FrameStream):
-    """``/ws`` on a private event loop, run only inside ``next()`` and ``close()``."""
+    """``/ws`` on a private event loop in a thread of its own.
+
+    Its own thread, not the caller's: in Jupyter the kernel's loop already runs in the main
+    thread, where another loop cannot be run. ``next()`` waits for the thread's answer;
+    ``close()`` closes the socket and ends the thread.
+    """
 
     def __init__(self, url: str, headers: Dict[str, str], request: JSON, timeout: float) -> None:
         import aiohttp  # only the WebSocket stream needs it
@@ -482,10 +502,12 @@ class _WebSocketStream(FrameStream):
         self._aiohttp = aiohttp
         self._timeout = timeout
         self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="stereocam-ws", daemon=True)
+        self._thread.start()
         self._session: Any = None
         self._ws: Any = None
         try:
-            self._loop.run_until_complete(self._connect(url, headers, request))
+            self._run(self._connect(url, headers, request))
         except aiohttp.WSServerHandshakeError as exc:
             self.close()
             message = exc.message or "WebSocket refused"
@@ -494,9 +516,13 @@ class _WebSocketStream(FrameStream):
             self.close()
             raise
 
+    def _run(self, coro: Coroutine[Any, Any, T]) -> T:
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
+
     async def _connect(self, url: str, headers: Dict[str, str], request: JSON) -> None:
         self._session = self._aiohttp.ClientSession()
-        self._ws = await self._session.ws_connect(url, headers=headers, heartbeat=None)
+        self._ws = await self._session.ws_connect(url, headers=headers, heartbeat=None,
+                                                  timeout=self._aiohttp.ClientWSTimeout(ws_close=self._timeout))
         await self._ws.send_str(json.dumps(request))
 
     async def _receive(self) -> Optional[Frame]:
@@ -515,7 +541,7 @@ class _WebSocketStream(FrameStream):
     def __next__(self) -> Frame:
         if self._loop.is_closed():
             raise StopIteration
-        frame = self._loop.run_until_complete(self._receive())
+        frame = self._run(self._receive())
         if frame is None:
             self.close()
             raise StopIteration
@@ -525,8 +551,10 @@ class _WebSocketStream(FrameStream):
         if self._loop.is_closed():
             return
         try:
-            self._loop.run_until_complete(self._close())
+            self._run(self._close())
         finally:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join()
             self._loop.close()
 
     async def _close(self) -> None:

@@ -149,6 +149,18 @@ async def test_websocket_stream_interleaves_views_and_closes(start_daemon) -> No
     assert err.value.status is None and "nope" in err.value.message
 
 
+async def test_the_websocket_stream_works_where_a_loop_already_runs(start_daemon) -> None:
+    """As in Jupyter, whose kernel runs an event loop in the thread the notebook's code runs in."""
+    d, c = await client_on(start_daemon)
+
+    async def notebook_cell() -> Frame:
+        with c.watch(["raw_left"], fps=5) as stream:  # called synchronously, inside a running loop
+            return next(stream)
+
+    frame = await call(asyncio.run, notebook_cell())
+    assert frame.view == "raw_left" and frame.image.shape == (H, W, 3)
+
+
 async def test_virtual_camera_preview_and_verify(start_daemon) -> None:
     d, c = await client_on(start_daemon)
     left, right, expected = await upload_pattern(d, c, seed=2)
