@@ -177,9 +177,12 @@ class Client:
         with self._open("GET", path) as resp:
             if isinstance(dest, (str, Path)):
                 tmp = Path(str(dest) + ".part")
-                with open(tmp, "wb") as f:
-                    _copy(resp, f)
-                tmp.replace(dest)  # a download cut short never leaves a file looking whole
+                try:
+                    with open(tmp, "wb") as f:
+                        _copy(resp, f)
+                    tmp.replace(dest)  # a download cut short never leaves a file looking whole
+                finally:
+                    tmp.unlink(missing_ok=True)
             else:
                 _copy(resp, dest)
 
