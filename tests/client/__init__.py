@@ -1,0 +1,1 @@
+"""Tests of stereocam.client against a real daemon."""
