@@ -135,3 +135,39 @@ def test_signin_shows_one_state_then_live_views_and_leaves_no_token_a_script_can
             finally:
                 page.screenshot(path=str(artifacts_dir / "signin.png"))
     assert not problems, problems
+
+
+def test_with_protect_control_the_views_run_and_a_change_points_at_the_signin_form(
+        tmp_path: Path, artifacts_dir: Path) -> None:
+    """``protect: control``: reads are open, so the views run; the sign-in form says the token is for
+    changes, and a change without it brings the keyboard to that form instead of a 401 message."""
+    config = daemon_config(tmp_path, access_token=TOKEN, protect="control")
+    problems: List[str] = []
+    with running_daemon(fps=5.0, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
+                        health_timeout=TIMEOUT_MS / 1000,
+                        extra_args=["--config", str(config)]) as (_proc, base):
+        with chromium(tmp_path / "chromium-profile", viewport=VIEWPORT) as context:
+            page = context.new_page()
+            page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
+            try:
+                page.goto(base + "/")
+                box = page.get_by_test_id("signin-state")
+                expect(box).to_be_visible()
+                expect(page.get_by_test_id("signin-why")).to_contain_text("for changes")
+                _wait_new_frames(page, VIEWS[:2])
+                expect(page.locator("#views figure.view[data-waiting]")).to_have_count(0)
+                page.get_by_test_id("btn-capture").click()
+                expect(page.get_by_test_id("signin-token")).to_be_focused()
+                assert page.get_by_test_id("message-error").count() == 0
+                expect(page.locator("[data-testid=capture]")).to_have_count(0)
+                page.get_by_test_id("signin-token").fill(TOKEN)
+                with page.expect_navigation(url=base + "/"):
+                    page.get_by_test_id("signin-token").press("Enter")
+                page.wait_for_function("document.body.dataset.ready === '1'")
+                expect(box).to_be_hidden()
+                page.get_by_test_id("btn-capture").click()
+                expect(page.locator("[data-testid=capture]")).to_have_count(1)
+                assert page.evaluate("document.cookie") == ""
+            finally:
+                page.screenshot(path=str(artifacts_dir / "signin-control.png"))
+    assert not problems, problems
