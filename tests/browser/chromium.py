@@ -15,7 +15,7 @@ import contextlib
 import json
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Sequence
+from typing import Any, Dict, Iterator, List, Sequence, Tuple
 
 import pytest
 from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
@@ -69,12 +69,12 @@ def daemon_serving(tmp_path: Path, artifacts_dir: Path, *, fps: float, extra_arg
 
 
 @contextlib.contextmanager
-def chromium(profile: Path) -> Iterator[BrowserContext]:
+def chromium(profile: Path, viewport: Tuple[int, int] = (1400, 1000)) -> Iterator[BrowserContext]:
     """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to ``TIMEOUT_MS``."""
     with sync_playwright() as pw:
         context = pw.chromium.launch_persistent_context(
             str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS,
-            viewport={"width": 1400, "height": 1000}, timeout=TIMEOUT_MS)
+            viewport={"width": viewport[0], "height": viewport[1]}, timeout=TIMEOUT_MS)
         try:
             context.set_default_timeout(TIMEOUT_MS)
             context.set_default_navigation_timeout(TIMEOUT_MS)

@@ -12,9 +12,6 @@ modest frame rate: the machine has two shared cores), loads ``/`` in Debian's
 - the virtual camera: switching to it, uploading a generated pair of the daemon's frame
   size, the fabric's output shown, and Verify saying "identical" with its difference image;
 - switching back to live, the views move again;
-- with an access token configured (with ``+``, ``/`` and ``=`` in it), the page says how to give it
-  (``/?token=``), a change without it shows the daemon's 401, and with it (the daemon's HttpOnly
-  cookie, the token gone from the address bar) views, reads and changes work.
 
 A screenshot of the page goes to the artifacts folder, also when the test fails. Every wait
 waits for a condition on the page, bounded only as a last resort (``browser.TIMEOUT_MS``).
@@ -32,14 +29,11 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-from stereocam.bench.serve import running_daemon
 from stereocam.server.frames import views
 
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     TIMEOUT_MS,
-    chromium,
-    daemon_config,
     daemon_serving,
     get_json,
     watched_page,
@@ -194,44 +188,6 @@ def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, 
     _wait_status_source(page, "live")
     _wait_new_frames(page, ["raw_left", "rect_left", "rect_right"])
     assert _errors(page) == [], _errors(page)
-
-
-def test_page_sends_access_token(tmp_path: Path, artifacts_dir: Path) -> None:
-    """With ``access_token`` set (one with ``+``, ``/`` and ``=``, as base64 makes them), the page says
-    how to give it, and ``/?token=`` makes the daemon set its HttpOnly cookie and take the token out of
-    the address bar: views, reads and changes then work, and go on working when the page is reopened."""
-    token = "browser+test/token=="
-    config = daemon_config(tmp_path, access_token=token)
-    with running_daemon(fps=5.0, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
-                        health_timeout=TIMEOUT_MS / 1000,
-                        extra_args=["--config", str(config)]) as (_proc, base):
-        with chromium(tmp_path / "chromium-profile") as context:
-            page = context.new_page()
-            try:
-                page.goto(base + "/")
-                errors = page.get_by_test_id("message-error")
-                expect(errors.first).to_contain_text("/?token=")
-                page.get_by_test_id("btn-capture").click()
-                expect(errors.last).to_contain_text("401")
-                page.goto(base + "/?token=" + urllib.parse.quote(token, safe="") + "&fps=5")
-                assert page.url == base + "/?fps=5"  # the token left the address bar (and the history)
-                for dismiss in page.locator("[data-testid=message-error] .msg-close").all():
-                    dismiss.click()
-                _wait_new_frames(page, ["rect_left", "raw_right"])  # the WebSocket carried the cookie
-                assert page.evaluate("fetch('/snapshot/rect_left.jpg').then(r => r.status)") == 200
-                cookies = page.evaluate("document.cookie")
-                assert "stereocam_token" not in cookies and "stereocam_has_token=1" in cookies, cookies
-                assert page.evaluate("localStorage.getItem('stereocam.token')") is None
-                page.get_by_test_id("btn-capture").click()
-                expect(page.locator("[data-testid=capture]")).to_have_count(1)
-                # Remembered (the daemon's cookie) when the page is opened again without it.
-                page.goto(base + "/")
-                page.get_by_test_id("btn-capture").click()
-                expect(page.locator("[data-testid=capture]")).to_have_count(2)
-                _wait_new_frames(page, ["rect_left"])
-                assert _errors(page) == []
-            finally:
-                page.screenshot(path=str(artifacts_dir / "page.png"))
 
 
 def test_views_are_thumbnails_until_clicked_and_show_why_the_budget_lowers_them(

@@ -498,10 +498,15 @@ def test_no_log_line_at_any_level_holds_the_token(tmp_path) -> None:
             f"GET /api/status?token={encoded}x HTTP/1.1\r\nHost: 127.0.0.1\r\n",  # wrong by a letter
             f"GET /stream/rect_left?token={encoded}&fps=1 HTTP/1.1 junk\r\nHost: 127.0.0.1\r\n",  # malformed
             f"GET /api/status?token={encoded} HTTP/1.1\r\nHost: evil.example\r\nOrigin: null\r\n",
+            *(f"POST /signin HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+              # the sign-in form, right and wrong
+              f"Content-Type: application/x-www-form-urlencoded\r\nContent-Length: {len(body)}\r\n\r\n{body}"
+              for body in (f"token={encoded}", f"token={encoded}x")),
         ]
         for text in requests:
             with socket.create_connection(("127.0.0.1", port), timeout=BOUND_S) as s:
-                s.sendall((text + "Connection: close\r\n\r\n").encode())
+                head, sep, body = text.partition("\r\n\r\n")
+                s.sendall((head + ("\r\n" if sep else "") + "Connection: close\r\n\r\n" + body).encode())
                 while s.recv(65536):
                     pass
     finally:

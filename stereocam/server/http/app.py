@@ -41,7 +41,7 @@ from ..frames.feed import FrameFeed
 from ..frames.pipeline import Pipeline
 from ..frames.virtual_camera import VirtualCamera
 from ..stores.captures import CaptureStore
-from . import routes_faults
+from . import routes_faults, signin
 from .connections import BoundedSite, ConnectionLimits
 from .errors import BAD_REQUEST_LINES, json_errors
 from .heap import give_back_memory, limit_arenas
@@ -178,6 +178,7 @@ def create_app(
 
     app.router.add_get("/", _index)
     app.router.add_get("/static/{path:.+}", _static)
+    signin.setup(app)
     setup_stream_routes(app)
     setup_api_routes(app)
     setup_ops_routes(app)

@@ -34,7 +34,8 @@ the value as sent, or that value percent-decoded (``%2B`` is ``+``, and a ``+`` 
 no token holds a space), so a token with ``+``, ``/`` or ``=`` works from a header, a cookie
 a script wrote URI-encoded, and a URL. The page's cookie is the server's: ``/?token=<token>``
 answers a redirect to the same URL without the token (out of the address bar and the history)
-that sets it ``HttpOnly; SameSite=Strict`` (:func:`page_token_redirect`). The token never
+that sets it ``HttpOnly; SameSite=Strict`` (:func:`page_token_redirect`), and so does the sign-in
+form (``/signin``, :mod:`.signin`: its POST needs the same origin, not the token). The token never
 reaches a log line: :class:`AccessLog` writes aiohttp's access line with every ``token=``
 value redacted, and :class:`TokenRedactor` takes the token out of any record a handler writes.
 """
@@ -60,18 +61,21 @@ if TYPE_CHECKING:  # pragma: no cover
     from aiohttp.typedefs import Middleware
 
 __all__ = ["guard", "same_origin", "STATE_CHANGING", "allowed_host_names", "PROTECT", "TOKEN_COOKIE",
-           "TOKEN_PARAM", "TOKEN_GIVEN_COOKIE", "token_given", "token_matches", "page_token_redirect",
+           "TOKEN_PARAM", "TOKEN_GIVEN_COOKIE", "SIGNIN_PATHS", "token_given", "token_matches",
+           "page_token_redirect", "set_token_cookies",
            "client_gone", "refuse_if_gone", "redact", "AccessLog", "TokenRedactor"]
 
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 PROTECT = ("all", "control")  # what the access token guards
 TOKEN_COOKIE = "stereocam_token"
-TOKEN_GIVEN_COOKIE = "stereocam_has_token"  # "1", readable by the page: a token was given (not which)
+TOKEN_GIVEN_COOKIE = "stereocam_has_token"  # set readable by earlier daemons: now only ever removed
 TOKEN_PARAM = "token"  # ?token=: every GET that may need the token accepts it besides its own parameters
 TOKEN_COOKIE_AGE_S = 365 * 24 * 3600
 PAGE_PATHS = frozenset({"/", "/index.html"})
 # No camera data, no settings (/api/views: the view registry the page builds its figures from).
-OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico", "/api/views"})
+# The sign-in form and its state: a POST to them needs the same origin, not the token (they take it).
+SIGNIN_PATHS = frozenset({"/signin", "/signout", "/api/session"})
+OPEN_PATHS = frozenset({"/", "/index.html", "/healthz", "/favicon.ico", "/api/views"}) | SIGNIN_PATHS
 OPEN_PREFIXES = ("/static/",)
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
 WILDCARDS = frozenset({"0.0.0.0", "::", ""})
@@ -169,10 +173,22 @@ def token_matches(given: str, expected: bytes) -> bool:
     return ok
 
 
+def set_token_cookies(resp: web.StreamResponse, token: str, *, secure: bool) -> None:
+    """Set the page's cookie to ``token`` (``HttpOnly``, ``SameSite=Strict``, a year), or remove it
+    (``token`` empty). Percent-encoded: any token is then a legal cookie value, sent back as it was set.
+    The readable ``stereocam_has_token`` that earlier daemons set is removed: the page asks
+    ``/api/session`` instead, and no cookie a script can read says anything about the token."""
+    encoded = quote(token.encode("utf-8", "surrogateescape"), safe="")
+    resp.set_cookie(TOKEN_COOKIE, encoded, max_age=TOKEN_COOKIE_AGE_S if token else 0, path="/",
+                    samesite="Strict", httponly=True, secure=secure)
+    resp.set_cookie(TOKEN_GIVEN_COOKIE, "", max_age=0, path="/", samesite="Strict", httponly=True,
+                    secure=secure)
+
+
 def page_token_redirect(request: web.Request) -> Optional[web.Response]:
     """``GET /?token=T``: a 303 to the same URL without ``token`` that sets the page's cookie
-    (``HttpOnly``, ``SameSite=Strict``, a year; ``/?token=`` with nothing forgets it); None for any
-    other request. Set by the server, not by the page's script: the script never holds the token."""
+    (:func:`set_token_cookies`; ``/?token=`` with nothing forgets it); None for any other request.
+    Set by the server, not by the page's script: the script never holds the token."""
     if request.method not in ("GET", "HEAD") or request.path not in PAGE_PATHS:
         return None
     token = _raw_query_token(request)
@@ -182,14 +198,7 @@ def page_token_redirect(request: web.Request) -> Optional[web.Response]:
     location = request.path + ("?" + urlencode(kept) if kept else "")
     resp = web.Response(status=303, headers={"Location": location, "Cache-Control": "no-store",
                                              "Referrer-Policy": "no-referrer"})
-    value = unquote(token, errors="surrogateescape")
-    # Percent-encoded: any token is then a legal cookie value, sent back as it was set.
-    encoded = quote(value.encode("utf-8", "surrogateescape"), safe="")
-    age = TOKEN_COOKIE_AGE_S if value else 0  # 0: forget it
-    cookies = ((TOKEN_COOKIE, encoded, True), (TOKEN_GIVEN_COOKIE, "1" if value else "", False))
-    for name, text, httponly in cookies:
-        resp.set_cookie(name, text, max_age=age, path="/", samesite="Strict", httponly=httponly,
-                        secure=request.secure)
+    set_token_cookies(resp, unquote(token, errors="surrogateescape"), secure=request.secure)
     return resp
 
 
@@ -326,7 +335,7 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
                 and not request.path.startswith(OPEN_PREFIXES)):
             given = token_given(request, query=True)
             if given is None or not token_matches(given, expected):
-                raise ApiError(f"{request.path} needs the access token: open the page as /?token=<token>, or "
+                raise ApiError(f"{request.path} needs the access token: sign in at /signin, or "
                                "send 'Authorization: Bearer <token>' or add ?token=<token> to the URL"
                                + (" (the token sent is wrong)" if given is not None else ""),
                                status=401, headers=CHALLENGE)
@@ -334,12 +343,12 @@ def guard(*, access_token: Optional[str], max_body: int, allowed_hosts: Optional
             origin = _shown(request.headers.get("Origin", "a cross-site page"))
             raise ApiError(f"refused: {request.method} {request.path} from another origin ({origin}); use "
                            "the daemon's own page or a script without an Origin header", status=403)
-        if changing and expected is not None:
+        if changing and expected is not None and request.path not in SIGNIN_PATHS:
             given = token_given(request, query=False)
             if given is None or not token_matches(given, expected):
                 raise ApiError(f"{request.method} {request.path} needs the access token: send "
-                               "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>', or open "
-                               "the page as /?token=<token>"
+                               "'Authorization: Bearer <token>' or 'X-Stereocam-Token: <token>', or sign "
+                               "in at /signin"
                                + (" (the token sent is wrong)" if given is not None else ""),
                                status=401, headers=CHALLENGE)
         if changing and request.content_length is not None and request.content_length > max_body:

@@ -9,13 +9,15 @@
 // the new one has loaded. Each <img> carries data-frame / data-timestamp of the frame
 // it shows (tests read them).
 //
-// Access token: when the daemon has `access_token` set, open the page as
-// /?token=SECRET once. The daemon answers with a redirect to the page without the token
-// (it leaves the address bar) and sets the stereocam_token cookie itself (HttpOnly,
-// SameSite=Strict): this script never holds the token, and every request of the page
-// (API calls, the WebSocket, images) carries it as that cookie. /?token= (empty) forgets it.
-// The daemon also sets stereocam_has_token=1, which says only that a token was given.
-//
+// Access token: when the daemon has `access_token` set, the page asks GET /api/session (before any
+// other request: a top-level await) and, without the right token, shows ONE "sign in" state
+// (#signin: a plain form that POSTs the token to /signin, which works without this script) instead
+// of a failure per request. With `protect: all` the views then wait for the sign-in (no socket, no
+// polling, each view says so). The daemon answers a right token with its cookie (HttpOnly,
+// SameSite=Strict) and a redirect back here; a wrong one with its sign-in page saying so. This
+// script never holds the token: not in the URL, the history, localStorage, sessionStorage or a
+// cookie it can read. Any 401 later (the daemon's token changed) brings the same state back.
+
 // Errors: every failed API call shows a message in plain words in #messages, with the
 // daemon's {"error": ...} text behind a disclosure; nothing is swallowed (see "messages").
 
@@ -49,11 +51,71 @@ export function clampNumber(text, lo, hi, fallback) {
   return Math.min(hi, Math.max(lo, n));
 }
 
-// ---- access token ---------------------------------------------------------------
-// Whether a token was given (the daemon's cookie holds it, out of this script's reach).
-export const TOKEN_GIVEN = document.cookie.split(";").some((c) => c.trim() === "stereocam_has_token=1");
-// Earlier pages kept the token in localStorage: it does not belong there.
-try { localStorage.removeItem("stereocam.token"); } catch (e) { /* storage disabled */ }
+// ---- signing in ------------------------------------------------------------------
+// Earlier pages kept the token in localStorage: it does not belong there (nor anywhere a script reads).
+try { localStorage.removeItem("stereocam.token"); sessionStorage.removeItem("stereocam.token"); } catch (e) { /* storage disabled */ }
+
+async function readSession() {
+  try {
+    const resp = await fetch("/api/session", { credentials: "same-origin", cache: "no-store" });
+    return resp.ok ? await resp.json() : null;
+  } catch (e) {
+    return null;  // unreachable: the panels say so
+  }
+}
+// {token_required, signed_in, token_sent, protect}; an unreachable daemon counts as signed in (the
+// panels then say it is unreachable, which is the truth).
+export const session = (await readSession()) ||
+  { token_required: false, signed_in: true, token_sent: false, protect: "all" };
+
+// True while every read needs the token and this browser has not given the right one: the views
+// and panels wait (nothing polls, nothing retries) until the sign-in form reloads the page.
+export function waitingForSignIn() {
+  return session.token_required && !session.signed_in && session.protect === "all";
+}
+
+// Show the sign-in state: why (no token, or a wrong one), and, when reads need it, the views waiting.
+export function showSignIn() {
+  const box = $("signin");
+  const why = session.token_sent
+    ? "The access token this browser holds is wrong (the daemon's token may have changed): type the current one."
+    : "This daemon needs its access token (its access_token setting, or stereocam serve --access-token) " +
+      (session.protect === "all" ? "to show its views and status." : "for changes (capture, source, cameras, upload, verify).");
+  $("signin-why").textContent = why;
+  box.dataset.state = session.token_sent ? "wrong" : "missing";
+  box.hidden = false;
+  $("signout-form").hidden = true;
+  if (!waitingForSignIn()) return;
+  document.body.dataset.signin = "waiting";
+  const conn = $("conn");
+  conn.textContent = "waiting for sign-in";
+  conn.className = "badge badge-warn";
+  for (const fig of document.querySelectorAll("#views figure.view")) {
+    fig.dataset.waiting = "sign-in";
+    const caption = $("frame-" + fig.dataset.view);
+    if (caption) caption.textContent = "waiting for sign-in";
+  }
+  document.dispatchEvent(new Event("stereocam:signin"));
+}
+
+// A 401 came: ask the daemon whether this browser is still signed in; if not, show the sign-in
+// state (once). Resolves to true when the page now waits for the sign-in.
+let signInShown = false;
+export async function signInNeeded() {
+  const now = await readSession();
+  if (!now || now.signed_in) return false;
+  Object.assign(session, now);
+  if (!signInShown) { signInShown = true; showSignIn(); }
+  const input = $("signin-token");
+  if (input && document.activeElement !== input) input.focus();
+  return waitingForSignIn();
+}
+
+// At start: the sign-in state, or (signed in with a token) the sign-out button.
+export function initSignIn() {
+  if (session.token_required && !session.signed_in) { signInShown = true; showSignIn(); }
+  else if (session.token_required) $("signout-form").hidden = false;
+}
 
 // ---- messages -------------------------------------------------------------------
 // Three kinds: "error" stays until dismissed; "success" and "info" fade by themselves after
@@ -137,6 +199,11 @@ export function showInfo(text, key) { return showMessage(text, "info", { key: ke
 export function showError(e, opts) {
   opts = opts || {};
   if (typeof e === "string") return showMessage(e, "error", { key: opts.key });
+  if (e instanceof ApiError && e.status === 401) {
+    // Not one more message: the one sign-in state says what to do.
+    signInNeeded();
+    return $("signin");
+  }
   if (e instanceof ApiError) {
     return showMessage(explainError(e, opts), "error",
                        { key: opts.key || e.key, detail: e.http, status: e.status });
@@ -186,8 +253,8 @@ export function explainError(e, opts) {
            "can reach the board, then try again.";
   }
   if (e.status === 401) {
-    return (what || "This change") + " needs the daemon's access token: open the page once as " +
-           "/?token=YOUR_TOKEN (it is remembered).";
+    return (what || "This change") + " needs the daemon's access token: sign in with the form at the " +
+           "top of the page (it is remembered).";
   }
   if (e.status === 403) return failed + "the daemon takes changes only from its own page. " + detail;
   if (e.status === 413) return failed + "that is more than the daemon accepts. " + detail;

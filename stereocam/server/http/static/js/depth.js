@@ -7,7 +7,7 @@
 //   disparity map the view shows; the page never reads depth from JPEG colours).
 // - Legend: the disparity view's JET colours 0..128 px (GET /api/disparity gives the daemon's exact
 //   colour table), labelled in pixels and, when a calibration is known, in metres (Z = f B / d).
-import { $, api, ApiError, VIEW_INFO } from "./core.js";
+import { $, api, ApiError, VIEW_INFO, waitingForSignIn } from "./core.js";
 
 const READOUT_VIEWS = VIEW_INFO.filter((v) => v.readout).map((v) => v.name);  // the registry says which
 const LEGEND_TICKS = [0, 16, 32, 64, 96, 128];
@@ -170,6 +170,7 @@ function makeLegend() {
 }
 
 export async function refreshDisparityScale() {
+  if (waitingForSignIn()) return;
   try {
     const info = await api("GET", "/api/disparity");
     const changed = !scaleInfo || info.calibration_id !== scaleInfo.calibration_id;

@@ -1,5 +1,6 @@
 // The live views, over one WebSocket (see core.js).
-import { $, VIEWS, WS_FPS, THUMB_SCALE, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt } from "./core.js";
+import { $, VIEWS, WS_FPS, THUMB_SCALE, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt, signInNeeded,
+         waitingForSignIn } from "./core.js";
 import { initDepth } from "./depth.js";
 
 // ---- live views over one WebSocket ----------------------------------------------
@@ -166,6 +167,7 @@ export function renderViewRates(st) {
 
 export function connect() {
   reconnectTimer = null;
+  if (waitingForSignIn()) return;  // the views say they wait for the sign-in; nothing retries
   const proto = window.location.protocol === "https:" ? "wss:" : "ws:";
   const sock = new WebSocket(proto + "//" + window.location.host + "/ws");
   sock.binaryType = "arraybuffer";
@@ -189,9 +191,14 @@ export function connect() {
     }
     onFrame(ev.data);
   };
-  sock.onclose = (ev) => {
+  sock.onclose = async (ev) => {
     if (ws !== sock) return;
     ws = null;
+    // Refused for want of the token (a 401 on the upgrade, or the daemon's token changed): the page
+    // shows the sign-in state and the views wait for it instead of reconnecting over and over.
+    if (!everConnected || ev.code !== 1000) {
+      if (await signInNeeded()) return;
+    }
     const wait = backoff;
     backoff = Math.min(BACKOFF_MAX_MS, backoff * 2);
     setConn("disconnected", "badge-bad");
@@ -204,3 +211,11 @@ export function connect() {
 
 
 export function closeLive() { if (ws) ws.close(); }
+document.addEventListener("stereocam:signin", () => {
+  clearTimeout(reconnectTimer);
+  reconnectTimer = null;
+  showFallback("");
+  const sock = ws;
+  ws = null;
+  if (sock) sock.close();
+});

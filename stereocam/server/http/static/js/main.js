@@ -8,12 +8,20 @@ import { initSource } from "./source.js";
 import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
-import { $, api, showError, showInfo } from "./core.js";
+import { $, api, initSignIn, showError, showInfo, waitingForSignIn } from "./core.js";
 import { init as initFit } from "./fit.js";
 import { init as initRecordings } from "./recordings.js";
 import { setSourceRadios } from "./source.js";
 
 function init() {
+  initSignIn();
+  if (waitingForSignIn()) {
+    // One state: the sign-in form; the views say they wait for it. Nothing else asks the daemon
+    // (every read would be a 401); signing in reloads the page, which starts the rest.
+    initShortcuts();
+    document.body.dataset.ready = "1";
+    return;
+  }
   initSource();
   initVirtual();
   window.addEventListener("beforeunload", closeLive);

@@ -7,7 +7,7 @@
 // since the last frame (`last_frame.age_s`), and calls the signal intermittent when it came and
 // went over the last seconds (the views then show NO SIGNAL between frames), so it never says
 // "yes" while the views keep showing NO SIGNAL.
-import { $, STATUS_PERIOD_MS, TOKEN_GIVEN, api, showError, fmt, flagsText, hasFlags } from "./core.js";
+import { $, STATUS_PERIOD_MS, api, waitingForSignIn, showError, fmt, flagsText, hasFlags } from "./core.js";
 import { renderViewRates } from "./live.js";
 import { setSourceRadios } from "./source.js";
 
@@ -17,7 +17,6 @@ const GROUPS = [
 ];
 const SIGNAL_WINDOW = 10;  // polls (seconds) over which a signal that came and went is "intermittent"
 const signalHistory = [];
-let tokenHintShown = false;
 
 function ago(s) {
   if (typeof s !== "number") return "";
@@ -178,11 +177,6 @@ function renderStatus(st) {
   box.replaceChildren(frag);
   box.dataset.updated = String(Date.now());
   $("backend").textContent = st.backend ? "backend: " + st.backend : "";
-  if (st.access_token === true && !TOKEN_GIVEN && !tokenHintShown) {
-    tokenHintShown = true;
-    showError("This daemon needs an access token for changes (capture, source, cameras, upload, verify): " +
-              "open the page as /?token=YOUR_TOKEN (once; it is remembered).");
-  }
   if (st.source) setSourceRadios(st.source);
   renderViewRates(st);
 }
@@ -199,6 +193,7 @@ export async function refreshStatus() {
     if (!statusFailing) showError(e, { what: "Reading the daemon's status" });
     statusFailing = true;
   } finally {
-    setTimeout(refreshStatus, STATUS_PERIOD_MS);
+    // Waiting for the sign-in: no polling (the sign-in reloads the page, which starts it again).
+    if (!waitingForSignIn()) setTimeout(refreshStatus, STATUS_PERIOD_MS);
   }
 }
