@@ -3,12 +3,16 @@
 - Fit: a 707x481 pair is refused as it is (exact), previewed with ``pad`` (the preview is
   752x480 per camera, side by side), sent with ``pad``, and Verify says identical.
 - Recording: a 2 s recording from the page is listed with its frames, replays into the
-  virtual camera (the source switches to virtual) and is deleted after confirmation.
+  virtual camera (the source switches to virtual) and is deleted with undo, as captures are:
+  gone at once, Undo brings it back as it was; without undo it stays deleted (404), and is
+  still restorable from the trash.
 
 Same approach as ``tests/browser/test_browser.py``; screenshots in the artifacts folder.
 """
 from __future__ import annotations
 
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import cv2
@@ -70,8 +74,7 @@ def get_png(url: str) -> np.ndarray:
 
 def test_a_recording_is_made_listed_replayed_and_deleted(tmp_path: Path, artifacts_dir: Path) -> None:
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        with watched_page(tmp_path, artifacts_dir, "page-recording.png") as page:
-            page.on("dialog", lambda dialog: dialog.accept())
+        with watched_page(tmp_path, artifacts_dir, "page-recording.png", expected=["status of 404"]) as page:
             page.goto(base + "/")
             expect(page.get_by_test_id("conn")).to_have_text("live")
             page.get_by_test_id("record-seconds").fill("2")
@@ -99,7 +102,41 @@ def test_a_recording_is_made_listed_replayed_and_deleted(tmp_path: Path, artifac
             page.get_by_test_id("source-live").check()
             _wait_status_source(page, "live")
             expect(page.get_by_test_id("status-playing")).to_have_count(0)
+            # Delete with undo: gone at once (no question asked), Undo brings it back as it was.
+            rid = listed["id"]
+            items = page.locator("[data-testid=recording]")
             item.get_by_test_id("recording-delete").click()
-            expect(page.locator("[data-testid=recording]")).to_have_count(0)
+            expect(items).to_have_count(0)
+            undo = page.get_by_test_id("message-undo")
+            expect(undo).to_be_visible()
+            expect(undo).to_contain_text(rid)
+            page.screenshot(path=str(artifacts_dir / "recording-deleted-undo.png"))
+            page.wait_for_function("id => fetch('/api/recordings/' + id).then(r => r.status === 404)",
+                                   arg=rid)
             assert get_json(base + "/api/recordings")["recordings"] == []
+            undo.get_by_test_id("btn-undo").click()
+            expect(items).to_have_count(1)
+            expect(page.locator(f"[data-testid=recording][data-id='{rid}']")).to_have_attribute(
+                "data-frames", str(frames))
+            assert get_json(base + f"/api/recordings/{rid}")["meta"]["frames"] == frames
+            # Without undo: the message goes by itself, the recording stays deleted, and restorable.
+            items.first.get_by_test_id("recording-delete").click()
+            expect(items).to_have_count(0)
+            expect(page.get_by_test_id("message-undo")).to_have_count(1)
+            expect(page.get_by_test_id("message-undo")).to_have_count(0)
+            assert _status(base + f"/api/recordings/{rid}") == 404
+            page.reload()
+            expect(page.get_by_test_id("recordings-list")).to_have_attribute("data-count", "0")
+            req = urllib.request.Request(base + f"/api/recordings/{rid}/restore", method="POST")
+            with urllib.request.urlopen(req, timeout=60) as resp:
+                assert resp.status == 200
+            assert get_json(base + f"/api/recordings/{rid}")["frames"] == frames
             assert _errors(page) == []
+
+
+def _status(url: str) -> int:
+    try:
+        with urllib.request.urlopen(url, timeout=60) as resp:
+            return int(resp.status)
+    except urllib.error.HTTPError as exc:
+        return int(exc.code)

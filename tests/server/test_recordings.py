@@ -225,16 +225,42 @@ async def test_recording_until_stopped_then_listed_downloaded_and_deleted(start_
         assert json.loads(zf.read(f"{rid}/recording.json"))["id"] == rid
         folder = d.app[RECORDINGS].root / rid
         assert zf.read(f"{rid}/left_000000.png") == (folder / "left_000000.png").read_bytes()
+    # Delete with undo, as captures: into the trash, back as it was, once.
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
     async with d.http.delete(f"/api/recordings/{rid}") as resp:
         assert resp.status == 204
-    assert not folder.exists() and list(d.app[RECORDINGS].root.iterdir()) == []
+    assert not folder.exists() and [p.name for p in d.app[RECORDINGS].root.iterdir()] == [".trash"]
     for method, url, status in (("GET", f"/api/recordings/{rid}", 404),
                                 ("DELETE", f"/api/recordings/{rid}", 404),
                                 ("GET", f"/api/recordings/{rid}.zip", 404),
+                                ("POST", f"/api/recordings/{rid}/stop", 404),
                                 ("GET", "/api/recordings/..%2F..%2Fetc", 400),
-                                ("POST", "/api/recordings/nonsense/stop", 400)):
+                                ("POST", "/api/recordings/nonsense/stop", 400),
+                                ("POST", "/api/recordings/nonsense/restore", 400),
+                                ("POST", "/api/recordings/.trash/restore", 400),
+                                ("POST", "/api/recordings/20261122T040512Z-000123-ab12/restore", 404)):
         async with d.http.request(method, url) as resp:
             assert resp.status == status, (method, url, await resp.text())
+    async with d.http.get("/api/recordings") as resp:
+        assert (await resp.json())["recordings"] == []
+    evil = {"Origin": "http://evil.example"}
+    async with d.http.post(f"/api/recordings/{rid}/restore", headers=evil) as resp:
+        assert resp.status == 403  # a change: another origin may not
+    async with d.http.post(f"/api/recordings/{rid}/restore") as resp:
+        assert resp.status == 200, await resp.text()
+        restored = await resp.json()
+        assert resp.headers["Location"] == f"/api/recordings/{rid}"
+    assert restored["id"] == rid and restored["frames"] == stopped["frames"] and restored["state"] == "done"
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    async with d.http.get("/api/recordings") as resp:
+        assert [r["id"] for r in (await resp.json())["recordings"]] == [rid]
+    async with d.http.post(f"/api/recordings/{rid}/restore") as resp:
+        assert resp.status == 404, await resp.text()  # restored already
+        assert "not in the trash" in (await resp.json())["error"]
+    async with d.http.delete(f"/api/recordings/{rid}") as resp:
+        assert resp.status == 204
+    async with d.http.get("/api/recordings") as resp:
+        assert (await resp.json())["recordings"] == []
 
 
 async def test_a_recording_makes_the_pipeline_copy_every_frame_then_only_what_is_needed(start_daemon) -> None:

@@ -1,9 +1,16 @@
-"""Recording: every raw stereo pair the pipeline copies, queued and written by a thread of its own.
+"""Recording: every raw stereo pair the pipeline copies, queued, encoded in parallel and written in order.
 
 The frame-path half of recordings: :class:`Recorder` holds the pipeline's raw pairs and
 every frame while a :class:`Recording` runs, and :class:`RecordingPlayer` plays one back
 through the virtual camera. What is stored, and how it is listed, read, zipped and
 deleted, is :mod:`..stores.recordings`.
+
+Keeping up. Encoding PNGs is nearly all a recording's work (writing and syncing the files
+is a few per cent of it), so a recording encodes on :data:`ENCODERS` threads of its own
+(OpenCV's encoder runs without the GIL) at :data:`..stores.capture_images.FAST_PNG`, while
+its writer thread writes the encoded frames in order as they come. The frames are written
+while recording: what a stop leaves to do is the frames queued and being encoded then
+(``queued`` in the listing), then one sync.
 """
 from __future__ import annotations
 
@@ -13,9 +20,11 @@ import contextlib
 import json
 import logging
 import math
+import os
 import queue
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import (
     Any,
@@ -33,7 +42,7 @@ from typing import (
 import numpy as np
 
 from ...overlays.spec import pixel
-from ..stores.capture_images import encode_frame
+from ..stores.capture_images import FAST_PNG, encode_pixels
 from ..stores.files import FULL_ERRNOS, fsync_dir, iso_utc, mb, meta_dumps, remove_tree, utcnow
 from ..stores.frame_calibration import FrameCalibration
 from ..stores.recording_files import (
@@ -64,12 +73,25 @@ from .pipeline import COUNT_MOD, FrameSet
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Recorder", "Recording", "RecordingPlayer", "FrameSource", "MAX_SECONDS"]
+__all__ = ["Recorder", "Recording", "RecordingPlayer", "FrameSource", "MAX_SECONDS", "ENCODERS",
+           "encode_pair"]
 
 MAX_SECONDS = 24 * 3600.0
 SLACK_BYTES = 64 * 1024  # per frame: folder entries, inodes, its line of frames.jsonl
 PNG_SHARE = 0.75  # a PNG of camera frames, of the uncompressed RGB: what a start reckons with
 QUEUE_BYTES = 64 << 20  # frames waiting for the writer, at most (then they are skipped, counted)
+ENCODERS = max(1, min(2, os.cpu_count() or 1))  # threads encoding a recording's frames (the board: 2 cores)
+
+# One camera's encoded frame: its color ("gray"|"rgb"), its PNG, its Y plane's PNG (None: not needed).
+Encoded = Tuple[str, bytes, Optional[bytes]]
+# A frame handed to the encoders: the frame, its calibration, its two cameras to come.
+Taken = Tuple[FrameSet, Optional[FrameCalibration], "Future[Tuple[Encoded, Encoded]]"]
+
+
+def encode_pair(raw: np.ndarray) -> Tuple[Encoded, Encoded]:
+    """Both cameras of a raw ``(H, W, 8)`` stream frame as a recording stores them (an encoder thread)."""
+    return (encode_pixels("the left frame", raw[..., pixel.LEFT], FAST_PNG),
+            encode_pixels("the right frame", raw[..., pixel.RIGHT], FAST_PNG))
 
 
 # -- recording ------------------------------------------------------------------------------------------
@@ -83,7 +105,7 @@ class FrameSource(Protocol):
 
 
 class Recording:
-    """One recording in progress: fed by :meth:`offer` (pipeline thread), written by its own thread.
+    """One recording in progress: fed by :meth:`offer` (pipeline thread), encoded and written by its threads.
 
     Made by :meth:`Recorder.start`. ``seconds`` None records until :meth:`stop`.
     Frames grabbed before ``started`` (monotonic) are not taken; with ``seconds``,
@@ -96,7 +118,8 @@ class Recording:
                  frame_size: Tuple[int, int], meta: Mapping[str, Any],
                  calibration_for: Callable[[int], Optional[FrameCalibration]],
                  on_end: Callable[["Recording"], None], started: float, fps_hint: Optional[float],
-                 raw_stores: int = 3) -> None:
+                 raw_stores: int = 3, encoders: int = ENCODERS,
+                 encode: Callable[[np.ndarray], Tuple[Encoded, Encoded]] = encode_pair) -> None:
         self.store = store
         self.id = rid
         self.folder = folder
@@ -110,8 +133,14 @@ class Recording:
         self._calibration_for = calibration_for
         self._on_end = on_end
         w, h = frame_size
-        self._queue: "queue.Queue[Tuple[FrameSet, Optional[FrameCalibration]]]" = queue.Queue(
-            max(2, QUEUE_BYTES // max(1, w * h * 8)))
+        # Frames taken, oldest first, each handed to the encoders as it came: written in this order.
+        self._queue: "queue.Queue[Taken]" = queue.Queue(max(2, QUEUE_BYTES // max(1, w * h * 8)))
+        self.encoders = max(1, int(encoders))
+        self._encode = encode
+        # Threads are started by the first frames (lazily), and ended with the writer thread.
+        self._pool = ThreadPoolExecutor(self.encoders, thread_name_prefix=f"stereocam-encode-{rid}")
+        self._taking = threading.Lock()  # offer's taking a frame, and the writer's last look at the queue
+        self._held = 0  # 1 while the writer waits for a frame's encoding or writes it
         self._stop = threading.Event()
         self._accepting = True
         self._done = threading.Event()
@@ -124,7 +153,7 @@ class Recording:
         self.skipped = 0
         self.duplicates = 0
         self._stats = FrameStats()
-        self._last: Optional[FrameSet] = None
+        self._last: Optional[FrameSet] = None  # the last frame taken for encoding
         self._t0: Optional[float] = None  # the first frame's monotonic time
         self._first_calibration: Optional[FrameCalibration] = None  # None: the first frame's was not known
         self._lines: Optional[FramesFile] = None
@@ -147,6 +176,11 @@ class Recording:
         """FRAME_COUNT values from the first frame to the last with no frame recorded."""
         return self._stats.missed
 
+    @property
+    def queued(self) -> int:
+        """Frames taken but not written yet: waiting for an encoder, being encoded, or being written."""
+        return self._queue.qsize() + self._held
+
     # -- any thread --------------------------------------------------------------------------------------
     @property
     def running(self) -> bool:
@@ -164,18 +198,21 @@ class Recording:
         return self.info
 
     def to_json(self) -> Dict[str, Any]:
-        """The listing entry of the recording while it runs (``state`` ``recording``)."""
+        """The listing entry while it runs: ``state`` ``recording``, then ``finishing`` (no more frames
+        taken, the ``queued`` ones being written) until it is done."""
         stats = self._stats
         first = stats.first
         fps = stats.fps(self.fps_hint)
-        return RecordingInfo(
-            id=self.id, created=self.created, state="recording" if self.running else "finishing",
+        entry = RecordingInfo(
+            id=self.id, created=self.created, state="recording" if self._accepting else "finishing",
             frames=stats.frames, seconds=self.seconds, duration_s=round(stats.duration(fps), 3),
             fps=None if fps is None else round(fps, 3), frame_size=list(self.frame_size),
             source=first["source"] if first is not None else None,
             calibration_id=stats.calibration_ids[0] if stats.calibration_ids else None, bytes=stats.bytes,
             end=self.end, complete=None, end_text=self.end_text,
         ).to_json()
+        entry["queued"] = self.queued
+        return entry
 
     # -- files (Recorder.start, then the writer thread) ----------------------------------------------------
     def _doc(self, **finished: Any) -> "builtins.bytes":  # (``bytes`` here is the property above)
@@ -203,21 +240,31 @@ class Recording:
     def close_files(self) -> None:
         if self._lines is not None:
             self._lines.close()
+        self._pool.shutdown(wait=False, cancel_futures=True)  # a start that failed: nothing to encode
 
     # -- pipeline thread -------------------------------------------------------------------------------
     def offer(self, fs: FrameSet) -> None:
-        """Queue ``fs`` for writing if it belongs to the recording (never blocks; pipeline thread)."""
-        if not self._accepting or fs.monotonic < self.started:
-            return
-        if self.deadline is not None and fs.monotonic >= self.deadline:
-            self._end("duration", None)
-            return
-        if fs.raw is None:
-            return  # the raw channel had no frame (a fault): nothing to record for this one
-        try:
-            self._queue.put_nowait((fs, self._calibration_for(fs.fabric_count)))
-        except queue.Full:
-            self.skipped += 1
+        """Take ``fs`` if it belongs to the recording: to the encoders at once, queued for the writer.
+
+        Never blocks (pipeline thread): with :data:`QUEUE_BYTES` of frames taken and not written
+        yet, a frame is skipped (counted) instead.
+        """
+        with self._taking:
+            if not self._accepting or fs.monotonic < self.started:
+                return
+            if self.deadline is not None and fs.monotonic >= self.deadline:
+                self._end("duration", None)
+                return
+            if fs.raw is None:
+                return  # the raw channel had no frame (a fault): nothing to record for this one
+            if self._duplicate(fs):
+                return
+            if self._queue.full():
+                self.skipped += 1
+                return
+            calibration = self._calibration_for(fs.fabric_count)
+            self._queue.put_nowait((fs, calibration, self._pool.submit(self._encode, fs.raw)))
+            self._last = fs
 
     # -- the writer thread -----------------------------------------------------------------------------
     def _end(self, reason: str, text: Optional[str]) -> None:
@@ -232,26 +279,58 @@ class Recording:
         self._end("disk_full", f"the disk filled after {self.frames} frames{why}: they were kept{kept}; "
                                f"delete old recordings or captures to make room")
 
+    def start_writing(self) -> None:
+        """Start the writer thread (once, after :meth:`begin`)."""
+        self._thread.start()
+
     def _run(self) -> None:
+        """Write each frame taken, in order, as soon as it is encoded.
+
+        Ends when the recording is asked to and every frame taken is written: the queue
+        drains first (what a stop leaves is in :attr:`queued`).
+        """
         try:
             while True:
                 try:
-                    fs, calibration = self._queue.get(timeout=0.05)
+                    fs, calibration, encoded = self._queue.get(timeout=0.05)
+                    self._held = 1
                 except queue.Empty:
                     if self._stop.is_set():
-                        break
+                        with self._taking:  # no frame is being taken now, and none will be after this
+                            if self._queue.empty():
+                                self._accepting = False
+                                break
+                        continue
                     if self.deadline is not None and time.monotonic() >= self.deadline + 1.0:
                         self._end("duration", None)  # no frame came after the end: end anyway
                     self._sync(idle=True)
                     continue
-                if not self._write(fs, calibration) or not self._sync(idle=False):
+                pair = encoded.result()  # the oldest: frames are written in the order they came
+                written = self._write(fs, calibration, pair)
+                self._held = 0
+                if not written or not self._sync(idle=False):
                     break
         except Exception as exc:
             log.exception("recording %s failed", self.id)
             self._end("error", f"the recording failed: {exc}")
         finally:
-            self._accepting = False
+            self._held = 0
+            with self._taking:
+                self._accepting = False
+            with contextlib.suppress(queue.Empty):
+                while True:  # frames taken before an early end (the disk full, an error): not kept
+                    self._queue.get_nowait()[2].cancel()
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._finish()
+
+    def _duplicate(self, fs: FrameSet) -> bool:
+        """True (counted) when ``fs`` carries the raw pair of the frame taken before it."""
+        last = self._last
+        if (last is not None and fs.raw_store is not None and fs.raw_store == last.raw_store
+                and (fs.fabric_count - last.fabric_count) % COUNT_MOD < self.raw_stores):
+            self.duplicates += 1  # the raw frame recorded with the frame before
+            return True
+        return False
 
     def _sync(self, *, idle: bool) -> bool:
         """Sync the frames written since the last sync, when a batch is due; False when the disk failed."""
@@ -275,33 +354,22 @@ class Recording:
                         exc.strerror or exc)
         return True
 
-    def _write(self, fs: FrameSet, calibration: Optional[FrameCalibration]) -> bool:
-        """Encode and write one frame, whole or not at all; False when the recording must end (disk full)."""
-        assert fs.raw is not None
-        last = self._last
-        if (last is not None and fs.raw_store is not None and fs.raw_store == last.raw_store
-                and (fs.fabric_count - last.fabric_count) % COUNT_MOD < self.raw_stores):
-            self.duplicates += 1  # the raw frame recorded with the frame before
-            return True
+    def _write(self, fs: FrameSet, calibration: Optional[FrameCalibration],
+               pair: Tuple[Encoded, Encoded]) -> bool:
+        """Write one encoded frame, whole or not at all; False when the recording must end (disk full)."""
         index = self.frames
         names = frame_names(index)
         files: List[Tuple[str, bytes]] = []
         entry: Dict[str, Any] = {}
-        color = None
-        for side, name, rgby in (("left", names[0], fs.raw[..., pixel.LEFT]),
-                                 ("right", names[1], fs.raw[..., pixel.RIGHT])):
-            image, pngs = encode_frame(name[:-4], rgby)
-            y_name = None
-            for file_name, data in pngs:
-                if file_name == name:
-                    files.append((name, data))
-                else:
-                    y_name = f"y_{name}"
-                    files.append((y_name, data))
-            entry[side], entry[f"{side}_y"] = name, y_name
-            color = image["color"]
+        for side, name, (_, png, y_png) in (("left", names[0], pair[0]), ("right", names[1], pair[1])):
+            files.append((name, png))
+            entry[side], entry[f"{side}_y"] = name, None
+            if y_png is not None:
+                entry[f"{side}_y"] = f"y_{name}"
+                files.append((f"y_{name}", y_png))
+        color = "gray" if pair[0][0] == pair[1][0] == "gray" else "rgb"
         need = sum(len(d) for _, d in files) + SLACK_BYTES
-        if self.store.room() < need:
+        if not self.store.has_room(need):
             self._full()
             return False
         t0 = fs.monotonic if self._t0 is None else self._t0
@@ -332,7 +400,6 @@ class Recording:
             except OSError as exc:
                 log.warning("recording %s: cannot note its calibration in %s (%s)", self.id, META_FILE,
                             exc.strerror or exc)
-        self._last = fs
         self._stats.add(line)
         self._unsynced += 1
         return True
@@ -378,14 +445,17 @@ class Recorder:
 
     While a recording runs it holds ``pipeline.raw_wanted()`` and
     ``pipeline.every_frame(recording.offer)``: every frame is copied with its raw pair
-    and handed to it; both are released when it ends.
+    and handed to it; both are released when it ends. Each recording encodes on ``encoders``
+    threads with ``encode`` (:func:`encode_pair`; tests pass their own).
     """
 
     def __init__(self, store: RecordingStore, pipeline: FrameSource, *,
                  calibration_for: Callable[[int], Optional[FrameCalibration]] = lambda count: None,
-                 raw_stores: int = 3) -> None:
+                 raw_stores: int = 3, encoders: int = ENCODERS,
+                 encode: Callable[[np.ndarray], Tuple[Encoded, Encoded]] = encode_pair) -> None:
         self.store = store
         self.raw_stores = raw_stores  # frame stores of the raw channel (duplicates: see Recording)
+        self.encoders, self.encode = encoders, encode
         self.pipeline = pipeline
         self.calibration_for = calibration_for
         self._lock = threading.Lock()
@@ -415,11 +485,12 @@ class Recorder:
                 raise RecordingBusy(f"recording {running.id} is running: stop it first "
                                     f"(POST /api/recordings/{running.id}/stop) or wait for it to end")
             try:
+                fits = self.store.has_room(need)
                 room = self.store.room()
             except OSError as exc:
                 raise RecordingError(f"cannot check the free space in {self.store.root} "
                                      f"({exc.strerror or exc}); nothing was recorded") from exc
-            if room < need:
+            if not fits:
                 what = f"{seconds:g} s" if seconds is not None else "a recording (1 s at least)"
                 raise RecordingDiskFull(
                     f"not enough free space for {what} at {rate:.0f} fps in {self.store.root}: it needs "
@@ -429,7 +500,8 @@ class Recorder:
             rid, folder = self.store.reserve(frame_no)
             rec = Recording(self.store, rid, folder, seconds=seconds, frame_size=(int(w), int(h)),
                             meta=meta or {}, calibration_for=self.calibration_for, on_end=self._ended,
-                            started=time.monotonic(), fps_hint=fps, raw_stores=self.raw_stores)
+                            started=time.monotonic(), fps_hint=fps, raw_stores=self.raw_stores,
+                            encoders=self.encoders, encode=self.encode)
             try:
                 rec.begin()
             except OSError as exc:
@@ -445,9 +517,10 @@ class Recorder:
             try:
                 holds.enter_context(self.pipeline.raw_wanted())
                 holds.enter_context(self.pipeline.every_frame(rec.offer))
-                rec._thread.start()
+                rec.start_writing()
             except BaseException:
                 holds.close()
+                rec.close_files()
                 remove_tree(folder)
                 raise
             self.current, self._holds = rec, holds

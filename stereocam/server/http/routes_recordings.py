@@ -1,4 +1,4 @@
-"""Recordings over HTTP: start, stop, list, download, delete; and opening one for the virtual camera.
+"""Recordings over HTTP: start, stop, list, download, delete with undo; opening one for the virtual camera.
 
 The recording itself (when it starts and ends) is :mod:`..frames.recorder`, what is stored
 :mod:`..stores.recordings`;
@@ -46,6 +46,7 @@ def setup(app: web.Application) -> None:
     r.add_post("/api/recordings", start_recording)
     r.add_get(r"/api/recordings/{id:[^/]+}.zip", recording_zip)
     r.add_post(r"/api/recordings/{id:[^/]+}/stop", stop_recording)
+    r.add_post(r"/api/recordings/{id:[^/]+}/restore", restore_recording)
     r.add_get(r"/api/recordings/{id:[^/]+}", get_recording)
     r.add_delete(r"/api/recordings/{id:[^/]+}", delete_recording)
     app.on_shutdown.append(_end_recording)
@@ -155,8 +156,16 @@ async def delete_recording(request: web.Request) -> web.Response:
     if player is not None and player.running and player.id == rid:
         raise ApiError(f"recording {rid} is playing through the virtual camera: choose another input or the "
                        "live source first", status=409)
-    await app[EXECUTORS].run(app[RECORDINGS].delete, rid)
+    # Into the store's trash, as captures go: POST /api/recordings/{id}/restore undoes it.
+    await app[EXECUTORS].run(app[RECORDINGS].trash, rid)
     return web.Response(status=204)
+
+
+async def restore_recording(request: web.Request) -> web.Response:
+    """The undo of ``DELETE /api/recordings/{id}``: the recording back from the trash, as it was."""
+    app = request.app
+    info = await app[EXECUTORS].run(app[RECORDINGS].restore, request.match_info["id"])
+    return json_response(info.to_json(), headers={"Location": f"/api/recordings/{info.id}"})
 
 
 # -- the virtual camera's side -----------------------------------------------------------------------

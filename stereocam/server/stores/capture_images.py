@@ -14,7 +14,7 @@ RGB, or ``(H, W)`` gray) and is stored losslessly as PNG:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -30,23 +30,28 @@ from ...overlays.spec import pixel
 from .errors import Damaged, StoreError
 from .files import MAX_IMAGE_FILE_BYTES, read_member
 
-__all__ = ["FRAME_NAMES", "read_raw_pair"]
+__all__ = ["FRAME_NAMES", "read_raw_pair", "encode_pixels", "CAPTURE_PNG", "FAST_PNG"]
 
 FRAME_NAMES = RAW_FRAMES + ("rect_left", "rect_right")
-_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+CAPTURE_PNG = (cv2.IMWRITE_PNG_COMPRESSION, 3)
+# Recordings: a camera's frames carry sensor noise, so deflate's string matching finds little in
+# them; the Paeth filter with run-length matches only (deflate level 1) makes files as small or
+# smaller at about a third of the CPU (API.md, "Recordings", has the figures). An OpenCV without
+# the filter choice (before 4.11) lets libpng pick filters per row: the same size, a little slower.
+FAST_PNG = (cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE) + (
+    (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_PAETH) if hasattr(cv2, "IMWRITE_PNG_FILTER") else ())
 
 
-def _png(name: str, image: np.ndarray) -> bytes:
-    if image.ndim == 3:
-        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), _PNG_PARAMS)
+def _png(name: str, image: np.ndarray, params: Sequence[int] = CAPTURE_PNG) -> bytes:
+    if image.ndim == 3:  # RGB to OpenCV's BGR, in one copy
+        image = image[..., 2::-1]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), list(params))
     if not ok:
         raise StoreError(f"cannot encode {name} as PNG (OpenCV refused it): nothing was stored")
     return buf.tobytes()
 
 
-def encode_frame(name: str, frame: Any) -> Tuple[Dict[str, Any], List[Tuple[str, bytes]]]:
-    """The image entry of meta.json and the PNG files of one frame (see the module doc)."""
+def _as_rgby(name: str, frame: Any) -> np.ndarray:
     a = np.asarray(frame)
     if a.dtype != np.uint8:
         raise TypeError(f"frame {name} must be uint8, got {a.dtype}")
@@ -57,19 +62,43 @@ def encode_frame(name: str, frame: Any) -> Tuple[Dict[str, Any], List[Tuple[str,
     h, w = a.shape[:2]
     if h == 0 or w == 0:
         raise ValueError(f"frame {name} is empty: {a.shape}")
+    return a
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a == b`` everywhere; a colour frame most often differs in its first row already (cheap)."""
+    return np.array_equal(a[:1], b[:1]) and np.array_equal(a, b)
+
+
+def encode_pixels(name: str, frame: Any, params: Sequence[int] = CAPTURE_PNG
+                  ) -> Tuple[str, bytes, Optional[bytes]]:
+    """``(color, png, y_png)`` of one frame: gray or RGB PNG, and its Y plane's where it is needed.
+
+    ``y_png`` is None unless Y differs from what gray or :func:`pixel.gray_of` of RGB gives back
+    (see the module doc); ``params`` are OpenCV's PNG options (:data:`CAPTURE_PNG`, :data:`FAST_PNG`).
+    Any of them reads back bit for bit. ``name`` names the frame in errors.
+    """
+    a = _as_rgby(name, frame)
     r, g, b, y = (a[..., i] for i in range(4))
-    file, y_file = capture_file(name), capture_file(name, y_plane=True)
-    entry: Dict[str, Any] = {"file": file, "width": int(w), "height": int(h)}
-    if np.array_equal(r, g) and np.array_equal(r, b) and np.array_equal(r, y):
-        entry.update(color="gray", y_file=None)
-        return entry, [(file, _png(name, r))]
+    if _same(r, g) and _same(r, b) and _same(r, y):
+        return "gray", _png(name, r, params), None
     rgb = a[..., :3]
-    files = [(file, _png(name, rgb))]
-    if np.array_equal(y, pixel.gray_of(rgb)):
-        entry.update(color="rgb", y_file=None)
-    else:
-        entry.update(color="rgb", y_file=y_file)
-        files.append((y_file, _png(f"{name}_y", np.ascontiguousarray(y))))
+    y_png = None if np.array_equal(y, pixel.gray_of(rgb)) else _png(f"{name}_y", np.ascontiguousarray(y),
+                                                                     params)
+    return "rgb", _png(name, rgb, params), y_png
+
+
+def encode_frame(name: str, frame: Any) -> Tuple[Dict[str, Any], List[Tuple[str, bytes]]]:
+    """The image entry of meta.json and the PNG files of one frame (see the module doc)."""
+    a = _as_rgby(name, frame)
+    h, w = a.shape[:2]
+    color, png, y_png = encode_pixels(name, a)
+    file, y_file = capture_file(name), capture_file(name, y_plane=True)
+    entry: Dict[str, Any] = {"file": file, "width": int(w), "height": int(h), "color": color,
+                             "y_file": None if y_png is None else y_file}
+    files = [(file, png)]
+    if y_png is not None:
+        files.append((y_file, y_png))
     return entry, files
 
 

@@ -11,7 +11,10 @@ A recording is a folder ``<root>/<id>/`` holding
 Pixels are stored as captures store them (:mod:`.captures`): an 8-bit gray PNG
 for a gray camera, RGB otherwise; Y goes to ``y_left_000000.png`` only where it
 is not :func:`...overlays.spec.pixel.gray_of` of RGB (never for live raw frames),
-so every frame comes back bit for bit. The pairs are named so any tool that
+so every frame comes back bit for bit. Recordings are encoded faster than captures
+(:data:`.capture_images.FAST_PNG`: deflate level 1, the Paeth filter, run-length
+matches), which for camera frames is also smaller; any PNG reader reads both, so a
+recording made before (level 3) lists, replays and downloads the same. The pairs are named so any tool that
 pairs ``left*``/``right*`` files reads them; the emulated cameras' replay
 (``stereocam serve --source FOLDER``) recognises ``recording.json`` and replays
 the frames in order at the recording's rate, and the virtual camera plays them
@@ -55,11 +58,16 @@ does); the disk filling ends the recording, and a frame being written then is
 removed whole. A recording with no frame is removed. A new store recovers the
 recordings a crash or a power cut interrupted: their whole frames are kept
 and listed (``end`` ``interrupted``), and the log says so. Nothing recorded is
-ever removed but by :meth:`RecordingStore.delete`.
+ever removed but by :meth:`RecordingStore.delete`, or by
+:meth:`RecordingStore.trash` (what ``DELETE /api/recordings/{id}`` does, as for
+captures: the folder is renamed into the hidden ``.trash/``, from where
+:meth:`RecordingStore.restore` renames it back, for :data:`.trash.TRASH_KEEP_S`;
+older ones are removed at the next delete and at start-up, and every one when a
+recording is short of space).
 
 Threads: :class:`Recorder` is driven from the event loop (``start``, ``stop``)
 and fed on the pipeline thread (``offer``, which never blocks); each recording
-has a writer thread of its own that encodes and writes (blocking disk I/O).
+has encoder threads and a writer thread of its own (:mod:`..frames.recorder`).
 :class:`RecordingStore` methods block and are thread-safe.
 """
 from __future__ import annotations
@@ -170,6 +178,17 @@ class RecordingStore(FolderStore[RecordingInfo]):
                  clock: Optional[Callable[[], datetime]] = None) -> None:
         super().__init__(root, min_free_bytes=min_free_bytes, clock=clock)
         self.recover_interrupted()
+        self.purge_trash()
+
+    def has_room(self, need: int) -> bool:
+        """True when ``need`` more bytes leave ``min_free_bytes`` free (blocks; OSError if unknown).
+
+        Short of space, recordings waiting in the trash for an undo give theirs first, as
+        captures' do: a recording is worth more than an undo.
+        """
+        if self.room() >= need:
+            return True
+        return self.purge_trash(0.0) > 0 and self.room() >= need
 
     @staticmethod
     def _shown_id(ident: object) -> str:

@@ -6,10 +6,10 @@
 // at once, not when the undo expires, is what loses nothing when the page is closed meanwhile: the
 // delete the user asked for stands (no request left pending in a closed tab), and the files stay in
 // the trash for ten minutes (a restore brings them back as they were).
-import { $, api, action, showMessage, showError, humanBytes } from "./core.js";
+import { $, api, action, showMessage, showError, humanBytes, undoMessage } from "./core.js";
 import { openViewer, replayCapture } from "./viewer.js";
 
-export const UNDO_MS = 8000;
+export { UNDO_MS } from "./core.js";
 const hidden = new Set();  // deleted here, DELETE not answered yet: never shown again by a refresh
 
 function captureUrl(id) { return "/api/captures/" + encodeURIComponent(id); }
@@ -94,37 +94,6 @@ export async function refreshCaptures() {
   for (const c of caps) frag.append(captureItem(c));
   list.replaceChildren(frag);
   setCount();
-}
-
-// A message with an Undo button, in the page's message area, gone after UNDO_MS.
-function undoMessage(text, onUndo) {
-  const item = document.createElement("div");
-  item.className = "msg msg-info msg-undo";
-  item.setAttribute("data-testid", "message-undo");
-  item.setAttribute("role", "status");
-  const span = document.createElement("span");
-  span.textContent = text;
-  const undo = document.createElement("button");
-  undo.type = "button";
-  undo.className = "undo";
-  undo.textContent = "Undo";
-  undo.setAttribute("data-testid", "btn-undo");
-  const close = document.createElement("button");
-  close.type = "button";
-  close.className = "msg-close";
-  close.setAttribute("aria-label", "dismiss");
-  close.textContent = "×";
-  const timer = setTimeout(() => item.remove(), UNDO_MS);
-  undo.addEventListener("click", async () => {
-    clearTimeout(timer);
-    undo.disabled = true;
-    await onUndo();
-    item.remove();
-  });
-  close.addEventListener("click", () => { clearTimeout(timer); item.remove(); });
-  item.append(span, undo, close);
-  $("messages").append(item);
-  return item;
 }
 
 async function deleteCapture(id, li) {

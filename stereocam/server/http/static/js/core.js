@@ -396,3 +396,38 @@ export function hasFlags(v) {
   const t = flagsText(v);
   return t !== "none" && t !== "—";
 }
+
+// Delete with undo (captures, recordings): the item is deleted on the daemon at once (into its trash)
+// and the message offers Undo for UNDO_MS.
+export const UNDO_MS = 8000;
+
+// A message with an Undo button, in the page's message area, gone after UNDO_MS.
+export function undoMessage(text, onUndo) {
+  const item = document.createElement("div");
+  item.className = "msg msg-info msg-undo";
+  item.setAttribute("data-testid", "message-undo");
+  item.setAttribute("role", "status");
+  const span = document.createElement("span");
+  span.textContent = text;
+  const undo = document.createElement("button");
+  undo.type = "button";
+  undo.className = "undo";
+  undo.textContent = "Undo";
+  undo.setAttribute("data-testid", "btn-undo");
+  const close = document.createElement("button");
+  close.type = "button";
+  close.className = "msg-close";
+  close.setAttribute("aria-label", "dismiss");
+  close.textContent = "×";
+  const timer = setTimeout(() => item.remove(), UNDO_MS);
+  undo.addEventListener("click", async () => {
+    clearTimeout(timer);
+    undo.disabled = true;
+    await onUndo();
+    item.remove();
+  });
+  close.addEventListener("click", () => { clearTimeout(timer); item.remove(); });
+  item.append(span, undo, close);
+  $("messages").append(item);
+  return item;
+}

@@ -1,5 +1,6 @@
 // Recordings (issue 13, item 4): record N seconds (or until stopped) of raw pairs, list them,
-// download them as zip, replay them through the virtual camera, delete them.
+// download them as zip, replay them through the virtual camera, delete them with undo (as captures:
+// DELETE moves it into the daemon's trash at once, "Undo" in the message asks POST .../restore).
 //
 // Contract: stereocam/server/API.md, "Recordings" (and POST /api/virtual-camera {"recording": id}).
 //
@@ -31,9 +32,12 @@
 // Test hooks: #recordings-panel data-recording = the running recording's id ("" when none);
 // #recordings-list data-count; each <li data-testid="recording" data-id data-state data-frames
 // data-end> holds a[data-testid=recording-download], button[data-testid=recording-replay] and
-// button[data-testid=recording-delete] (asks for confirmation).
+// button[data-testid=recording-delete] (deletes at once; the message [data-testid=message-undo] offers
+// button[data-testid=btn-undo] for UNDO_MS).
+import { undoMessage } from "./core.js";
 
 const POLL_MS = 1000;
+const hidden = new Set();  // deleted here, DELETE not answered yet: never shown again by a refresh
 let ctx = null;
 let timer = null;
 let running = null;  // the id of the recording running, as last listed
@@ -97,7 +101,7 @@ function item(r) {
   if (r.state !== "done") {
     const note = document.createElement("small");
     note.className = "recording-live";
-    note.textContent = "recording…";
+    note.textContent = r.state === "finishing" ? "writing its last " + (r.queued || 0) + " frames…" : "recording…";
     info.append(note);
     li.append(info);
     return li;
@@ -121,10 +125,28 @@ function item(r) {
     if (typeof ctx.onReplay === "function") ctx.onReplay(res);
   });
   const del = button("delete", "recording-delete", "danger", async () => {
-    if (!window.confirm("Delete recording " + r.id + " (" + r.frames + " frames, " + humanBytes(r.bytes) +
-                        ")? This cannot be undone.")) return;
-    await ctx.api("DELETE", "/api/recordings/" + encodeURIComponent(r.id));
-    ctx.showInfo("Deleted recording " + r.id + ".");
+    // Gone from the list at once; the daemon moves it into its trash meanwhile.
+    const url = "/api/recordings/" + encodeURIComponent(r.id);
+    hidden.add(r.id);
+    li.remove();
+    try {
+      await ctx.api("DELETE", url);
+    } catch (e) {
+      hidden.delete(r.id);
+      await refresh().catch(() => {});
+      throw e;
+    }
+    hidden.delete(r.id);
+    undoMessage("Recording " + r.id + " deleted (" + r.frames + " frames, " + humanBytes(r.bytes) + ").",
+      async () => {
+        try {
+          await ctx.api("POST", url + "/restore");
+          ctx.showInfo("Recording " + r.id + " restored.");
+          await refresh();
+        } catch (e) {
+          ctx.showError(e);
+        }
+      });
     await refresh();
   });
   li.append(info, dl, replay, del);
@@ -178,7 +200,7 @@ export async function refresh() {
   const doc = await ctx.api("GET", "/api/recordings");
   const list = ctx.$("recordings-list");
   const frag = document.createDocumentFragment();
-  const items = (doc && doc.recordings) || [];
+  const items = ((doc && doc.recordings) || []).filter((r) => !hidden.has(r.id));
   for (const r of items) frag.append(item(r));
   if (!items.length) {
     const li = document.createElement("li");
