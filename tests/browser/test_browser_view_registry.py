@@ -34,7 +34,7 @@ def test_figures_are_the_api_views_in_order(daemon: str, tmp_path: Path, artifac
         figures = page.eval_on_selector_all("#views figure.view", """figs => figs.map(f => ({
             name: f.dataset.view, wide: f.classList.contains('view-wide'),
             img: f.querySelector('img').getAttribute('data-testid'), alt: f.querySelector('img').alt,
-            caption: f.querySelector('figcaption').textContent.trim(),
+            caption: f.querySelector('figcaption').firstChild.textContent.trim(),
             rate: (f.querySelector('.view-rate') || {}).id,
             corners: !!f.querySelector('svg.corners-overlay')}))""")
         assert [f["name"] for f in figures] == [v["name"] for v in api]
