@@ -104,3 +104,34 @@ def watched_page(tmp_path: Path, artifacts_dir: Path, screenshot: str, *, expect
         finally:
             page.screenshot(path=str(artifacts_dir / screenshot), full_page=True)
     assert not problems, problems
+
+
+# The two windows issue 24's check names: a laptop and a phone.
+DESKTOP = {"width": 1440, "height": 900}
+PHONE = {"width": 375, "height": 812}
+
+
+def assert_no_sideways_scroll(page: Page, state: str) -> None:
+    """The page is at most as wide as the window in ``state``: nothing pushes the views sideways.
+
+    Issue 24's check (a 1504 px fit preview made the page 2708 px wide); ``state`` names what the
+    test did, for the failure's message.
+    """
+    wide, window = page.evaluate("() => [document.scrollingElement.scrollWidth, window.innerWidth]")
+    assert wide <= window, f"{state}: the page is {wide} px wide in a {window} px window"
+
+
+def assert_messages_clear_of_views(page: Page) -> None:
+    """No message box overlaps a live view (messages must not cover the views)."""
+    overlaps = page.evaluate("""() => {
+      const hit = [];
+      for (const m of document.querySelectorAll('#messages .msg')) {
+        const a = m.getBoundingClientRect();
+        for (const v of document.querySelectorAll('#views figure')) {
+          const b = v.getBoundingClientRect();
+          const meet = a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+          if (meet) hit.push(v.id || 'view');
+        }
+      }
+      return hit; }""")
+    assert overlaps == [], f"messages cover the views {overlaps}"

@@ -35,6 +35,7 @@ from stereocam.bench.serve import running_daemon
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     TIMEOUT_MS,
+    assert_no_sideways_scroll,
     daemon_config,
     daemon_serving,
     get_json,
@@ -150,7 +151,7 @@ def test_phone_layout_themes_and_favicon(daemon: str, tmp_path: Path, artifacts_
             assert box is not None, testid
             assert box["y"] >= 0 and box["y"] + box["height"] <= 812, (testid, box)
             assert box["x"] >= 0 and box["x"] + box["width"] <= 375, (testid, box)
-        assert page.evaluate("() => document.documentElement.scrollWidth") <= 375  # no sideways scrolling
+        assert_no_sideways_scroll(page, "phone, loaded")
         # Capture works from there.
         page.get_by_test_id("btn-capture").click()
         expect(page.locator("[data-testid=capture]")).to_have_count(1)
@@ -408,3 +409,23 @@ def test_calibration_corners_on_the_frame_bars_and_legend(checkerboard: str, tmp
             expect(legend).to_contain_text(text)
         page.wait_for_function("() => document.getElementById('calib-rectified').naturalWidth > 0")
         page.get_by_test_id("calib-result").screenshot(path=str(artifacts_dir / "calibration-result.png"))
+        assert_no_sideways_scroll(page, "calibration result shown")
+
+        # The preview at its own size (rows can be judged), scrolled inside its frame; a click fits it again.
+        rectified = page.get_by_test_id("calib-rectified")
+        fitted = rectified.bounding_box()
+        assert fitted is not None
+        tabs = len(page.context.pages)
+        rectified.click()
+        figure = page.get_by_test_id("calib-rectified-figure")
+        expect(figure).to_have_attribute("data-zoomed", "true")
+        expect(page.get_by_test_id("calib-rectified-hint")).to_contain_text("full size")
+        natural = page.evaluate("() => document.getElementById('calib-rectified').naturalWidth")
+        drawn_as = "w => document.getElementById('calib-rectified').getBoundingClientRect().width === w"
+        page.wait_for_function(drawn_as, arg=natural)
+        assert natural > 2 * fitted["width"], (natural, fitted)
+        assert_no_sideways_scroll(page, "rectified preview at full size")
+        assert len(page.context.pages) == tabs  # shown in the page, no tab opened
+        rectified.click()
+        expect(figure).to_have_attribute("data-zoomed", "false")
+        page.wait_for_function(drawn_as, arg=fitted["width"])

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from playwright.sync_api import expect
 
-from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
+from .chromium import BROWSER_TEST_TIMEOUT, assert_no_sideways_scroll, daemon_serving, get_json, watched_page
 from .test_browser import DAEMON_FPS, _errors, _pattern_pair, _wait_status_source, _write_png
 
 pytestmark = BROWSER_TEST_TIMEOUT
@@ -51,6 +51,7 @@ def test_a_pair_of_another_size_is_fitted_previewed_and_verified(tmp_path: Path,
             size = page.evaluate("() => { const i = document.getElementById('fit-preview');"
                                  " return [i.naturalWidth, i.naturalHeight]; }")
             assert size == [2 * width, height]
+            assert_no_sideways_scroll(page, "fit preview shown")  # issue 24: it was 2708 px wide
             expect(page.get_by_test_id("fit-info")).to_contain_text("padded")
             page.get_by_test_id("btn-upload").click()
             expect(page.get_by_test_id("upload-info")).to_contain_text("padded")

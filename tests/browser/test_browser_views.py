@@ -32,7 +32,7 @@ from playwright.sync_api import Page, expect
 from stereocam.server.frames import views
 
 from ..rig_truth import static_depth
-from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
+from .chromium import BROWSER_TEST_TIMEOUT, assert_no_sideways_scroll, daemon_serving, get_json, watched_page
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
@@ -169,6 +169,7 @@ def test_views_rates_legend_fullscreen_and_depth_under_the_pointer(daemon: str, 
             truth = static_depth(rectification, *px)
             assert abs(float(r["depth"]) - truth) / truth < 0.02, (r, truth)
         page.screenshot(path=str(artifacts_dir / "views-disparity-enlarged.png"))
+        assert_no_sideways_scroll(page, "disparity view enlarged")
 
         # Fullscreen on the enlarged view, with its button; the readout still exact (letterboxed).
         button = page.get_by_test_id("fullscreen-disparity")
@@ -263,6 +264,7 @@ def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon: str, tmp
         viewer = page.get_by_test_id("capture-viewer")
         expect(viewer).to_be_visible()
         expect(page.get_by_test_id("cv-title")).to_have_text(cid)
+        assert_no_sideways_scroll(page, "capture viewer open")
         canvas = page.get_by_test_id("cv-canvas")
         expect(canvas).to_have_attribute("data-loaded", "rect_left")
         meta = get_json(daemon + f"/api/captures/{cid}")["meta"]["images"]

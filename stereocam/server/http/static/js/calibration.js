@@ -85,15 +85,16 @@ async function cornersLoop() {
         state.dataset.found = String(!!res.found);
         state.dataset.frame = String(res.frame);
       } catch (e) {
-        state.textContent = e.status === 503 ? "no frame from the cameras: waiting for the signal" : e.message;
-        state.className = "calib-live-state bad";
+        // No frame from the cameras (503) is a state that ends by itself: said in the panel as a
+        // warning until the corners come back, not as a page error.
+        const waiting = e.status === 503;
+        state.textContent = waiting ? "no frame from the cameras: waiting for the signal (Status panel); " +
+                                      "the corners come back by themselves" : e.message;
+        state.className = "calib-live-state " + (waiting ? "warn" : "bad");
         state.dataset.found = "false";
         for (const side of ["left", "right"]) drawCorners(side, null, null);
         // A frame replaced before its image came is normal (the next poll shows a newer one).
-        if (!cornersFailing && e.status !== null) {
-          showError(e, { explain: { 503: "No frame from the cameras, so no corners: check the cameras " +
-                                          "(Status panel, signal), the corners come back by themselves." } });
-        }
+        if (!cornersFailing && e.status !== null && !waiting) showError(e);
         cornersFailing = true;
         await new Promise((r) => setTimeout(r, 1000));
       }
@@ -402,7 +403,8 @@ export function initCalibration() {
   const details = $("calib");
   details.addEventListener("toggle", () => {
     if (details.open) {
-      action(null, async () => { await refreshSession(); await loadCandidate(); });
+      // Only ask for the candidate when the session says there is one (no 404 at each opening).
+      action(null, async () => { await refreshSession(); if (calibSession && calibSession.candidate) await loadCandidate(); });
       cornersLoop();
     }
   });
@@ -446,6 +448,18 @@ export function initCalibration() {
   }, { explain: { 409: "The pairs are in use by a running compute: delete them when it has finished." } }));
   $("btn-calib-compute").addEventListener("click", computeCalibration);
   $("calib-preview-pair").addEventListener("change", () => action(null, showPreview));
+  // 318 px is too small to judge rows: a click shows the preview at its own size (one image pixel
+  // a screen pixel), scrolled inside its frame; another click fits it again. A middle click or
+  // ctrl-click still opens it in a tab.
+  $("calib-rectified-link").addEventListener("click", (ev) => {
+    if (ev.button !== 0 || ev.ctrlKey || ev.metaKey || ev.shiftKey) return;
+    ev.preventDefault();
+    const fig = $("calib-rectified-figure");
+    const zoomed = fig.classList.toggle("zoomed");
+    fig.dataset.zoomed = String(zoomed);
+    $("calib-rectified-hint").textContent = zoomed ? "full size (scroll it sideways): click to fit it again"
+                                                   : "click it to see it at full size";
+  });
   $("btn-calib-apply").addEventListener("click", (ev) => action(ev.currentTarget, async () => {
     if (!calibCandidate) throw new ApiError("Compute a calibration first, then apply it.");
     const res = await api("POST", "/api/calibration/apply", { id: calibCandidate.id });

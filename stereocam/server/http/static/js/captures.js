@@ -38,7 +38,12 @@ function captureItem(c) {
   const idEl = document.createElement("code");
   idEl.textContent = c.id;
   const meta = document.createElement("small");
-  meta.textContent = [c.created, c.source, c.frame !== undefined ? "frame " + c.frame : "",
+  // The time in the browser's own time zone (the ISO UTC time the daemon gives stays as the title).
+  const created = c.created ? new Date(c.created) : null;
+  const when = created && !Number.isNaN(created.getTime()) ? created.toLocaleString() : c.created;
+  if (c.created) meta.title = "created " + c.created;
+  meta.dataset.created = c.created || "";
+  meta.textContent = [when, c.source, c.frame !== undefined ? "frame " + c.frame : "",
                       humanBytes(c.bytes), c.error ? "damaged: " + c.error : ""].filter(Boolean).join(" · ");
   info.append(idEl, meta);
   const actions = document.createElement("div");

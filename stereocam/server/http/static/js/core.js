@@ -123,7 +123,8 @@ export function initSignIn() {
 // ("POST /api/verify → 409: ...") sits behind a disclosure (<details>). A message has a `key`,
 // the kind of action it is about ("POST /api/virtual-camera"): a new error of that key replaces
 // the old one, and any later success of that key (every api() call that succeeds, or
-// clearMessages(key)) removes it, so a stale error never stays on top of a success.
+// clearMessages(key)) removes it, so a stale error never stays on top of a success. A message with
+// the same kind and words as one shown replaces it. #messages never covers the views (style.css).
 // data-testid: "message-error" for errors, "message-info" for the others.
 export const MESSAGE_FADE_MS = 5000;
 const MESSAGE_MAX = 6;
@@ -135,6 +136,12 @@ export function showMessage(text, kind, opts) {
   const box = $("messages");
   const key = opts.key || "";
   if (key) clearMessages(key, kind === "error" ? null : "error");
+  // The same words again replace the message that says them (one message per problem, its fade
+  // started again), never stack under it.
+  for (const el of [...box.children]) {
+    const said = el.querySelector(".msg-text");
+    if (said && el.classList.contains("msg-" + kind) && said.textContent === text) el.remove();
+  }
   const item = document.createElement("div");
   item.className = "msg msg-" + kind;
   item.setAttribute("data-testid", kind === "error" ? "message-error" : "message-info");

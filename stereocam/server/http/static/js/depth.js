@@ -144,12 +144,29 @@ function drawLegend() {
     t.textContent = d + (z === null ? "" : " · " + (z === Infinity ? "∞" : (z >= 10 ? z.toFixed(0) : z.toFixed(2))));
     labels.append(t);
   }
+  thinTicks(labels);
   holder.querySelector(".legend-unit").textContent = "disparity px" + (fb === null ? "" : " · depth m");
   holder.title = fb === null ? "no calibration: depth unknown"
     : "Z = f·B/d with f = " + scaleInfo.focal_px.toFixed(1) + " px, B = " + (scaleInfo.baseline_m * 1000).toFixed(1)
       + " mm (calibration " + scaleInfo.calibration_id + ")";
   holder.dataset.calibration = scaleInfo.calibration_id || "";
   holder.dataset.ready = "1";
+}
+
+// On a narrow view the labels would run into each other: hide those that would touch the last one
+// shown (the first and the last always stay, as they give the scale's ends). Called again at each resize.
+function thinTicks(labels) {
+  const ticks = [...labels.querySelectorAll(".legend-tick")];
+  for (const t of ticks) t.hidden = false;
+  if (ticks.length < 3 || !labels.offsetWidth) return;
+  const GAP = 6;
+  const last = ticks[ticks.length - 1].getBoundingClientRect();
+  let prev = ticks[0].getBoundingClientRect();
+  for (const t of ticks.slice(1, -1)) {
+    const r = t.getBoundingClientRect();
+    if (r.left < prev.right + GAP || r.right > last.left - GAP) t.hidden = true;
+    else prev = r;
+  }
 }
 
 function makeLegend() {
@@ -167,6 +184,7 @@ function makeLegend() {
   unit.className = "legend-unit";
   holder.append(bar, labels, unit);
   img.after(holder);
+  new ResizeObserver(() => thinTicks(labels)).observe(labels);
 }
 
 export async function refreshDisparityScale() {

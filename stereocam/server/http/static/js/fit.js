@@ -5,8 +5,8 @@
 //
 // init(ctx) — call once after the DOM is ready. ctx gives:
 //   ctx.api(method, path, body)  core.js's api(): JSON in and out, throws ApiError on non-2xx
-//   ctx.showError(errOrText)     core.js's showError(): an ApiError or a string
-//   ctx.showInfo(text)           core.js's showInfo(): a message that fades
+//   ctx.showError, ctx.showInfo  core.js's (unused here: a preview's problem is said in #fit-info,
+//                                beside the chooser, not as a page message)
 //   ctx.$(id)                    document.getElementById
 //   (the preview is fetched here, a PNG, not JSON; the access token goes as the page's cookie)
 // Returns { fit, fitQuery }: fit() is the chosen mode ("exact" | "crop" | "pad" | "scale"),
@@ -86,7 +86,28 @@ function clearPreview(text) {
   if (previewUrl) URL.revokeObjectURL(previewUrl);
   previewUrl = null;
   const info = ctx.$("fit-info");
-  if (info) info.textContent = text || "";
+  if (info) {
+    info.textContent = text || "";
+    info.classList.remove("bad");
+    delete info.dataset.problem;
+  }
+}
+
+// Why the preview failed, in the page's words (what to click), in #fit-info (class "bad").
+export function previewProblem(status, why, mode) {
+  // The API's hint names the parameter ("; or send fit=..."); the page names the chooser.
+  const plain = String(why || "").replace(/; or send fit=.*$/, "");
+  if (status === 0) return "Preview: the daemon did not answer. Check that stereocam is running, then press Preview.";
+  if (status === 422 && mode === "exact") return plain + ": choose crop, pad or scale under fit to make it fit.";
+  return "Preview: " + plain + ".";
+}
+
+function showProblem(status, why) {
+  const info = ctx.$("fit-info");
+  if (!info) return;
+  info.textContent = previewProblem(status, why, fit());
+  info.classList.add("bad");
+  info.dataset.problem = String(status);
 }
 
 // POST the chosen files to /api/virtual-camera/preview and show the PNG it answers.
@@ -102,7 +123,10 @@ async function preview(explicit) {
   try {
     resp = await fetch(path, { method: "POST", body: form });
   } catch (e) {
-    if (mine === seq) ctx.showError("Preview: the daemon is unreachable (" + e.message + ").");
+    if (mine === seq) {
+      clearPreview("");
+      showProblem(0, "");
+    }
     return;
   }
   if (mine !== seq) return;  // a newer preview was asked for meanwhile
@@ -110,12 +134,9 @@ async function preview(explicit) {
     let why = resp.statusText;
     try { why = (await resp.json()).error || why; } catch (e) { /* not JSON */ }
     clearPreview("");
-    if (resp.status === 422 && fit() === "exact") {
-      // The API's hint names the parameter; the page names the chooser.
-      ctx.$("fit-info").textContent = why.replace(/; or send fit=.*$/, "") + " — choose crop, pad or scale to make it fit.";
-    } else {
-      ctx.showError("Preview: " + why);
-    }
+    // Said beside the chooser, not as a page message: it is an answer to the files just chosen
+    // (asked again at each change), and the next choice replaces it.
+    showProblem(resp.status, why);
     return;
   }
   let described = null;

@@ -8,6 +8,7 @@ import { initSource } from "./source.js";
 import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
+import { initMessageNotice } from "./notice.js";
 import { $, api, initSignIn, showError, showInfo, waitingForSignIn } from "./core.js";
 import { init as initFit } from "./fit.js";
 import { init as initRecordings } from "./recordings.js";
@@ -31,6 +32,7 @@ function init() {
   initCameras();
   initCalibration();
   initShortcuts();
+  initMessageNotice();
   const ctx = { api, showError, showInfo, $ };
   initFit(ctx);
   initRecordings({ ...ctx, onReplay: (res) => setSourceRadios(res && res.source ? res.source : "virtual") });

@@ -88,7 +88,9 @@ function renderStatus(st) {
   const fps = st.fps || {};
   add("fabric", "fps-camera", "frame rate", fmt(fps.camera) + " fps from the core, " + fmt(fps.pipeline) + " fps copied");
   add("fabric", "frames", "frames", fmt(st.frames) + (st.frames_seen !== undefined ? " copied of " + fmt(st.frames_seen) : ""));
-  add("fabric", "drops", "drops", fmt(st.drops), st.drops ? "warn" : "");
+  // Dropped frames are normal when the copy (or the CPU) is slower than the cameras: say what they are.
+  add("fabric", "drops", "drops", st.drops ? fmt(st.drops) + " frames the core completed but the daemon " +
+      "did not copy (it was busy; the views skip them)" : fmt(st.drops), st.drops ? "warn" : "");
   if (st.vdma) add("fabric", "vdma", "DMA errors", flagsText(st.vdma), hasFlags(st.vdma) ? "bad" : "");
   const faults = Array.isArray(st.faults) ? st.faults : [];
   add("fabric", "faults", "faults", faults.length ? faults.map((f) => f.what + ": " + f.text).join("; ") : "none",

@@ -34,8 +34,13 @@ async function upload(ev) {
   }, { key: UPLOAD, explain: {
     400: (e) => "The images could not be read: " + e.detail + ". Choose other files and send again.",
     413: (e) => "The images are too large for the daemon: " + e.detail + ".",
-    415: (e) => "That image format is not taken: " + e.detail + ". Use 8-bit PNG, BMP, JPEG or TIFF.",
-    422: (e) => "The images do not fit the fabric: " + e.detail + ". Resize them and send again.",
+    // The daemon's "; upload a PNG, ... image" is API advice: the page says what to choose.
+    415: (e) => "That image format is not taken: " + e.detail.replace(/; upload an? .* image$/, "") +
+                ". Choose an 8-bit PNG, BMP, JPEG or TIFF image and send again.",
+    // The API's hint names its parameter ("; or send fit=..."): the page names its chooser.
+    422: (e) => "The images do not fit the fabric: " + e.detail.replace(/; or send fit=.*$/, "") +
+                ". Choose crop, pad or scale under fit (Another size than the fabric's) and send again, " +
+                "or resize them.",
     504: "The fabric returned nothing within 2 s, so the source is back to live. Try again; " +
          "if it keeps happening, see the daemon's log.",
   } });
