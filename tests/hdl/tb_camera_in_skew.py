@@ -8,9 +8,9 @@ compares every output beat (TDATA, TUSER, TLAST) in order with the model's strea
 (``stereocam/overlays/model/camera_in.py: expected_frames``).
 
 ``STEREOCAM_SKEW_EXPECT`` says what the build must show: ``exact`` (0 differing beats, the frames
-and counters right) or ``slips`` (a build whose crossings are unsafe: at least one differing beat,
-or a stalled stream). ``STEREOCAM_SKEW_RESULT`` names a JSON file for the numbers (beats compared,
-differing beats, frames).
+and counters right, every pointer sample a value its source held) or ``slips`` (a build whose
+crossings are unsafe: differing beats and pointer samples no source value explains).
+``STEREOCAM_SKEW_RESULT`` names a JSON file for the numbers (beats compared, differing beats, frames).
 """
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ async def skewed_frames(dut: SimHandleBase) -> None:
     the clocks at random and in random bursts): the stream is the model's, beat for beat. Two batches:
     22 (44 with STEREOCAM_COSIM_FULL=1) frames of 64 x 10 and 40 (80) of 6 x 10, whose short lines
     make a commit cross often."""
-    tb = Bench(dut, Clocks(aclk=10_000, pclk0=37_000, pclk1=39_000, phase1=13_700), seed=21)
+    tb = Bench(dut, Clocks(aclk=7_000, pclk0=41_000, pclk1=39_000, phase1=17_300), seed=21)
     rng = np.random.default_rng(22)
     await tb.reset()
     tb.ready_p = 0.3
@@ -154,4 +154,4 @@ async def skewed_frames(dut: SimHandleBase) -> None:
         assert len(want) == n >= 20 and bad == 0 and not problems, "\n".join(problems[:12])
         assert watch.bad == {"wptr": 0, "rptr": 0}, f"pointer samples no source value explains: {watch.bad}"
     else:
-        assert bad > 0 or problems or sum(watch.bad.values()) > 0, "the skew did not show on this build"
+        assert bad > 0 and sum(watch.bad.values()) > 0, f"the skew did not show on this build: {numbers}"

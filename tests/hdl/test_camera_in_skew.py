@@ -2,14 +2,13 @@
 
 Built with ``CI_SKEW_SIM``, every ``ci_sync`` delays each bit's change by 0 or 1 destination clocks at
 random (``stereocam/overlays/rtl/camera/ci_sync.v``), and ``tb_camera_in_skew.py`` compares the whole
-stream with the model over 62 frames (22 of 64 x 10, 40 of 6 x 10) with random backpressure, while a
-monitor checks that every pointer sample on each side is a value its source held, in order. Today's
-RTL: 0 differing beats, 0 bad samples. The RTL before the fix (its ``camera_in.v``, ``ci_rx.v`` and
-``ci_lfifo.v`` from git, with today's skew-injecting ``ci_sync.v``) runs as a standing check that the
-injection reaches the crossings: measured, 402 write-pointer and 1,142 read-pointer samples that no
-source value explains (851 and 2,348 over 124 frames with STEREOCAM_COSIM_FULL=1), though its stream
-stayed exact in these runs (its reads go wrong only when a mixed sample equals the read pointer
-mid-line, or the FIFO is nearly full).
+stream with the model over 62 frames (22 of 64 x 10, 40 of 6 x 10; aclk 142.9 MHz, pixel clocks 24.4
+and 25.6 MHz) with random and bursty backpressure, while a monitor checks that every pointer sample on
+each side is a value its source held, in order. Measured on today's RTL: 0 of 16,480 beats differ,
+0 bad samples. The RTL before the fix (its ``camera_in.v``, ``ci_rx.v`` and ``ci_lfifo.v`` from git,
+with today's skew-injecting ``ci_sync.v``), same bench and skew, is a standing check that the test
+sees what it is for: 2,400 beats differ, 56 frames of 62 come out (several cut short, the rest
+shifted), with 364 write-pointer and 1,041 read-pointer samples no source value explains.
 """
 from __future__ import annotations
 
@@ -55,8 +54,8 @@ def test_skewed_crossings_are_bit_exact(tmp_path: Path) -> None:
 
 @pytest.mark.timeout(1800)
 def test_the_unsafe_rtl_slips_under_the_same_skew(tmp_path: Path) -> None:
-    """The RTL before the fix, same bench and skew: its crossings deliver values their sources never
-    held (or its stream differs from the model)."""
+    """The RTL before the fix, same bench and skew: its stream slips (beats differ from the model), and its
+    crossings deliver pointer values their sources never held."""
     old = tmp_path / "unsafe"
     old.mkdir()
     for name in UNSAFE_FILES:
@@ -67,9 +66,8 @@ def test_the_unsafe_rtl_slips_under_the_same_skew(tmp_path: Path) -> None:
     sources = [old / p.name if p.name in UNSAFE_FILES else p for p in camera_sources()]
     numbers = run_skew(sources, "slips", tmp_path)
     bad = numbers["bad_pointer_samples"]
-    assert isinstance(bad, dict)
-    slipped = numbers["differing_beats"] != 0 or numbers["stalled"] or numbers["first_problems"]
-    assert slipped or sum(bad.values()) > 0
+    assert isinstance(bad, dict) and sum(bad.values()) > 0
+    assert isinstance(numbers["differing_beats"], int) and numbers["differing_beats"] > 0
 
 
 def test_synchronisers_are_async_reg_and_the_skew_is_simulation_only() -> None:
