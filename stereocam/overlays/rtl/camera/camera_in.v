@@ -456,6 +456,7 @@ end
  * Output
  */
 wire [65:0] out_word;
+wire        ovalid;
 
 // a step starts only if its beat has room (credits): the FIFO is never full when a word
 // arrives, so s_ready is left open
@@ -463,9 +464,12 @@ wire [65:0] out_word;
 rc_fifo #(.WIDTH(66), .DEPTH(ODEPTH), .SHOW_AHEAD(1)) ofifo_inst (
     .clk(aclk), .rst(rst_reg),
     .s_data({ctrl7_reg[4], ctrl7_reg[3], rgby1, rgby0}), .s_valid(write_out), .s_ready(),
-    .m_data(out_word), .m_valid(m_axis_tvalid), .m_ready(m_axis_tready), .count(ocount)
+    .m_data(out_word), .m_valid(ovalid), .m_ready(m_axis_tready && aresetn), .count(ocount)
 );
 // verilator lint_on PINCONNECTEMPTY
+
+// TVALID low from the first clock of aresetn low (rst_reg follows a clock later): no beat leaves in reset
+assign m_axis_tvalid = ovalid && aresetn;
 
 assign m_axis_tdata = out_word[63:0];
 assign m_axis_tlast = out_word[64];
