@@ -442,6 +442,7 @@ async def reset_in_mid_frame(dut: SimHandleBase) -> None:
     right = [random_frame(rng, w, 12) for _ in range(3)]
     sender = cocotb.start_soon(tb.send(left, right))
     await Timer(37_000 * (w + 6) * 5, unit="ps")  # five rows into frame 0
+    await FallingEdge(dut.aclk)  # between edges: a beat that leaves at this edge is before the reset
     start = len(tb.beats)
     await tb.reset()
     await sender

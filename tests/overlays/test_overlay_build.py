@@ -835,6 +835,58 @@ def test_the_pin_map_places_every_external_port_bit_and_nothing_else(
     assert variables["STEREOCAM_BOARD"] == load_profile().name
 
 
+def test_xdc_bounds_every_crossing_and_groups_no_clocks(variables: Dict[str, str]) -> None:
+    """Issue 22 item 2: no asynchronous clock groups (which leave the crossings untimed); each pixel
+    clock <-> FCLK_CLK0 direction has a data-path-only max delay of at most the destination's period,
+    and the multi-bit crossings of camera_in's RTL a bus skew bound of at most one FCLK_CLK0 period."""
+    xdc = tcl_commands(read_script("stereocam.xdc"))
+    assert not [w for w in xdc if w[0] == "set_clock_groups"]
+    fclk_ns = 1e3 / float(variables["STEREOCAM_FCLK0_MHZ"])
+    periods = {"clk_fpga_0": fclk_ns}
+    delays: Dict[Tuple[str, str], float] = {}
+    skews: List[Tuple[str, str, float]] = []
+    for words in xdc:
+        if words[0] == "create_clock":
+            opts, _ = options(words[1:], {"-period", "-name"})
+            periods[opts["-name"]] = float(opts["-period"])
+        elif words[0] == "set_max_delay":
+            opts, rest = options(words[1:], {"-from", "-to"})
+            assert "-datapath_only" in opts, words
+            (src,) = bracketed(opts["-from"])[1:]
+            (dst,) = bracketed(opts["-to"])[1:]
+            delays[(src, dst)] = float(rest[-1])
+        elif words[0] == "set_bus_skew":
+            opts, rest = options(words[1:], {"-from", "-to"})
+            patterns = []
+            for end in ("-from", "-to"):
+                cmd = bracketed(opts[end])
+                assert cmd[:3] == ["get_cells", "-hier", "-filter"], words
+                patterns.append(re.fullmatch(r"NAME =~ (\S+)", cmd[3]).group(1))  # type: ignore[union-attr]
+            skews.append((patterns[0], patterns[1], float(rest[-1])))
+    pclks = [name for name in periods if name != "clk_fpga_0"]
+    assert len(pclks) == 2
+    for pclk in pclks:
+        for src, dst in ((pclk, "clk_fpga_0"), ("clk_fpga_0", pclk)):
+            assert (src, dst) in delays, f"no set_max_delay -datapath_only from {src} to {dst}"
+            assert 0 < delays[(src, dst)] <= min(periods[dst], periods[src]) + 1e-9, (src, dst)
+    assert set(delays) == {(p, "clk_fpga_0") for p in pclks} | {("clk_fpga_0", p) for p in pclks}
+    # the buses the RTL crosses (ci_lfifo: wgray_reg, rhold_reg; camera_in: tag_gray_reg), both cameras
+    rtl = "".join((RTL_DIR / "camera" / f).read_text() for f in ("ci_lfifo.v", "camera_in.v", "ci_rx.v"))
+    wanted = {(f"fifo{i}_inst/{reg}", f"fifo{i}_inst/{sync}")
+              for i in (0, 1) for reg, sync in (("wgray_reg", "wsync_inst"), ("rhold_reg", "rsync_inst"))}
+    wanted |= {("tag_gray_reg", f"rx{i}_inst/tag_sync_inst") for i in (0, 1)}
+    found = set()
+    for src, dst, skew in skews:
+        assert 0 < skew <= fclk_ns + 1e-9, (src, dst)
+        assert dst.endswith("/meta_reg_reg[*]"), dst
+        for a, b in wanted:
+            if a in src and b in dst:
+                found.add((a, b))
+        for name in re.findall(r"(\w+)_reg\[\*\]$", src) + re.findall(r"/(\w+_inst)/", src + dst):
+            assert name in rtl, f"{name} of the xdc is not in camera_in's RTL"
+    assert found == wanted
+
+
 # ---- settings, outputs, documentation ---------------------------------------------------------------------
 
 def test_settings_name_the_overlay_files_the_backend_looks_for(variables: Dict[str, str]) -> None:

@@ -10,13 +10,14 @@
  * camera_in: the stereocam camera input IP (stereocam/overlays/spec/camera_in.py, stereocam/overlays/rtl/camera/README.md).
  *
  * Two MT9V034 parallel receivers (ci_rx, each in its own PIXCLK domain) write whole lines into
- * their line FIFOs (ci_lfifo, gray-coded pointers into aclk). On aclk the pairing logic takes a
+ * their line FIFOs (ci_lfifo: a gray pointer in single steps into aclk, a handshake back). On aclk the pairing logic takes a
  * line from both FIFOs when both hold one and the two agree (same frame tag, same length), runs
  * it past two line buffers per camera (one block RAM, both cameras side by side), builds each
  * camera's 3x3 neighbourhood with mirrored borders, demosaics it (ci_demosaic) and packs both
  * cameras' RGBY into one 64-bit beat (spec/pixel.py). The AXI4-Stream master carries TUSER on
  * the first beat of a frame and TLAST on the last beat of every line, and honours TREADY: a step
- * starts only when the output FIFO has room for it and every step before it (credits).
+ * starts only when the output FIFO has room for it and every step before it (credits), and a step
+ * that reads the FIFOs only when both show a word (the words of a line appear one per pixel clock).
  *
  * Rows: input row 0 fills the line buffers; while input row y + 1 is taken, output row y is made
  * (row 0 with row 1 mirrored above it); when both cameras' FRAME_VALID have fallen (their EOF
@@ -30,9 +31,10 @@
  * (no port: visible in simulation).
  *
  * Latency: a beat reaches m_axis 8 aclk clocks after the step that completes its neighbourhood
- * (output FIFO empty); output row y starts 4-5 aclk clocks after input row y + 1 is complete in
- * both FIFOs (the commit crosses two synchronisers), and the last row after both EOFs.
- * Throughput: one beat per aclk clock within a line; per input line WIDTH + 4 clocks or so.
+ * (output FIFO empty); output row y starts 4-5 aclk clocks after the header of input row y + 1 is
+ * visible in both FIFOs (a FIFO publishes a committed line a word per pixel clock, header first, and
+ * the pointer crosses two synchronisers), and the last row after both EOFs.
+ * Throughput: one beat per aclk clock while the words are there; a line within a sensor line time.
  *
  * Reset: aresetn (aclk, active low, synchronous) resets the aclk side and, through synchronisers,
  * each receiver (whose pixel clock must run for it to take effect); the FIFOs are emptied by
@@ -197,18 +199,20 @@ wire both_eof = k0 == K_EOF && k1 == K_EOF && t0 == ftag_reg && t1 == ftag_reg;
 wire heads = state_reg == ST_SEEK || state_reg == ST_WAIT;
 wire fetch0 = heads && !hv0_reg && !fe0_reg && skip0_reg == {LW{1'b0}} && avail0;
 wire fetch1 = heads && !hv1_reg && !fe1_reg && skip1_reg == {LW{1'b0}} && avail1;
-wire skipping0 = skip0_reg != {LW{1'b0}};
-wire skipping1 = skip1_reg != {LW{1'b0}};
+// every read waits for its word: a FIFO shows a line's words one by one (ci_lfifo)
+wire skipping0 = skip0_reg != {LW{1'b0}} && avail0;
+wire skipping1 = skip1_reg != {LW{1'b0}} && avail1;
 
 // stepping through a line
 wire         stepping = state_reg == ST_LINE || state_reg == ST_FLUSH;
 wire         out_mode = mode_reg != M_FIRST;
 wire [OCW:0] credit_need = {1'b0, ocount} + inflight_reg + 1'b1;
 wire         credit_ok = credit_need <= ODEPTH;
-wire         issue = stepping && (!out_mode || credit_ok);
 wire         newcol = step_reg < width_reg;                       // a sample column (else the mirrored last)
+wire         takes = mode_reg != M_FLUSH && newcol;                // the step reads both FIFOs
+wire         issue = stepping && (!out_mode || credit_ok) && (!takes || (avail0 && avail1));
 wire         last_step = out_mode ? step_reg == width_reg : step_reg == width_reg - 1'b1;
-wire         pop = issue && mode_reg != M_FLUSH && newcol;
+wire         pop = issue && takes;
 wire         produce = issue && out_mode && step_reg != {LW{1'b0}};
 wire         firstcol = step_reg == {{(LW - 1){1'b0}}, 1'b1};
 wire         lastcol = step_reg == width_reg;
@@ -452,6 +456,7 @@ end
  * Output
  */
 wire [65:0] out_word;
+wire        ovalid;
 
 // a step starts only if its beat has room (credits): the FIFO is never full when a word
 // arrives, so s_ready is left open
@@ -459,9 +464,12 @@ wire [65:0] out_word;
 rc_fifo #(.WIDTH(66), .DEPTH(ODEPTH), .SHOW_AHEAD(1)) ofifo_inst (
     .clk(aclk), .rst(rst_reg),
     .s_data({ctrl7_reg[4], ctrl7_reg[3], rgby1, rgby0}), .s_valid(write_out), .s_ready(),
-    .m_data(out_word), .m_valid(m_axis_tvalid), .m_ready(m_axis_tready), .count(ocount)
+    .m_data(out_word), .m_valid(ovalid), .m_ready(m_axis_tready && aresetn), .count(ocount)
 );
 // verilator lint_on PINCONNECTEMPTY
+
+// TVALID low from the first clock of aresetn low (rst_reg follows a clock later): no beat leaves in reset
+assign m_axis_tvalid = ovalid && aresetn;
 
 assign m_axis_tdata = out_word[63:0];
 assign m_axis_tlast = out_word[64];
