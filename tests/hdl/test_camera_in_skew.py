@@ -5,14 +5,16 @@ random (``stereocam/overlays/rtl/camera/ci_sync.v``), and ``tb_camera_in_skew.py
 stream with the model over 62 frames (22 of 64 x 10, 40 of 6 x 10; aclk 142.9 MHz, pixel clocks 24.4
 and 25.6 MHz) with random and bursty backpressure, while a monitor checks that every pointer sample on
 each side is a value its source held, in order. Measured on today's RTL: 0 of 16,480 beats differ,
-0 bad samples. The RTL before the fix (its ``camera_in.v``, ``ci_rx.v`` and ``ci_lfifo.v`` from git,
-with today's skew-injecting ``ci_sync.v``), same bench and skew, is a standing check that the test
-sees what it is for: 2,400 beats differ, 56 frames of 62 come out (several cut short, the rest
-shifted), with 364 write-pointer and 1,041 read-pointer samples no source value explains.
+0 bad samples. The RTL before the fix (its ``camera_in.v`` and ``ci_lfifo.v``, today's undone by
+``tests/hdl/data/unsafe_crossings.patch``, with today's ``ci_rx.v`` and skew-injecting ``ci_sync.v``),
+same bench and skew, is a standing check that the test sees what it is for: 2,400 beats differ,
+56 frames of 62 come out (several cut short, the rest shifted), with 364 write-pointer and 1,041
+read-pointer samples no source value explains.
 """
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -20,12 +22,27 @@ import pytest
 
 from stereocam.overlays.spec import camera_in as spec
 
-from .cocotb_run import REPO_ROOT, run_cocotb
+from .cocotb_run import run_cocotb
 from .test_camera_in_rtl import FULL, camera_dir, camera_sources
 
-# the last commit before the crossings were made safe (line-sized gray jumps, ungated reads)
-UNSAFE_COMMIT = "876e7d9fa0a7b287cf9dfd52b30c3db39297d5c6"
-UNSAFE_FILES = ("camera_in.v", "ci_rx.v", "ci_lfifo.v")
+# The crossings' fix undone: a patch from today's camera_in.v and ci_lfifo.v back to the RTL before it
+# (line-sized gray jumps, ungated reads; commit 876e7d9), so a clone of any depth runs the comparison.
+UNSAFE_PATCH = Path(__file__).parent / "data" / "unsafe_crossings.patch"
+UNSAFE_FILES = ("camera_in.v", "ci_lfifo.v")
+REGENERATE = ("git diff HEAD 876e7d9 -- stereocam/overlays/rtl/camera/camera_in.v "
+              "stereocam/overlays/rtl/camera/ci_lfifo.v > tests/hdl/data/unsafe_crossings.patch")
+
+
+def unsafe_sources(folder: Path) -> list[Path]:
+    """The camera input's sources with the crossings' fix undone, in ``folder``."""
+    for name in UNSAFE_FILES:
+        shutil.copy(camera_dir() / name, folder / name)
+    # outside a repository, git apply is a plain patch tool; -p5 strips a/stereocam/overlays/rtl/camera/
+    done = subprocess.run(["git", "apply", "-p5", str(UNSAFE_PATCH)], cwd=folder, capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert done.returncode == 0, (f"{UNSAFE_PATCH.name} no longer applies to today's RTL "
+                                  f"({done.stderr.strip()}); regenerate it: {REGENERATE}")
+    return [folder / p.name if p.name in UNSAFE_FILES else p for p in camera_sources()]
 
 
 def run_skew(sources: list[Path], expect: str, out_dir: Path) -> dict[str, object]:
@@ -58,12 +75,7 @@ def test_the_unsafe_rtl_slips_under_the_same_skew(tmp_path: Path) -> None:
     crossings deliver pointer values their sources never held."""
     old = tmp_path / "unsafe"
     old.mkdir()
-    for name in UNSAFE_FILES:
-        rel = (camera_dir() / name).resolve().relative_to(REPO_ROOT)
-        text = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{UNSAFE_COMMIT}:{rel.as_posix()}"],
-                              capture_output=True, text=True, timeout=60, check=True).stdout
-        (old / name).write_text(text)
-    sources = [old / p.name if p.name in UNSAFE_FILES else p for p in camera_sources()]
+    sources = unsafe_sources(old)
     numbers = run_skew(sources, "slips", tmp_path)
     bad = numbers["bad_pointer_samples"]
     assert isinstance(bad, dict) and sum(bad.values()) > 0
