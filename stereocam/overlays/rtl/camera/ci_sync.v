@@ -10,6 +10,7 @@
  * The source must be a register in its own domain. A multi-bit value crosses safely only when
  * at most one of its bits changes at a time (gray code) or it holds still for longer than three
  * clocks of the destination. Latency 2 clocks. No reset: the flops start at INIT.
+ * Parameters are checked at elaboration: WIDTH >= 1.
  */
 module ci_sync #
 (
@@ -21,6 +22,13 @@ module ci_sync #
     input  wire [WIDTH-1:0] in,
     output wire [WIDTH-1:0] out
 );
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (WIDTH < 1) begin : g_check_width
+        ci_sync_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+endgenerate
 
 (* ASYNC_REG = "TRUE" *) reg [WIDTH-1:0] meta_reg = INIT;
 (* ASYNC_REG = "TRUE" *) reg [WIDTH-1:0] sync_reg = INIT;
