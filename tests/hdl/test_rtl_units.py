@@ -78,6 +78,7 @@ UNITS = [
     unit("ci_demosaic", {}, folder=CAMERA, verilator=True),
     unit("ci_lfifo", {"WIDTH": 18, "AW": 4}, folder=CAMERA, extra=("ci_sync.v",), verilator=True),
     unit("ci_lfifo", {"WIDTH": 7, "AW": 2}, folder=CAMERA, extra=("ci_sync.v",)),
+    unit("ci_rx", {"MAX_WIDTH": 16, "AW": 6}, folder=CAMERA, extra=("ci_sync.v",), verilator=True),
 ]
 
 
