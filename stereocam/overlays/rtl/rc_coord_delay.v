@@ -3,7 +3,8 @@
 //
 // Latency N clocks (N = 0: a wire), throughput one word per clock; datapath only, it knows
 // nothing of frames or lines. Its content after reset is undefined: use it for data whose
-// validity travels in a reset register beside it.
+// validity travels in a reset register beside it. Parameters are checked at elaboration: W >= 1,
+// N >= 0.
 `timescale 1ns / 1ps
 
 module rc_coord_delay #(
@@ -15,6 +16,16 @@ module rc_coord_delay #(
     output wire [W-1:0] q
 );
     genvar i;
+    // parameter checks: an instance that breaks one fails to elaborate, naming the rule
+    generate
+        if (W < 1) begin : check_w
+            rc_coord_delay_parameter_W_must_be_at_least_1 w_too_small ();
+        end
+        if (N < 0) begin : check_n
+            rc_coord_delay_parameter_N_must_be_at_least_0 n_negative ();
+        end
+    endgenerate
+
     generate
         if (N == 0) begin : none
             assign q = d;

@@ -11,6 +11,7 @@
  * Latency: LATENCY clocks. Throughput: 1 word per clock, never stalls.
  * Reset: synchronous, active high, to zero when RESET is 1 (for valid bits);
  * with RESET 0 the registers are not reset (data, so they can become SRLs).
+ * Parameters are checked at elaboration: WIDTH >= 1, LATENCY >= 0, RESET 0 or 1.
  */
 module rc_delay #
 (
@@ -24,6 +25,19 @@ module rc_delay #
     input  wire [WIDTH-1:0] in,
     output wire [WIDTH-1:0] out
 );
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (WIDTH < 1) begin : g_check_width
+        rc_delay_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+    if (LATENCY < 0) begin : g_check_latency
+        rc_delay_parameter_LATENCY_must_be_at_least_0 latency_negative();
+    end
+    if (RESET != 0 && RESET != 1) begin : g_check_reset
+        rc_delay_parameter_RESET_must_be_0_or_1 reset_invalid();
+    end
+endgenerate
 
 generate
     if (LATENCY == 0) begin : g_wire

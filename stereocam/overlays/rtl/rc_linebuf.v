@@ -16,6 +16,7 @@
  * [b*AW +: AW]) when `re` is 1; rdata (bank b at [b*WIDTH +: WIDTH]) 2 clocks
  * later (rc_ram), held until the next read.
  * Latency 2 clocks, throughput 1 read and 1 write per clock, no reset.
+ * Parameters are checked at elaboration: WIDTH >= 1, DEPTH >= 2, 2**AW >= DEPTH.
  */
 module rc_linebuf #
 (
@@ -38,6 +39,20 @@ module rc_linebuf #
 );
 
 genvar b;
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// (rc_ram checks the same; here they name the line buffer, whose parameters rc_datapath computes)
+generate
+    if (WIDTH < 1) begin : g_check_width
+        rc_linebuf_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+    if (DEPTH < 2) begin : g_check_depth
+        rc_linebuf_parameter_DEPTH_must_be_at_least_2 depth_too_small();
+    end
+    if ((1 << AW) < DEPTH) begin : g_check_aw
+        rc_linebuf_parameter_AW_too_small_for_DEPTH aw_too_small();
+    end
+endgenerate
 
 generate
     for (b = 0; b < 4; b = b + 1) begin : g_bank

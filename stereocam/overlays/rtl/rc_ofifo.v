@@ -16,6 +16,7 @@
  * empty. Throughput: 1 word per clock in and out.
  * Frame and line boundaries: none; TUSER and TLAST travel inside the word.
  * Reset: synchronous, active high: empty.
+ * Parameters are checked at elaboration: WIDTH >= 1, DEPTH a power of two >= 2.
  */
 module rc_ofifo #
 (
@@ -35,6 +36,17 @@ module rc_ofifo #
 );
 
 localparam AW = $clog2(DEPTH);
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// (the pointers wrap at 2 * DEPTH and address the storage by their low AW bits: DEPTH = 2**AW)
+generate
+    if (WIDTH < 1) begin : g_check_width
+        rc_ofifo_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+    if (DEPTH < 2 || (1 << AW) != DEPTH) begin : g_check_depth
+        rc_ofifo_parameter_DEPTH_must_be_a_power_of_2_at_least_2 depth_invalid();
+    end
+endgenerate
 
 (* ram_style = "distributed" *)
 reg [WIDTH-1:0] mem [0:DEPTH-1];

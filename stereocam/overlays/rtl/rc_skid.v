@@ -16,6 +16,7 @@
  * Frame and line boundaries: none; TUSER and TLAST travel inside `s_data`.
  * Reset: synchronous, active high: both registers empty, s_ready low in
  * reset and high from the clock after it.
+ * Parameters are checked at elaboration: WIDTH >= 1.
  */
 module rc_skid #
 (
@@ -33,6 +34,13 @@ module rc_skid #
     output wire             m_valid,
     input  wire             m_ready
 );
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (WIDTH < 1) begin : g_check_width
+        rc_skid_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+endgenerate
 
 reg [WIDTH-1:0] out_data_reg = {WIDTH{1'b0}};
 reg             out_valid_reg = 1'b0, out_valid_next;

@@ -29,6 +29,7 @@
  *
  * Reset (rst, synchronous, from aclk through a synchroniser): drops the line in progress and
  * waits for FRAME_VALID low. The FIFO pointers are never cleared.
+ * Parameters are checked at elaboration: 1 <= MAX_WIDTH < 2**CI_LEN_W, 2**AW >= MAX_WIDTH + 2.
  */
 module ci_rx #
 (
@@ -63,6 +64,17 @@ localparam [`CI_REC_KIND_W-1:0] K_EOF = `CI_REC_EOF;
 localparam integer MAX_LEN_I = MAX_WIDTH;
 localparam [LW-1:0] MAX_LEN = MAX_LEN_I[LW-1:0];
 localparam integer PAD = `CI_REC_W - `CI_REC_KIND_W - `CI_RAW_W;
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// (a line's length must fit the header's field; the FIFO must hold a longest line, its header and an EOF)
+generate
+    if (MAX_WIDTH < 1 || MAX_WIDTH >= (1 << LW)) begin : g_check_max_width
+        ci_rx_parameter_MAX_WIDTH_must_fit_the_length_field max_width_invalid();
+    end
+    if ((1 << AW) < MAX_WIDTH + 2) begin : g_check_aw
+        ci_rx_parameter_AW_too_small_for_MAX_WIDTH aw_too_small();
+    end
+endgenerate
 
 /*
  * Input flops and the frame tag

@@ -10,6 +10,7 @@
  * The source must be a register in its own domain. A multi-bit value crosses safely only when
  * its changes are single gray steps at most one per destination clock, or it holds still while
  * the destination uses it (a handshake's data). Latency 2 clocks. No reset: the flops start at INIT.
+ * Parameters are checked at elaboration: WIDTH >= 1.
  * Both flops carry ASYNC_REG; stereocam.xdc bounds the path into meta_reg (set_max_delay
  * -datapath_only, set_bus_skew).
  *
@@ -27,6 +28,13 @@ module ci_sync #
     input  wire [WIDTH-1:0] in,
     output wire [WIDTH-1:0] out
 );
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (WIDTH < 1) begin : g_check_width
+        ci_sync_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    end
+endgenerate
 
 (* ASYNC_REG = "TRUE" *) reg [WIDTH-1:0] meta_reg = INIT;
 (* ASYNC_REG = "TRUE" *) reg [WIDTH-1:0] sync_reg = INIT;
