@@ -69,12 +69,17 @@ def daemon_serving(tmp_path: Path, artifacts_dir: Path, *, fps: float, extra_arg
 
 
 @contextlib.contextmanager
-def chromium(profile: Path, viewport: Tuple[int, int] = (1400, 1000)) -> Iterator[BrowserContext]:
-    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to ``TIMEOUT_MS``."""
+def chromium(profile: Path, viewport: Tuple[int, int] = (1400, 1000), device_scale_factor: float = 1
+             ) -> Iterator[BrowserContext]:
+    """Debian's Chromium, headless, with a fresh profile; every Playwright wait bounded to ``TIMEOUT_MS``.
+
+    ``device_scale_factor``: the window's device pixel ratio (2: a HiDPI screen).
+    """
     with sync_playwright() as pw:
         context = pw.chromium.launch_persistent_context(
             str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS,
-            viewport={"width": viewport[0], "height": viewport[1]}, timeout=TIMEOUT_MS)
+            viewport={"width": viewport[0], "height": viewport[1]}, timeout=TIMEOUT_MS,
+            device_scale_factor=device_scale_factor)
         try:
             context.set_default_timeout(TIMEOUT_MS)
             context.set_default_navigation_timeout(TIMEOUT_MS)
@@ -86,15 +91,15 @@ def chromium(profile: Path, viewport: Tuple[int, int] = (1400, 1000)) -> Iterato
 
 
 @contextlib.contextmanager
-def watched_page(tmp_path: Path, artifacts_dir: Path, screenshot: str, *, expected: Sequence[str] = ()
-                 ) -> Iterator[Page]:
+def watched_page(tmp_path: Path, artifacts_dir: Path, screenshot: str, *, expected: Sequence[str] = (),
+                 device_scale_factor: float = 1) -> Iterator[Page]:
     """A page whose script errors and console errors fail the test, screenshot saved even on failure.
 
     ``expected``: texts of console errors the test provokes on purpose (Chromium logs every
     non-2xx fetch, e.g. "status of 409").
     """
     problems: List[str] = []
-    with chromium(tmp_path / "chromium-profile") as context:
+    with chromium(tmp_path / "chromium-profile", device_scale_factor=device_scale_factor) as context:
         page = context.new_page()
         page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
         page.on("console", lambda msg: problems.append(f"console {msg.type}: {msg.text}")

@@ -24,7 +24,6 @@
 export { VIEWS, VIEW_INFO } from "./views.js";  // the daemon's view registry (GET /api/views)
 export const params = new URLSearchParams(window.location.search);
 export const WS_FPS = clampNumber(params.get("fps"), 1, 60, 15);
-export const THUMB_SCALE = 0.5;  // of each view's size, one of the daemon's stream scales
 export const STATUS_PERIOD_MS = 1000;
 export const BACKOFF_MIN_MS = 500;
 export const BACKOFF_MAX_MS = 10000;

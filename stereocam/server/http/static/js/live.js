@@ -1,7 +1,8 @@
 // The live views, over one WebSocket (see core.js).
-import { $, VIEWS, WS_FPS, THUMB_SCALE, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt, signInNeeded,
+import { $, VIEWS, WS_FPS, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt, signInNeeded,
          waitingForSignIn } from "./core.js";
 import { initDepth } from "./depth.js";
+import { shownViews } from "./views.js";
 
 // ---- live views over one WebSocket ----------------------------------------------
 const decoder = new TextDecoder("utf-8");
@@ -58,14 +59,84 @@ function onFrame(buf) {
   img.src = url;
 }
 
-// What the socket asks for: every view as a half-size thumbnail (a quarter of the encode and
-// copy work: the daemon's CPU budget goes further), the enlarged view at full size, and nothing
-// while the page is hidden (a background tab costs the daemon nothing).
+// What the socket asks for (issue 24, item 3): each shown view at the size it is shown, times the
+// device pixel ratio (the smallest of the daemon's stream scales that is at least that wide; one
+// `scale` for the thumbnails that do with a reduced size, `full` for those that need the whole
+// frame), nothing for a hidden view, and nothing while the page is hidden (a background tab costs
+// the daemon nothing). When the CPU budget lowers a full-size view's rate, that view steps down to
+// half size (never below: the old thumbnail) and says so on its caption, until the layout changes.
+const SCALES = [0.25, 0.5, 1];
+const BUDGET_FLOOR = 0.5;
 let enlarged = null;
+let frameSize = [752, 480];
+const budgetCap = {};  // view -> the largest scale the CPU budget affords it, until the layout changes
+const asked = {};      // view -> the scale last asked for
+let lastMessage = "";
+
+function neededScale(view) {
+  const img = $("view-" + view);
+  const fig = img && img.closest("figure");
+  const base = frameSize[0] * (fig && fig.classList.contains("view-wide") ? 2 : 1);
+  const want = img ? img.clientWidth * (window.devicePixelRatio || 1) : base;
+  const fits = SCALES.find((s) => base * s >= want);
+  return { scale: fits === undefined ? 1 : fits, base, want, capped: fits === undefined };
+}
+
+function showNote(view, text) {
+  const el = $("note-" + view);
+  if (!el) return;
+  el.textContent = text;
+  el.hidden = !text;
+}
+
 function subscribe() {
+  const views = document.hidden ? [] : shownViews();
+  const full = [];
+  let thumb = SCALES[0];
+  for (const v of views) {
+    const need = neededScale(v);
+    let scale = v === enlarged ? 1 : need.scale;
+    let why = need.capped && v === enlarged ? "" : (need.capped ? "the camera's full width" : "");
+    if (v !== enlarged && budgetCap[v] !== undefined && scale > budgetCap[v]) {  // enlarged: full size
+      scale = budgetCap[v];
+      why = "CPU budget";
+    }
+    asked[v] = scale;
+    if (scale === 1) full.push(v); else thumb = Math.max(thumb, scale);
+    showNote(v, why ? "shown at " + Math.round(need.base * scale) + " px: " + why : "");
+  }
+  // the thumbnails share one scale: those asking less get the largest of them
+  for (const v of views) if (asked[v] !== 1) asked[v] = thumb;
   if (!ws || ws.readyState !== WebSocket.OPEN) return;
-  const views = document.hidden ? [] : VIEWS;
-  ws.send(JSON.stringify({ views: views, fps: WS_FPS, scale: THUMB_SCALE, full: enlarged ? [enlarged] : [] }));
+  const message = JSON.stringify({ views: views, fps: WS_FPS, scale: thumb, full: full });
+  if (message === lastMessage) return;
+  lastMessage = message;
+  ws.send(message);
+}
+
+// A resize or a layout change re-asks (debounced: a window being dragged asks once it settles),
+// and gives the CPU budget another chance at the sizes shown.
+let resizeTimer = null;
+function relayout() {
+  clearTimeout(resizeTimer);
+  resizeTimer = setTimeout(() => {
+    for (const v of Object.keys(budgetCap)) delete budgetCap[v];
+    subscribe();
+  }, 250);
+}
+window.addEventListener("resize", relayout);
+document.addEventListener("stereocam:views-layout", () => {
+  if (enlarged && !shownViews().includes(enlarged)) enlarge(enlarged);
+  relayout();
+});
+// Only a change of width re-asks: a note appearing on a caption changes the height, and must not
+// undo the CPU budget's step down (it would go back and forth).
+let viewsWidth = 0;
+if (window.ResizeObserver) {
+  new ResizeObserver((entries) => {
+    const w = Math.round(entries[entries.length - 1].contentRect.width);
+    if (w !== viewsWidth) { viewsWidth = w; relayout(); }
+  }).observe($("views"));
 }
 
 function enlarge(view) {
@@ -145,6 +216,17 @@ document.addEventListener("visibilitychange", subscribe);
 
 // Each view's delivered and planned rate, and why it is below what the page asked (/api/status).
 export function renderViewRates(st) {
+  if (Array.isArray(st.frame_size) && st.frame_size.length === 2) frameSize = st.frame_size;
+  let lowered = false;
+  for (const e of (st.encoders || [])) {
+    // a full-size view the CPU budget slowed down steps down to half size (see subscribe)
+    if (e.scale === 1 && asked[e.view] === 1 && e.view !== enlarged && e.planned_fps < e.target_fps &&
+        (e.limited_by || "").startsWith("CPU budget") && budgetCap[e.view] === undefined) {
+      budgetCap[e.view] = BUDGET_FLOOR;
+      lowered = true;
+    }
+  }
+  if (lowered) subscribe();
   const byView = {};
   for (const e of (st.encoders || [])) {
     const best = byView[e.view];
@@ -175,6 +257,7 @@ export function connect() {
   setConn(everConnected ? "reconnecting…" : "connecting…", "badge-warn");
   sock.onopen = () => {
     everConnected = true;
+    lastMessage = "";
     backoff = BACKOFF_MIN_MS;
     setConn("live", "badge-ok");
     showFallback("");

@@ -21,7 +21,8 @@ function toggleFullscreen() {
   if (fig && fig.requestFullscreen) fig.requestFullscreen().catch(() => {});
 }
 
-function viewFigure(n) { return document.querySelectorAll("#views figure.view")[n - 1] || null; }
+// the shown views in their order on screen (the Views menu hides and reorders them)
+function viewFigure(n) { return document.querySelectorAll("#views figure.view:not([hidden])")[n - 1] || null; }
 
 const VIEW_KEYS = VIEWS.slice(0, 9).map((v, i) => String(i + 1));
 

@@ -12,6 +12,11 @@
 //       <span class="view-rate" id="rate-NAME" data-testid="rate-NAME"></span></figcaption>
 //   </figure>
 // #views gets data-views-ready="1" once built, or a line saying why there are none.
+//
+// The user's layout (issue 24, item 3): the Views menu (#views-menu) shows, hides and reorders
+// the figures; the choice is kept in localStorage (LAYOUT_KEY: not a secret) and applied before
+// the socket subscribes, so a hidden view is never asked of the daemon (no encoding for it).
+// A change dispatches "stereocam:views-layout" on document (live.js re-subscribes).
 const SVG = "http://www.w3.org/2000/svg";
 
 async function loadRegistry() {
@@ -61,7 +66,9 @@ function figure(view) {
     fig.append(svg);
   }
   const cap = document.createElement("figcaption");
-  cap.append(view.caption + " ", span("frame-no", "frame-" + view.name), " ",
+  const note = span("view-note", "note-" + view.name, "note-" + view.name);
+  note.hidden = true;  // "shown at N px: why" when the page could not ask for the size shown
+  cap.append(view.caption + " ", span("frame-no", "frame-" + view.name), " ", note, " ",
              span("view-rate", "rate-" + view.name, "rate-" + view.name));
   fig.append(cap);
   return fig;
@@ -72,4 +79,119 @@ export const VIEW_INFO = await loadRegistry();
 export const VIEWS = VIEW_INFO.map((v) => v.name);
 const box = document.getElementById("views");
 for (const v of VIEW_INFO) box.append(figure(v));
+
+// ---- the user's layout: which views, in which order ----------------------------------------------
+export const LAYOUT_KEY = "stereocam.views-layout";
+
+function loadLayout() {
+  let doc = null;
+  try { doc = JSON.parse(localStorage.getItem(LAYOUT_KEY) || "null"); } catch (e) { doc = null; }
+  const known = new Set(VIEWS);
+  const order = (doc && Array.isArray(doc.order) ? doc.order : []).filter((v) => known.has(v));
+  // A view the registry gained since the layout was stored goes at its registry place (the end).
+  for (const v of VIEWS) if (!order.includes(v)) order.push(v);
+  const hidden = new Set((doc && Array.isArray(doc.hidden) ? doc.hidden : []).filter((v) => known.has(v)));
+  return { order: [...new Set(order)], hidden };
+}
+
+const layout = loadLayout();
+
+function saveLayout() {
+  try {
+    localStorage.setItem(LAYOUT_KEY, JSON.stringify({ order: layout.order, hidden: [...layout.hidden] }));
+  } catch (e) { /* storage refused (private mode, full): the layout lasts until the page reloads */ }
+}
+
+/** The views shown, in the user's order (what the socket asks for, what 1..N select). */
+export function shownViews() { return layout.order.filter((v) => !layout.hidden.has(v)); }
+
+function figureOf(view) { return box.querySelector('figure.view[data-view="' + view + '"]'); }
+
+function applyLayout() {
+  for (const v of layout.order) {
+    const fig = figureOf(v);
+    if (!fig) continue;
+    box.append(fig);  // moving the figure keeps its listeners and its image
+    fig.hidden = layout.hidden.has(v);
+  }
+  const none = $id("views-none");
+  if (none) none.hidden = shownViews().length > 0;
+}
+
+function $id(id) { return document.getElementById(id); }
+
+function changed() {
+  saveLayout();
+  applyLayout();
+  renderMenu();
+  document.dispatchEvent(new CustomEvent("stereocam:views-layout"));
+}
+
+function move(view, by, focusWhich) {
+  const i = layout.order.indexOf(view);
+  const j = i + by;
+  if (i < 0 || j < 0 || j >= layout.order.length) return;
+  [layout.order[i], layout.order[j]] = [layout.order[j], layout.order[i]];
+  changed();
+  // The focus stays on the moved view's button (keyboard users keep their place).
+  const again = document.querySelector('#views-menu-list [data-view="' + view + '"] .' + focusWhich);
+  if (again && !again.disabled) again.focus();
+  else {
+    const other = document.querySelector('#views-menu-list [data-view="' + view + '"] button:not(:disabled)');
+    if (other) other.focus();
+  }
+}
+
+function button(cls, text, label, testid, onClick, disabled) {
+  const b = document.createElement("button");
+  b.type = "button";
+  b.className = cls;
+  b.textContent = text;
+  b.title = label;
+  b.setAttribute("aria-label", label);
+  b.setAttribute("data-testid", testid);
+  b.disabled = disabled;
+  b.addEventListener("click", onClick);
+  return b;
+}
+
+function renderMenu() {
+  const list = $id("views-menu-list");
+  if (!list) return;
+  list.replaceChildren();
+  const info = Object.fromEntries(VIEW_INFO.map((v) => [v.name, v]));
+  layout.order.forEach((v, i) => {
+    const li = document.createElement("li");
+    li.dataset.view = v;
+    const label = document.createElement("label");
+    const box = document.createElement("input");
+    box.type = "checkbox";
+    box.checked = !layout.hidden.has(v);
+    box.setAttribute("data-testid", "views-show-" + v);
+    box.addEventListener("change", () => {
+      if (box.checked) layout.hidden.delete(v); else layout.hidden.add(v);
+      changed();
+      const again = $id("views-menu-list").querySelector('[data-view="' + v + '"] input');
+      if (again) again.focus();
+    });
+    label.append(box, " " + info[v].caption);
+    li.append(label,
+              button("views-up", "↑", "move " + info[v].caption + " up", "views-up-" + v,
+                     () => move(v, -1, "views-up"), i === 0),
+              button("views-down", "↓", "move " + info[v].caption + " down", "views-down-" + v,
+                     () => move(v, 1, "views-down"), i === layout.order.length - 1));
+    list.append(li);
+  });
+}
+
+const reset = $id("views-reset");
+if (reset) {
+  reset.addEventListener("click", () => {
+    layout.order = [...VIEWS];
+    layout.hidden.clear();
+    changed();
+  });
+}
+applyLayout();
+renderMenu();
 box.dataset.viewsReady = VIEW_INFO.length ? "1" : "";
