@@ -21,7 +21,7 @@ FULL = os.environ.get("STEREOCAM_COSIM_FULL") == "1"
 
 def datapath_sources() -> list[Path]:
     rtl = hdl.rtl_dir()
-    names = ["rc_datapath", "rc_skid", "rc_ram", "rc_ofifo", "rc_delay", "rc_interp", "rc_gray", "rc_linebuf"]
+    names = ["rc_datapath", "rc_skid", "rc_ram", "rc_fifo", "rc_delay", "rc_interp", "rc_gray", "rc_linebuf"]
     return [rtl / f"{n}.v" for n in names]
 
 

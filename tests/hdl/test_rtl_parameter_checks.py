@@ -23,9 +23,8 @@ CASES = [
     ("rc_ram", {"DEPTH": 1}, "rc_ram_parameter_DEPTH_must_be_at_least_2"),
     ("rc_ram", {"DEPTH": 9, "AW": 3}, "rc_ram_parameter_AW_too_small_for_DEPTH"),
     ("rc_skid", {"WIDTH": 0}, "rc_skid_parameter_WIDTH_must_be_at_least_1"),
-    ("rc_ofifo", {"WIDTH": 0}, "rc_ofifo_parameter_WIDTH_must_be_at_least_1"),
-    ("rc_ofifo", {"DEPTH": 1}, "rc_ofifo_parameter_DEPTH_must_be_a_power_of_2_at_least_2"),
-    ("rc_ofifo", {"DEPTH": 24}, "rc_ofifo_parameter_DEPTH_must_be_a_power_of_2_at_least_2"),
+    ("rc_fifo", {"OUTPUT_REG": 2}, "rc_fifo_parameter_OUTPUT_REG_must_be_0_or_1"),
+    ("rc_fifo", {"OUTPUT_REG": 1, "SHOW_AHEAD": 0}, "rc_fifo_parameter_OUTPUT_REG_needs_SHOW_AHEAD_1"),
     ("rc_delay", {"WIDTH": 0}, "rc_delay_parameter_WIDTH_must_be_at_least_1"),
     ("rc_delay", {"LATENCY": -1}, "rc_delay_parameter_LATENCY_must_be_at_least_0"),
     ("rc_delay", {"RESET": 2}, "rc_delay_parameter_RESET_must_be_0_or_1"),
@@ -56,7 +55,7 @@ SOURCES = {
 }
 # The largest parameters each rule still allows, and the builds the callers make: they elaborate.
 ALLOWED = [
-    ("rc_ofifo", {"DEPTH": 2}),
+    ("rc_fifo", {"DEPTH": 2, "OUTPUT_REG": 1}),
     ("rc_delay", {"LATENCY": 0, "RESET": 1}),
     ("rc_coord_delay", {"N": 0}),
     ("rc_linebuf", {"DEPTH": 16, "AW": 4}),

@@ -4,7 +4,8 @@ The system benches (tb_rc_datapath, tb_camera_in, tb_rectify_core) reach these m
 their callers, at the parameters the callers use and with the traffic the callers make; a module
 bench drives each one alone, with random data (and random gaps and backpressure where it has a
 handshake), against a Python statement of what its header promises or the model's integer
-function. rc_div, rc_coord_mul and rc_fifo have theirs in tb_rc_coord (test_rc_coord.py).
+function. rc_div, rc_coord_mul and rc_fifo have theirs in tb_rc_coord (test_rc_coord.py); rc_fifo's
+OUTPUT_REG mode, the rectify core's output FIFO, its own here (tb_rc_fifo_output_reg).
 
 Each case runs under Icarus (it builds in a second); the first case of each module under Verilator
 too (a build takes some 10-30 s, cached), and every case with ``STEREOCAM_COSIM_FULL=1``.
@@ -44,9 +45,9 @@ class Unit:
 
 
 def unit(top: str, params: dict[str, int], *, folder: Path = RTL, extra: tuple[str, ...] = (),
-         verilator: bool = False, verilator_args: tuple[str, ...] = ()) -> Unit:
+         verilator: bool = False, verilator_args: tuple[str, ...] = (), bench: str = "") -> Unit:
     sources = (*(folder / name for name in extra), folder / f"{top}.v")
-    return Unit(top, params, sources, f"tb_{top}", verilator, verilator_args)
+    return Unit(top, params, sources, bench or f"tb_{top}", verilator, verilator_args)
 
 
 WIDE_ADDRESS = ("-Wno-WIDTHTRUNC",)  # an AW above $clog2(DEPTH): the bench uses addresses below DEPTH
@@ -54,9 +55,13 @@ WIDE_ADDRESS = ("-Wno-WIDTHTRUNC",)  # an AW above $clog2(DEPTH): the bench uses
 UNITS = [
     unit("rc_skid", {"WIDTH": 66}, verilator=True),
     unit("rc_skid", {"WIDTH": 1}),
-    unit("rc_ofifo", {"WIDTH": 67, "DEPTH": 32}, verilator=True),
-    unit("rc_ofifo", {"WIDTH": 9, "DEPTH": 2}),
-    unit("rc_ofifo", {"WIDTH": 5, "DEPTH": 8}),
+    # rc_fifo's OUTPUT_REG mode, the rectify core's output FIFO (its other modes: tb_rc_coord)
+    unit("rc_fifo", {"WIDTH": 67, "DEPTH": 32, "SHOW_AHEAD": 1, "OUTPUT_REG": 1}, verilator=True,
+         bench="tb_rc_fifo_output_reg"),
+    unit("rc_fifo", {"WIDTH": 9, "DEPTH": 2, "SHOW_AHEAD": 1, "OUTPUT_REG": 1},
+         bench="tb_rc_fifo_output_reg"),
+    unit("rc_fifo", {"WIDTH": 5, "DEPTH": 5, "SHOW_AHEAD": 1, "OUTPUT_REG": 1},
+         bench="tb_rc_fifo_output_reg"),
     unit("rc_delay", {"WIDTH": 13, "LATENCY": 5, "RESET": 1}, verilator=True),
     unit("rc_delay", {"WIDTH": 7, "LATENCY": 3, "RESET": 0}),
     unit("rc_delay", {"WIDTH": 1, "LATENCY": 1, "RESET": 1}),

@@ -878,16 +878,21 @@ end
  */
 wire [FIFO_W-1:0] fifo_out;
 
-rc_ofifo #(.WIDTH(FIFO_W), .DEPTH(FIFO_DEPTH))
+// The writer counts credits (never more words inside than the FIFO holds): s_ready and count unused.
+// verilator lint_off PINCONNECTEMPTY
+rc_fifo #(.WIDTH(FIFO_W), .DEPTH(FIFO_DEPTH), .SHOW_AHEAD(1), .OUTPUT_REG(1))
 fifo_inst (
     .clk(clk),
     .rst(rst),
-    .wr_en(out_v && out_cam),
-    .wr_data({out_flast, out_first, out_last, cam_word, left_word_reg}),
+    .s_data({out_flast, out_first, out_last, cam_word, left_word_reg}),
+    .s_valid(out_v && out_cam),
+    .s_ready(),
     .m_data(fifo_out),
     .m_valid(m_axis_tvalid),
-    .m_ready(m_axis_tready)
+    .m_ready(m_axis_tready),
+    .count()
 );
+// verilator lint_on PINCONNECTEMPTY
 
 assign m_axis_tdata = fifo_out[63:0];
 assign m_axis_tlast = fifo_out[64];

@@ -6,8 +6,9 @@
 
 /*
  * rc_fifo: synchronous FIFO, valid/ready on both sides, distributed-RAM storage: the one FIFO
- * of the rectify core (rc_coord) and the camera IPs (camera_in's and frame_gate's output FIFO,
- * whose writers count credits and leave s_ready unconnected).
+ * of the rectify core (rc_coord's coordinates, rc_datapath's output) and the camera IPs
+ * (camera_in's and frame_gate's output FIFO); the output FIFOs' writers count credits and leave
+ * s_ready unconnected.
  *
  * Holds up to DEPTH words; count is the number held (0..DEPTH, a register). s_ready =
  * count < DEPTH: a word moves in when s_valid && s_ready.
@@ -20,15 +21,21 @@
  * is low.
  * SHOW_AHEAD = 0 (read request): m_ready is a read request; when count > 0 on that clock
  * the oldest word is on m_data (a register) the next clock, with m_valid = 1 for that clock.
+ * OUTPUT_REG = 1 (with SHOW_AHEAD = 1; the rectify core's output FIFO): the oldest word moves
+ * into an output register whenever it is empty or being taken, so m_data and m_valid are
+ * registers (nothing combinational reaches the consumer). Latency 2 clocks from a word in to
+ * m_valid; one word per clock in and out; DEPTH words in the RAM and one in the register (count
+ * is the RAM's). m_data and m_valid hold while m_ready is low.
  *
  * Frame and line boundaries: none; it knows words only. Reset: synchronous, active high:
  * empty (also the power-up state). Parameters are checked at elaboration: DEPTH >= 2,
- * SHOW_AHEAD 0 or 1.
+ * SHOW_AHEAD 0 or 1, OUTPUT_REG 0 or 1 and only with SHOW_AHEAD 1.
  */
 module rc_fifo #(
     parameter WIDTH = 8,
     parameter DEPTH = 16,       // words held; >= 2
-    parameter SHOW_AHEAD = 1
+    parameter SHOW_AHEAD = 1,
+    parameter OUTPUT_REG = 0    // 1: the head in an output register (SHOW_AHEAD 1 only)
 ) (
     input  wire                          clk,
     input  wire                          rst,
@@ -55,8 +62,15 @@ module rc_fifo #(
         if (SHOW_AHEAD != 0 && SHOW_AHEAD != 1) begin : g_check_show_ahead
             rc_fifo_parameter_SHOW_AHEAD_must_be_0_or_1 show_ahead_invalid();
         end
+        if (OUTPUT_REG != 0 && OUTPUT_REG != 1) begin : g_check_output_reg
+            rc_fifo_parameter_OUTPUT_REG_must_be_0_or_1 output_reg_invalid();
+        end
+        if (OUTPUT_REG == 1 && SHOW_AHEAD != 1) begin : g_check_output_reg_mode
+            rc_fifo_parameter_OUTPUT_REG_needs_SHOW_AHEAD_1 output_reg_needs_show_ahead();
+        end
     endgenerate
 
+    (* ram_style = "distributed" *)  // LUT RAM in every mode (the OUTPUT_REG read is registered)
     reg [WIDTH-1:0] mem [0:DEPTH-1];
     reg [AW-1:0]    wr_ptr = {AW{1'b0}}, rd_ptr = {AW{1'b0}};
     reg [CW-1:0]    held = {CW{1'b0}};  // words in the FIFO
@@ -67,8 +81,9 @@ module rc_fifo #(
         next_ptr = (ptr == LAST) ? {AW{1'b0}} : ptr + 1'b1;
     endfunction
 
+    reg             head_valid = 1'b0;  // OUTPUT_REG: the output register holds a word
     wire push = s_valid && notfull;
-    wire pop = nonempty && m_ready;
+    wire pop = nonempty && (OUTPUT_REG ? (!head_valid || m_ready) : m_ready);
     wire [CW-1:0] held_next = held + {{CW-1{1'b0}}, push} - {{CW-1{1'b0}}, pop};
 
     always @(posedge clk) begin
@@ -92,7 +107,17 @@ module rc_fifo #(
     end
 
     generate
-        if (SHOW_AHEAD) begin : fwft
+        if (SHOW_AHEAD && OUTPUT_REG) begin : fwft_reg
+            reg [WIDTH-1:0] head_data = {WIDTH{1'b0}};
+            always @(posedge clk) begin
+                if (rst) head_valid <= 1'b0;
+                else if (pop) head_valid <= 1'b1;
+                else if (m_ready) head_valid <= 1'b0;
+                if (pop) head_data <= mem[rd_ptr];
+            end
+            assign m_data  = head_data;
+            assign m_valid = head_valid;
+        end else if (SHOW_AHEAD) begin : fwft
             assign m_data  = mem[rd_ptr];
             assign m_valid = nonempty;
         end else begin : request

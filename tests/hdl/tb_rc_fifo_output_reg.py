@@ -1,10 +1,10 @@
-"""cocotb testbench for stereocam/overlays/rtl/rc_ofifo.v, the rectify core's output FIFO.
+"""cocotb testbench for rc_fifo.v with OUTPUT_REG = 1, the rectify core's output FIFO (rc_datapath).
 
 Run by ``tests/hdl/test_rtl_units.py``. The writer keeps to the credit rule of rc_datapath (never
-more words inside than the FIFO holds: DEPTH in the storage and one in the output register) with
-random gaps; the reader stalls at random. Checked clock by clock: every word leaves once, in order;
-m_data and m_valid hold while stalled; a word written into an empty FIFO is on m_valid 2 clocks
-later, not earlier; a FIFO filled to DEPTH + 1 words gives them all back; reset empties it.
+more than DEPTH words inside, counting the output register's) with random gaps; the reader stalls
+at random. Checked clock by clock: s_ready is high for every such write; every word leaves once,
+in order; m_data and m_valid hold while stalled; a word written into an empty FIFO is on m_valid
+2 clocks later, not earlier; a FIFO filled to DEPTH words gives them all back; reset empties it.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from .unit_bench import first_difference, params, ready_pattern, start_clock
 async def reset(dut: Any) -> None:
     await FallingEdge(dut.clk)
     dut.rst.value = 1
-    dut.wr_en.value = 0
+    dut.s_valid.value = 0
     dut.m_ready.value = 0
     for _ in range(3):
         await FallingEdge(dut.clk)
@@ -33,7 +33,7 @@ async def run(dut: Any, rng: random.Random, clocks: int, p_gap: float, ready: li
               burst: int) -> int:
     """``clocks`` clocks of writes (random gaps, credit-limited) against ``ready``; the most words inside."""
     p = params()
-    width, capacity = p["WIDTH"], p["DEPTH"] + 1
+    width, capacity = p["WIDTH"], p["DEPTH"]  # rc_datapath's credits: at most DEPTH words inside
     await reset(dut)
     writes = ready_pattern(rng, clocks, p_gap, burst)
     sent: list[int] = []
@@ -65,13 +65,15 @@ async def run(dut: Any, rng: random.Random, clocks: int, p_gap: float, ready: li
         inside = len(sent) - len(got)  # after this clock's read
         word = rng.getrandbits(width)
         write = c < clocks and writes[c] and inside < capacity
-        dut.wr_en.value = int(write)
-        dut.wr_data.value = word
+        if write:  # a writer within the credits is never refused
+            assert dut.s_ready.value, f"clock {c}: s_ready low with {inside} words inside"
+        dut.s_valid.value = int(write)
+        dut.s_data.value = word
         if write:
             if inside == 0:
                 into_empty.append((c, word))
             sent.append(word)
-    dut.wr_en.value = 0
+    dut.s_valid.value = 0
     assert got == sent, f"{len(sent)} words in, {len(got)} out; {first_difference(got, sent)}"
     return most
 
@@ -87,10 +89,10 @@ async def random_gaps_and_backpressure(dut: Any) -> None:
 
 @cocotb.test()
 async def fill_to_capacity(dut: Any) -> None:
-    """The reader stalls until DEPTH + 1 words are inside, then takes them at random: all come back."""
+    """The reader stalls until DEPTH words are inside, then takes them at random: all come back."""
     start_clock(dut.clk)
     rng = random.Random(2)
-    capacity = params()["DEPTH"] + 1
+    capacity = params()["DEPTH"]
     stall = 3 * capacity
     ready = [False] * stall + ready_pattern(rng, 600, 0.5, 3)
     most = await run(dut, rng, stall + 600, 0.0, ready, 1)
@@ -103,10 +105,10 @@ async def reset_empties(dut: Any) -> None:
     start_clock(dut.clk)
     await reset(dut)
     for k in range(4):
-        dut.wr_en.value = 1
-        dut.wr_data.value = k + 1
+        dut.s_valid.value = 1
+        dut.s_data.value = k + 1
         await FallingEdge(dut.clk)
-    dut.wr_en.value = 0
+    dut.s_valid.value = 0
     await reset(dut)
     dut.m_ready.value = 1
     for _ in range(10):
