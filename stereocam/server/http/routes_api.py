@@ -33,6 +33,7 @@ from .bodies import json_response, read_json
 from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
+from .routes_tools import setup_routes as setup_tools_routes
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
     BUDGET,
@@ -452,6 +453,7 @@ def setup_routes(app: web.Application) -> None:
     r.add_get("/api/captures", list_captures)
     r.add_post("/api/captures", post_capture)
     r.add_get(r"/api/captures/{id:[^/]+}.zip", capture_zip)
+    setup_tools_routes(app)  # /api/alignment, /api/histogram
     setup_viewer_routes(app)  # thumb.jpg, restore, /api/point: before the {file} route below
     r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)
     r.add_get(r"/api/captures/{id:[^/]+}", get_capture)
