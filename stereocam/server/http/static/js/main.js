@@ -8,6 +8,7 @@ import { initSource } from "./source.js";
 import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
+import { initTools } from "./tools.js";
 import { initMessageNotice } from "./notice.js";
 import { $, api, initSignIn, showError, showInfo, waitingForSignIn } from "./core.js";
 import { init as initFit } from "./fit.js";
@@ -27,6 +28,7 @@ function init() {
   initVirtual();
   window.addEventListener("beforeunload", closeLive);
   connect();
+  initTools();
   refreshStatus();
   initCaptures();
   initCameras();
