@@ -6,7 +6,7 @@
   pick views after the click.
 - Each raw view's "histogram" toggle draws its histogram under it with the clipped shares; "clipping"
   lays the daemon's clipping mask (the frame's size) over the view.
-- No sideways scroll, messages clear of the views, no console error.
+- No sideways scroll (1440x900, and 375x812 with the tools on), messages clear of the views, no console error.
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ from stereocam.server.frames import views
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     DESKTOP,
+    PHONE,
     assert_messages_clear_of_views,
     assert_no_sideways_scroll,
     daemon_serving,
@@ -103,6 +104,10 @@ def test_epipolar_lines_and_exposure_tools(daemon: str, tmp_path: Path, artifact
         assert_no_sideways_scroll(page, "every tool on at 1440x900")
         assert_messages_clear_of_views(page)
         page.screenshot(path=str(artifacts_dir / "stereo-tools-on.png"))
+        page.set_viewport_size(PHONE)
+        expect(page.get_by_test_id("hist-" + RAW[0])).to_be_visible()
+        assert_no_sideways_scroll(page, "every tool on at 375x812")
+        page.set_viewport_size(DESKTOP)
 
         # Off again: nothing drawn over the views, nothing under them.
         page.get_by_test_id("epi-toggle-" + SBS).click()
