@@ -10,7 +10,7 @@ import pytest
 from aiohttp import FormData
 
 from stereocam.overlays.spec import pixel
-from stereocam.server.frames.tools import MAX_REPORTED, MIN_MATCHES, alignment, histogram
+from stereocam.server.frames.tools import MAX_REPORTED, MIN_MATCHES, alignment, alignment_of, histogram
 from stereocam.server.frames.views import render
 from stereocam.server.http.state import FEED, VIRTUAL
 
@@ -132,6 +132,7 @@ async def test_api_alignment_of_a_shifted_pair(start_daemon) -> None:
     expected = alignment(render(fs, "rect_left", True), render(fs, "rect_right", True))
     assert body["median_dy_px"] == expected.median_dy and body["p90_dy_px"] == expected.p90_dy
     assert body["matches_count"] == expected.count and body["matches"] == expected.matches
+    assert alignment_of(fs) is alignment_of(fs)  # once per frame: every poll of it shares the answer
     assert body["enough"] is True and body["matches_count"] >= MIN_MATCHES
     assert (body["width"], body["height"]) == (W, H) and body["source"] == "virtual"
     assert all(len(m) == 4 for m in body["matches"])
