@@ -1,4 +1,6 @@
-"""Shared pieces of the one-module cocotb benches (``tb_rc_*.py``, ``tb_ci_*.py``; test_rtl_units.py).
+"""Shared pieces of the cocotb benches: the one-module ones (``tb_rc_*.py``, ``tb_ci_*.py``;
+test_rtl_units.py) and what the larger ones (tb_frame_gate, tb_rc_coord, tb_rectify_core) do alike:
+ready patterns, the JSON report.
 
 Every bench drives inputs and reads outputs at the falling edge of the clock, half a clock from the
 rising edge that samples them, so neither simulator's scheduling order can change what is seen. A
@@ -26,6 +28,21 @@ def params() -> dict[str, int]:
 
 def start_clock(signal: Any, period_ns: float = CLOCK_NS) -> None:
     Clock(signal, period_ns, unit="ns").start()
+
+
+def add_to_report(env: str, key: str, value: Any) -> None:
+    """Set ``key`` in the JSON report named by the environment variable ``env`` (nothing when unset),
+    keeping what earlier tests of the same run wrote there."""
+    path = os.environ.get(env)
+    if not path:
+        return
+    data = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            data = json.load(f)
+    data[key] = value
+    with open(path, "w") as f:
+        json.dump(data, f, indent=1)
 
 
 def ready_pattern(rng: random.Random, clocks: int, p_low: float, burst: int) -> list[bool]:
