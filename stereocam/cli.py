@@ -195,6 +195,15 @@ def _lb_rows(text: str) -> int:
     return value
 
 
+def _add_lb_rows(parser: argparse.ArgumentParser, purpose: str) -> None:
+    """``--lb-rows N``: the bitstream's line-buffer rows, which a calibration must fit (``purpose``:
+    what the command does with them, for the help)."""
+    from .overlays.spec.rectify import DEFAULT_LB_ROWS
+
+    parser.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
+                        help=f"line-buffer rows of the bitstream to {purpose} (default {DEFAULT_LB_ROWS})")
+
+
 def _output_file(path: str) -> Path:
     """Where a file will be written: its folder must exist (checked before any work)."""
     out = Path(path)
@@ -547,7 +556,6 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
 
 def build_parser() -> argparse.ArgumentParser:
     from .overlays.backend import CORES
-    from .overlays.spec.rectify import DEFAULT_LB_ROWS
     from .server.http.uploads import FIT_MODES
 
     parser = argparse.ArgumentParser(
@@ -569,8 +577,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "left.yaml,right.yaml (ROS camera_info)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                    help="writes OUTDIR/left.png and OUTDIR/right.png")
-    p.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
-                   help=f"line-buffer rows of the bitstream to model (default {DEFAULT_LB_ROWS})")
+    _add_lb_rows(p, "model")
     p.add_argument("--core", choices=CORES, default=CORES[0],
                    help="model (default): the bit-exact numpy model; rtl: the core's Verilog under Verilator "
                         "(built once and cached; the output is the same byte for byte)")
@@ -599,8 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="side of one square with its unit, e.g. 25mm")
     c.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
                    help="0 keeps only valid pixels (default), 1 keeps every source pixel")
-    c.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
-                   help=f"line-buffer rows of the bitstream to check against (default {DEFAULT_LB_ROWS})")
+    _add_lb_rows(c, "check against")
     c.add_argument("-o", "--output", required=True, metavar="FILE",
                    help="the calibration file to write (YAML)")
     c.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
@@ -628,8 +634,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="image size, for files that do not record it (OpenCV stereo_calib)")
     imp.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
                      help="rectification alpha for sources without a rectification (MATLAB); default 0")
-    imp.add_argument("--lb-rows", type=_lb_rows, default=DEFAULT_LB_ROWS, metavar="N",
-                     help=f"line-buffer rows of the bitstream to check against (default {DEFAULT_LB_ROWS})")
+    _add_lb_rows(imp, "check against")
     imp.set_defaults(func=cmd_calibration_import)
     exp = ksub.add_parser("export", help="write another tool's files from a stereocam calibration",
                           description="Write OpenCV stereo_calib files intrinsics.yml and extrinsics.yml, "

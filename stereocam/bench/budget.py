@@ -26,11 +26,11 @@ import collections
 import json
 import os
 import struct
-import sys
 import time
 from typing import Any, Dict, List, Sequence, Tuple
 
 from ..server.frames import views
+from .report import run_suite
 from .serve import ServeBenchError, running_daemon
 
 VIEWS = views.VIEWS  # the daemon's view registry: every view is watched in the "all" phase
@@ -189,14 +189,9 @@ def text_lines(result: Dict[str, Any]) -> List[str]:
 
 def run_budget(args: argparse.Namespace) -> int:
     """``stereocam bench budget``: print the figures (text or ``--json``); exit 1 below a floor."""
-    try:
-        result = measure_budget(cores=args.cores, fps=args.fps, seconds=args.seconds,
-                                one_seconds=args.one_seconds)
-    except ServeBenchError as exc:
-        print(f"stereocam bench budget: error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(result) if args.json else "\n".join(text_lines(result)))
-    return 0 if result["meets_floor"] else 1
+    return run_suite("budget", lambda: measure_budget(cores=args.cores, fps=args.fps, seconds=args.seconds,
+                                                      one_seconds=args.one_seconds),
+                     (ServeBenchError,), args.json, text_lines)
 
 
 def add_budget_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:

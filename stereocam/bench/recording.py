@@ -18,13 +18,13 @@ import argparse
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 import urllib.request
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
+from .report import run_suite
 from .serve import ServeBenchError, running_daemon
 
 FLOOR_STOP_S = 2.0
@@ -105,13 +105,9 @@ def text_lines(r: Dict[str, Any]) -> List[str]:
 
 def run_recording(args: argparse.Namespace) -> int:
     """``stereocam bench recording``: print the figures (text or ``--json``); exit 1 below the floor."""
-    try:
-        result = measure_recording(fps=args.fps, seconds=args.seconds, warmup=args.warmup)
-    except (ServeBenchError, OSError) as exc:
-        print(f"stereocam bench recording: error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(result) if args.json else "\n".join(text_lines(result)))
-    return 0 if result["meets_floor"] else 1
+    return run_suite("recording",
+                     lambda: measure_recording(fps=args.fps, seconds=args.seconds, warmup=args.warmup),
+                     (ServeBenchError, OSError), args.json, text_lines)
 
 
 def add_recording_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:

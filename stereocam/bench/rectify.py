@@ -76,6 +76,8 @@ from typing import TYPE_CHECKING, Callable, Dict, Iterator, List, NamedTuple, Op
 
 import numpy as np
 
+from .report import print_figures
+
 if TYPE_CHECKING:  # pragma: no cover
     from ..calibration.stereo import Rectification, StereoModel
     from ..overlays.model.fast import RectifyModel
@@ -473,9 +475,5 @@ def run_bench(args: argparse.Namespace) -> int:
         except ServeBenchError as exc:
             print(f"stereocam bench: error: serve: {exc}", file=sys.stderr)
             return 2
-    if args.json:
-        print(json.dumps(result))
-    else:
-        print("\n".join(text_lines(result)))
-    sys.stdout.flush()
+    print_figures(result, args.json, text_lines)
     return 0

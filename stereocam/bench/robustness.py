@@ -47,9 +47,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import os
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Dict, List
@@ -59,6 +57,7 @@ from .barrage import FLOOR_5XX, FLOOR_RSS_DELTA_MB, FLOOR_STREAM_GAP_S, FLOOR_TR
 from .daemon_process import daemon, daemon_facts, log_tracebacks
 from .malformed import malformed_requests
 from .raw_http import RobustnessBenchError
+from .report import run_suite
 from .slow_reader import FLOOR_LAG_PERIODS, slow_reader
 
 
@@ -145,18 +144,11 @@ def text_lines(result: Dict[str, Any]) -> List[str]:
 
 def run_robustness(args: argparse.Namespace) -> int:
     """``stereocam bench robustness``: print the figures (text or ``--json``); exit 1 below a floor."""
-    try:
-        result = measure_robustness(requests=args.requests, fps=args.fps, concurrency=args.concurrency,
-                                    rounds=args.rounds, reads=args.reads, settle_s=args.settle)
-    except RobustnessBenchError as exc:
-        print(f"stereocam bench robustness: error: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(result))
-    else:
-        print("\n".join(text_lines(result)))
-    sys.stdout.flush()
-    return 0 if result["meets_floor"] else 1
+    return run_suite("robustness",
+                     lambda: measure_robustness(requests=args.requests, fps=args.fps,
+                                                concurrency=args.concurrency, rounds=args.rounds,
+                                                reads=args.reads, settle_s=args.settle),
+                     (RobustnessBenchError,), args.json, text_lines)
 
 
 def add_robustness_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:

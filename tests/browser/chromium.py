@@ -15,7 +15,7 @@ import contextlib
 import json
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Sequence, Tuple
+from typing import Any, Dict, Iterator, List, Optional, Sequence, Set, Tuple
 
 import pytest
 from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
@@ -56,13 +56,13 @@ def get_json(url: str) -> Dict[str, Any]:
 
 
 @contextlib.contextmanager
-def daemon_serving(tmp_path: Path, artifacts_dir: Path, *, fps: float, extra_args: Sequence[str] = ()
-                   ) -> Iterator[str]:
+def daemon_serving(tmp_path: Path, artifacts_dir: Path, *, fps: float, extra_args: Sequence[str] = (),
+                   settings: Optional[Dict[str, Any]] = None) -> Iterator[str]:
     """``stereocam serve`` on a free port; yields its base URL.
 
-    Emulated fabric, captures in ``tmp_path``, :data:`DAEMON_SETTINGS`.
+    Emulated fabric, captures in ``tmp_path``, :data:`DAEMON_SETTINGS` and ``settings``.
     """
-    args = ["--config", str(daemon_config(tmp_path)), *extra_args]
+    args = ["--config", str(daemon_config(tmp_path, **(settings or {}))), *extra_args]
     with running_daemon(fps=fps, captures=tmp_path / "captures", log_path=artifacts_dir / "daemon.log",
                         health_timeout=TIMEOUT_MS / 1000, extra_args=args) as (_proc, base):
         yield base
@@ -88,6 +88,34 @@ def chromium(profile: Path, viewport: Tuple[int, int] = (1400, 1000), device_sca
             yield context
         finally:
             context.close()
+
+
+@contextlib.contextmanager
+def daemon_and_page(tmp_path: Path, artifacts_dir: Path, *, fps: float, viewport: Tuple[int, int],
+                    settings: Dict[str, Any]) -> Iterator[Tuple[str, BrowserContext, Page]]:
+    """A daemon with ``settings`` and a new page in Chromium at ``viewport``: (base URL, context, page).
+
+    A script error on the page fails the test; console errors do not (a page of a daemon with an
+    access token provokes 401s on purpose, which Chromium logs as errors).
+    """
+    problems: List[str] = []
+    with daemon_serving(tmp_path, artifacts_dir, fps=fps, settings=settings) as base:
+        with chromium(tmp_path / "chromium-profile", viewport=viewport) as context:
+            page = context.new_page()
+            page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
+            yield base, context, page
+    assert not problems, problems
+
+
+def wait_new_frames(page: Page, view: str, count: int = 2) -> None:
+    """Wait until the view's <img> has shown ``count`` different frames from now on."""
+    seen: Set[Optional[str]] = set()
+    for _ in range(count):
+        page.wait_for_function(
+            "([id, seen]) => { const f = document.getElementById(id).dataset.frame;"
+            " return f !== '' && f !== undefined && !seen.includes(f); }",
+            arg=[f"view-{view}", sorted(f for f in seen if f)])
+        seen.add(page.get_attribute(f"#view-{view}", "data-frame"))
 
 
 @contextlib.contextmanager

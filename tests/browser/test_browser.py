@@ -23,7 +23,7 @@ import time
 import urllib.parse
 import urllib.request
 from pathlib import Path
-from typing import Iterator, List, Optional, Set, Tuple
+from typing import Iterator, List, Tuple
 
 import numpy as np
 import pytest
@@ -36,6 +36,7 @@ from .chromium import (
     TIMEOUT_MS,
     daemon_serving,
     get_json,
+    wait_new_frames,
     watched_page,
 )
 
@@ -93,13 +94,7 @@ def _frame(page: Page, view: str) -> int:
 def _wait_new_frames(page: Page, views: List[str], count: int = 2) -> None:
     """Wait until each view's <img> has shown ``count`` different frames from now on."""
     for view in views:
-        seen: Set[Optional[str]] = set()
-        for _ in range(count):
-            page.wait_for_function(
-                "([id, seen]) => { const f = document.getElementById(id).dataset.frame;"
-                " return f !== '' && f !== undefined && !seen.includes(f); }",
-                arg=[f"view-{view}", sorted(f for f in seen if f)])
-            seen.add(page.get_attribute(f"#view-{view}", "data-frame"))
+        wait_new_frames(page, view, count)
         # The <img> really decoded a JPEG of a sensible size (recorded by its onload: reading
         # naturalWidth here would race the next frame's src change, which resets it to 0).
         size = page.get_attribute(f"#view-{view}", "data-size") or ""

@@ -16,7 +16,6 @@ from typing import Any
 
 import cocotb
 from cocotb.clock import Clock
-from cocotb.simtime import get_sim_time
 from cocotb.triggers import ClockCycles, FallingEdge, RisingEdge, with_timeout
 from cocotbext.axi import (  # type: ignore[import-untyped]  # no py.typed
     AxiStreamBus,
@@ -24,6 +23,8 @@ from cocotbext.axi import (  # type: ignore[import-untyped]  # no py.typed
     AxiStreamSink,
     AxiStreamSource,
 )
+
+from .unit_bench import check_held_beat, pulse_reset
 
 CLOCK_NS = 10
 # A bound on any wait, so a design that stops passing beats fails instead of hanging.
@@ -55,10 +56,7 @@ class TB:
         self.sink.set_pause_generator(bp_gen() if bp_gen else None)
 
     async def reset(self) -> None:
-        self.dut.rst.value = 1
-        await ClockCycles(self.dut.clk, 3)
-        self.dut.rst.value = 0
-        await ClockCycles(self.dut.clk, 2)
+        await pulse_reset(self.dut, 3)
 
     async def _check_stall(self) -> None:
         """AXI4-Stream rule: once TVALID is up, the beat must not change until TREADY takes it."""
@@ -66,15 +64,7 @@ class TB:
         held = None
         while True:
             await RisingEdge(dut.clk)
-            if not dut.m_axis_tvalid.value:  # TDATA may be X while TVALID is low
-                if held is not None:
-                    self.stall_violations.append(f"at {get_sim_time('ns')} ns: TVALID dropped, held {held}")
-                held = None
-                continue
-            beat = (int(dut.m_axis_tdata.value), int(dut.m_axis_tlast.value), int(dut.m_axis_tuser.value))
-            if held is not None and beat != held:
-                self.stall_violations.append(f"at {get_sim_time('ns')} ns: held {held}, now {beat}")
-            held = None if dut.m_axis_tready.value else beat
+            held = check_held_beat(dut, held, self.stall_violations)
 
     def video_frame(self, width: int, height: int) -> list[AxiStreamFrame]:
         """One packet per line; TUSER marks the frame's first pixel."""

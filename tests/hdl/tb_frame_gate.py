@@ -28,6 +28,8 @@ from stereocam.overlays.model import frame_gate as model
 from stereocam.overlays.model.frame_gate import Beat
 from stereocam.overlays.spec import frame_gate as spec
 
+from .unit_bench import ready_pattern
+
 DEPTH = int(os.environ.get("STEREOCAM_FG_DEPTH", str(spec.PARAMETERS["DEPTH"])))
 CLOCK_NS = 10
 
@@ -72,17 +74,6 @@ class Builder:
             self.line_end[-1].append(len(self.beats) - 1)
             if not line_period:
                 self.idle(self.rng.randint(*hblank))
-
-
-def tready_random(rng: random.Random, clocks: int, p_low: float, burst: int = 1) -> List[bool]:
-    """TREADY low with probability ``p_low``, in runs of 1..``burst`` clocks."""
-    out: List[bool] = []
-    while len(out) < clocks:
-        if rng.random() < p_low:
-            out.extend([False] * rng.randint(1, burst))
-        else:
-            out.append(True)
-    return out[:clocks]
 
 
 # ---- the bench ------------------------------------------------------------------------------------
@@ -281,7 +272,7 @@ async def random_tready(dut: SimHandleBase) -> None:
         for f in frames:
             b.frame(f, pause=rng.choice((0.0, 0.3, 0.6)), hblank=(0, 8))
             b.idle(rng.randint(0, 80))
-        tready = tready_random(rng, len(b.beats) + 200, p_low, burst)
+        tready = ready_pattern(rng, len(b.beats) + 200, p_low, burst)
         want = await run_case(tb, f"random tready {seed}", b.beats, tready)
         out_frames, _ = model.split_frames([beat for _, beat in want.beats])
         problems = prefix_check(out_frames, frames)

@@ -29,6 +29,8 @@ from cocotb.triggers import ClockCycles, RisingEdge
 from stereocam.overlays.model.fixed import positions
 from stereocam.overlays.spec.rectify import PARAM_NAMES, CameraRegs
 
+from .unit_bench import add_to_report
+
 CLOCK_NS = 10
 MASK64 = (1 << 64) - 1
 # Clocks the engine may take to produce its first word after start (pipeline plus FIFO).
@@ -44,16 +46,7 @@ def _settings() -> dict:
 
 
 def _report(key: str, value: object) -> None:
-    path = os.environ.get("RC_COORD_REPORT")
-    if not path:
-        return
-    data = {}
-    if os.path.exists(path):
-        with open(path) as f:
-            data = json.load(f)
-    data[key] = value
-    with open(path, "w") as f:
-        json.dump(data, f, indent=1)
+    add_to_report("RC_COORD_REPORT", key, value)
 
 
 def pack(values: dict) -> int:

@@ -28,11 +28,11 @@ import cocotb
 import numpy as np
 from cocotb.clock import Clock
 from cocotb.handle import SimHandleBase
-from cocotb.simtime import get_sim_time
 from cocotb.triggers import ClockCycles, FallingEdge, RisingEdge, with_timeout
 from cocotbext.axi import AxiStreamBus, AxiStreamFrame, AxiStreamSink, AxiStreamSource
 
 from ..overlays.test_model import random_frame, random_params  # the model tests' calibrations and frames
+from .unit_bench import check_held_beat, pulse_reset
 
 CLOCK_NS = 10
 FULL = os.environ.get("STEREOCAM_COSIM_FULL") == "1"
@@ -352,18 +352,9 @@ class StreamBench:
             self.cycle += 1
             if self.record_cycles and dut.s_axis_tvalid.value and dut.s_axis_tready.value:
                 self.in_cycles.append(self.cycle)
-            if not dut.m_axis_tvalid.value:
-                if held is not None:
-                    self.stall_violations.append(f"at {get_sim_time('ns')} ns: TVALID dropped, held {held}")
-                held = None
-                continue
-            beat = (int(dut.m_axis_tdata.value), int(dut.m_axis_tlast.value), int(dut.m_axis_tuser.value))
-            if held is not None and beat != held:
-                self.stall_violations.append(f"at {get_sim_time('ns')} ns: held {held}, now {beat}")
-            ready = bool(dut.m_axis_tready.value)
-            if ready and self.record_cycles:
+            held = check_held_beat(dut, held, self.stall_violations)
+            if self.record_cycles and dut.m_axis_tvalid.value and dut.m_axis_tready.value:
                 self.out_cycles.append(self.cycle)
-            held = None if ready else beat
 
     async def send(self, beats: Sequence[Beat]) -> None:
         for packet in beat_packets(beats):
@@ -466,10 +457,7 @@ class DatapathTB(StreamBench):
         dut.debug_row.value = o.debug_row or 0
 
     async def reset(self) -> None:
-        self.dut.rst.value = 1
-        await ClockCycles(self.dut.clk, 4)
-        self.dut.rst.value = 0
-        await ClockCycles(self.dut.clk, 2)
+        await pulse_reset(self.dut, 4)
 
     async def _coordinate_engine(self) -> None:
         """On each coord_start, the next queued frame's positions, one word per valid/ready beat."""

@@ -14,18 +14,11 @@ from typing import Any
 import cocotb
 from cocotb.triggers import FallingEdge
 
-from .unit_bench import first_difference, params, ready_pattern, start_clock
+from .unit_bench import first_difference, params, ready_pattern, reset_stream, start_clock
 
 
 async def reset(dut: Any) -> None:
-    await FallingEdge(dut.clk)
-    dut.rst.value = 1
-    dut.s_valid.value = 0
-    dut.m_ready.value = 0
-    for _ in range(3):
-        await FallingEdge(dut.clk)
-    dut.rst.value = 0
-    await FallingEdge(dut.clk)
+    await reset_stream(dut)
     assert not dut.m_valid.value, "m_valid high after reset"
 
 

@@ -14,20 +14,15 @@ from typing import Any
 import cocotb
 from cocotb.triggers import FallingEdge
 
-from .unit_bench import first_difference, params, ready_pattern, start_clock
+from .unit_bench import first_difference, params, ready_pattern, reset_stream, start_clock
 
 
 async def reset(dut: Any) -> None:
     """Reset for three clocks: s_ready and m_valid low in it, s_ready high one clock after it."""
-    await FallingEdge(dut.clk)
-    dut.rst.value = 1
-    dut.s_valid.value = 0
-    dut.m_ready.value = 0
-    for _ in range(3):
-        await FallingEdge(dut.clk)
+    def quiet() -> None:
         assert not dut.s_ready.value and not dut.m_valid.value, "s_ready or m_valid high in reset"
-    dut.rst.value = 0
-    await FallingEdge(dut.clk)
+
+    await reset_stream(dut, quiet)
     assert dut.s_ready.value, "s_ready low the clock after reset"
 
 

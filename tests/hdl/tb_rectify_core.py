@@ -48,6 +48,7 @@ from tests.hdl.tb_rc_datapath import (
     frame_beats,
     pause_gen,
 )
+from tests.hdl.unit_bench import add_to_report
 
 REG = {"CONTROL": 0x20, "STATUS": 0x24, "FLAGS": 0x28, "FRAME_COUNT": 0x2C}
 TIMEOUT_US = 20_000
@@ -197,16 +198,7 @@ def load_cases() -> Tuple[List[Dict[str, Any]], Any]:
 
 
 def write_report(key: str, value: Any) -> None:
-    path = os.environ.get("STEREOCAM_CORE_REPORT")
-    if not path:
-        return
-    data = {}
-    if os.path.exists(path):
-        with open(path) as f:
-            data = json.load(f)
-    data[key] = value
-    with open(path, "w") as f:
-        json.dump(data, f, indent=1)
+    add_to_report("STEREOCAM_CORE_REPORT", key, value)
 
 
 async def run_scenario(tb: CoreTB, sc: Dict[str, Any], frames: Any) -> Dict[str, Any]:

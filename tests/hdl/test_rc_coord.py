@@ -15,7 +15,7 @@ import json
 import os
 import subprocess
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -78,15 +78,21 @@ def random_rig(seed: int, width: int, height: int, alpha: float) -> Tuple[Camera
                       rng.normal(0, 0.002), rng.normal(0, 0.002)])
         return K, D
 
+    left, right = rectified_pair(rng, intrinsics, width, height, alpha)
+    return camera_registers(left, width, height), camera_registers(right, width, height)
+
+
+def rectified_pair(rng: np.random.Generator, intrinsics: Callable[[], Tuple[np.ndarray, np.ndarray]],
+                   width: int, height: int, alpha: float) -> Tuple[CameraParams, CameraParams]:
+    """Two cameras of ``intrinsics()`` (left drawn first), a small random rotation and baseline from
+    ``rng``, rectified by OpenCV: the part of a random rig this test and test_rectify_core_rtl share."""
     K1, D1 = intrinsics()
     K2, D2 = intrinsics()
     R, _ = cv2.Rodrigues(rng.normal(0, 0.02, 3))
     T = np.array([-rng.uniform(0.05, 0.15), rng.normal(0, 0.003), rng.normal(0, 0.003)])
     model = StereoModel(K1, D1, K2, D2, R, T, (width, height))
     rect = rectify(model, alpha=alpha)
-    left = camera_params(K1, D1, rect.R1, rect.P1)
-    right = camera_params(K2, D2, rect.R2, rect.P2)
-    return camera_registers(left, width, height), camera_registers(right, width, height)
+    return camera_params(K1, D1, rect.R1, rect.P1), camera_params(K2, D2, rect.R2, rect.P2)
 
 
 def rig_sizes(seed: int) -> Tuple[int, int]:
@@ -96,6 +102,12 @@ def rig_sizes(seed: int) -> Tuple[int, int]:
 
 def sample_rig(width: int, height: int) -> Tuple[CameraRegs, CameraRegs]:
     """OpenCV's stereo sample (tests/data/opencv-stereo-calib), calibrated, at ``width x height``."""
+    left, right = sample_pair(width, height)
+    return camera_registers(left, width, height), camera_registers(right, width, height)
+
+
+def sample_pair(width: int, height: int) -> Tuple[CameraParams, CameraParams]:
+    """OpenCV's stereo sample, calibrated, scaled to ``width x height`` and rectified (alpha 0)."""
     from ..sample import calibrate_sample
 
     cal = calibrate_sample()
@@ -104,9 +116,8 @@ def sample_rig(width: int, height: int) -> Tuple[CameraRegs, CameraRegs]:
     m = cal.model
     model = StereoModel(scale @ m.K1, m.D1, scale @ m.K2, m.D2, m.R, m.T, (width, height))
     rect = rectify(model, alpha=0.0)
-    left = camera_params(model.K1, model.D1, rect.R1, rect.P1)
-    right = camera_params(model.K2, model.D2, rect.R2, rect.P2)
-    return camera_registers(left, width, height), camera_registers(right, width, height)
+    return (camera_params(model.K1, model.D1, rect.R1, rect.P1),
+            camera_params(model.K2, model.D2, rect.R2, rect.P2))
 
 
 def lens(w: int, h: int, f: float, k1: float = 0.0, k2: float = 0.0, p1: float = 0.0, p2: float = 0.0,

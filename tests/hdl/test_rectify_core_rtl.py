@@ -18,11 +18,9 @@ import os
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
-import cv2
 import numpy as np
 import pytest
 
-from stereocam.calibration.stereo import StereoModel, camera_params, rectify
 from stereocam.overlays.model.linebuffer import rows_needed
 from stereocam.overlays.rtl import toolchain as hdl
 from stereocam.overlays.spec import pixel
@@ -38,6 +36,7 @@ from stereocam.overlays.spec.rectify import (
 )
 
 from .cocotb_run import run_cocotb
+from .test_rc_coord import rectified_pair, sample_pair  # the rc_coord co-simulation's rigs
 
 FULL = os.environ.get("STEREOCAM_COSIM_FULL", "") not in ("", "0")
 RTL = hdl.rtl_dir()
@@ -74,28 +73,13 @@ def random_rig(seed: int, width: int, height: int, alpha: float) -> Tuple[Camera
                       rng.normal(0, 0.002), rng.normal(0, 0.002)])
         return K, D
 
-    K1, D1 = intrinsics()
-    K2, D2 = intrinsics()
-    R, _ = cv2.Rodrigues(rng.normal(0, 0.02, 3))
-    T = np.array([-rng.uniform(0.05, 0.15), rng.normal(0, 0.003), rng.normal(0, 0.003)])
-    model = StereoModel(K1, D1, K2, D2, R, T, (width, height))
-    rect = rectify(model, alpha=alpha)
-    return camera_params(K1, D1, rect.R1, rect.P1), camera_params(K2, D2, rect.R2, rect.P2)
+    return rectified_pair(rng, intrinsics, width, height, alpha)
 
 
 @functools.lru_cache(maxsize=4)
 def sample_rig(width: int, height: int) -> Tuple[CameraParams, CameraParams]:
     """OpenCV's stereo sample (tests/data/opencv-stereo-calib), calibrated, scaled to ``width x height``."""
-    from ..sample import calibrate_sample
-
-    cal = calibrate_sample()
-    w0, h0 = cal.model.image_size
-    s = np.diag([width / w0, height / h0, 1.0])
-    m = cal.model
-    model = StereoModel(s @ m.K1, m.D1, s @ m.K2, m.D2, m.R, m.T, (width, height))
-    rect = rectify(model, alpha=0.0)
-    return (camera_params(model.K1, model.D1, rect.R1, rect.P1),
-            camera_params(model.K2, model.D2, rect.R2, rect.P2))
+    return sample_pair(width, height)
 
 
 def lens(w: int, h: int, f: float, k1: float = 0.0, k2: float = 0.0, p1: float = 0.0, p2: float = 0.0,

@@ -1,4 +1,6 @@
-"""Shared pieces of the one-module cocotb benches (``tb_rc_*.py``, ``tb_ci_*.py``; test_rtl_units.py).
+"""Shared pieces of the cocotb benches: the one-module ones (``tb_rc_*.py``, ``tb_ci_*.py``;
+test_rtl_units.py) and what the larger ones (tb_axis_reg, tb_frame_gate, tb_rc_coord, tb_rc_datapath,
+tb_rectify_core) do alike: reset, the AXI4-Stream hold check, ready patterns, the JSON report.
 
 Every bench drives inputs and reads outputs at the falling edge of the clock, half a clock from the
 rising edge that samples them, so neither simulator's scheduling order can change what is seen. A
@@ -14,7 +16,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from cocotb.clock import Clock
-from cocotb.triggers import FallingEdge, Timer
+from cocotb.simtime import get_sim_time
+from cocotb.triggers import ClockCycles, FallingEdge, Timer
 
 CLOCK_NS = 10
 
@@ -26,6 +29,60 @@ def params() -> dict[str, int]:
 
 def start_clock(signal: Any, period_ns: float = CLOCK_NS) -> None:
     Clock(signal, period_ns, unit="ns").start()
+
+
+async def pulse_reset(dut: Any, clocks: int) -> None:
+    """Hold ``dut.rst`` high for ``clocks`` rising edges, then let the module run 2 clocks out of reset."""
+    dut.rst.value = 1
+    await ClockCycles(dut.clk, clocks)
+    dut.rst.value = 0
+    await ClockCycles(dut.clk, 2)
+
+
+async def reset_stream(dut: Any, in_reset: Callable[[], None] = lambda: None) -> None:
+    """Reset a valid/ready module (``s_valid``, ``m_ready``) for three clocks with both inputs low,
+    calling ``in_reset()`` at each of them; returns one clock after the reset, at a falling edge."""
+    await FallingEdge(dut.clk)
+    dut.rst.value = 1
+    dut.s_valid.value = 0
+    dut.m_ready.value = 0
+    for _ in range(3):
+        await FallingEdge(dut.clk)
+        in_reset()
+    dut.rst.value = 0
+    await FallingEdge(dut.clk)
+
+
+StreamBeat = tuple[int, int, int]  # TDATA, TLAST, TUSER
+
+
+def check_held_beat(dut: Any, held: StreamBeat | None, violations: list[str]) -> StreamBeat | None:
+    """The AXI4-Stream rule on ``dut.m_axis_*`` at one rising edge: once TVALID is up, the beat must not
+    change until TREADY takes it. ``held`` is the beat left waiting at the edge before; returns the
+    one left waiting now (None if none); a broken rule is added to ``violations``."""
+    if not dut.m_axis_tvalid.value:  # TDATA may be X while TVALID is low
+        if held is not None:
+            violations.append(f"at {get_sim_time('ns')} ns: TVALID dropped, held {held}")
+        return None
+    beat = (int(dut.m_axis_tdata.value), int(dut.m_axis_tlast.value), int(dut.m_axis_tuser.value))
+    if held is not None and beat != held:
+        violations.append(f"at {get_sim_time('ns')} ns: held {held}, now {beat}")
+    return None if dut.m_axis_tready.value else beat
+
+
+def add_to_report(env: str, key: str, value: Any) -> None:
+    """Set ``key`` in the JSON report named by the environment variable ``env`` (nothing when unset),
+    keeping what earlier tests of the same run wrote there."""
+    path = os.environ.get(env)
+    if not path:
+        return
+    data = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            data = json.load(f)
+    data[key] = value
+    with open(path, "w") as f:
+        json.dump(data, f, indent=1)
 
 
 def ready_pattern(rng: random.Random, clocks: int, p_low: float, burst: int) -> list[bool]:

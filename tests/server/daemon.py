@@ -24,11 +24,12 @@ not red.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, AsyncIterator, Awaitable, Callable, List, Optional, Tuple
+from typing import Any, AsyncIterator, Awaitable, Callable, Iterator, List, Optional, Tuple
 
 import aiohttp
 import numpy as np
@@ -37,6 +38,7 @@ from aiohttp import web
 
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.emulated.render import SyntheticRig
+from stereocam.server.frames.pipeline import FrameSet
 from stereocam.server.http.app import create_app, default_extensions, program_default_calibration, serve
 from stereocam.server.http.settings import Settings
 
@@ -47,6 +49,25 @@ FULL = (752, 480)
 TEST_FPS = 25.0
 # The last-resort bound of a wait for something that does happen (start, stop, frames, parts).
 WAIT_S = 60.0 * SLOWNESS
+
+
+class HandFeed:
+    """What a recording needs of the pipeline (``raw_wanted``, ``every_frame``): the test calls
+    ``sink`` with the frames it makes, so a recorder sees exactly those, when the test says."""
+
+    def __init__(self) -> None:
+        self.sink: Optional[Callable[[FrameSet], None]] = None
+
+    def raw_wanted(self) -> contextlib.AbstractContextManager[None]:
+        return contextlib.nullcontext()
+
+    @contextlib.contextmanager
+    def every_frame(self, sink: Callable[[FrameSet], None]) -> Iterator[None]:
+        self.sink = sink
+        try:
+            yield
+        finally:
+            self.sink = None
 
 
 @functools.lru_cache(maxsize=4)

@@ -7,14 +7,13 @@ broken calibration field in an old file is refused with one line or read as abse
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
 import json
 import logging
 import time
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Callable, Dict, Iterator, List, Optional
+from typing import Any, Callable, Dict, List, Optional
 
 import numpy as np
 import pytest
@@ -30,7 +29,7 @@ from stereocam.server.stores.captures import CaptureStore
 from stereocam.server.stores.frame_calibration import FrameCalibration
 from stereocam.server.stores.recordings import RecordingStore
 
-from .daemon import SMALL, WAIT_S, rig_frame, wait_for_frames
+from .daemon import SMALL, WAIT_S, HandFeed, rig_frame, wait_for_frames
 
 # The two shapes stereocam has written as a capture's (and recording.json's) "calibration", as in
 # the files: a known calibration, and a frame that ran while one was being programmed.
@@ -134,24 +133,6 @@ def test_a_broken_calibration_in_an_old_capture_reads_as_absent_and_the_listing_
 
 
 # -- one frame, three consumers ---------------------------------------------------------------------
-
-class HandFeed:
-    """What a recording needs of the pipeline, fed frame by frame by the test."""
-
-    def __init__(self) -> None:
-        self.sink: Optional[Callable[[FrameSet], None]] = None
-
-    def raw_wanted(self) -> contextlib.AbstractContextManager[None]:
-        return contextlib.nullcontext()
-
-    @contextlib.contextmanager
-    def every_frame(self, sink: Callable[[FrameSet], None]) -> Iterator[None]:
-        self.sink = sink
-        try:
-            yield
-        finally:
-            self.sink = None
-
 
 def frame_set(count: int) -> FrameSet:
     """Frame ``count`` (its FRAME_COUNT), grabbed now, from the virtual camera (raw: its input)."""

@@ -26,7 +26,7 @@ import time
 import urllib.request
 import zipfile
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import pytest
@@ -39,6 +39,7 @@ from stereocam.server.frames.recorder import Recorder, Recording
 from stereocam.server.stores import recording_files
 from stereocam.server.stores.recordings import RecordingDiskFull, RecordingStore
 
+from . import daemon
 from .daemon import SMALL, WAIT_S
 from .test_recordings import CountingSource, stamp_of
 
@@ -49,24 +50,13 @@ REC_FPS = 10.0
 
 # -- an in-process recorder, fed frame by frame ---------------------------------------------------
 
-class HandFeed:
-    """What a recording needs of the pipeline (``raw_wanted``, ``every_frame``), fed by the test."""
+class HandFeed(daemon.HandFeed):
+    """The test's feed, with frames of its own: a counting source's, each stamped with its count."""
 
     def __init__(self) -> None:
-        self.sink: Optional[Callable[[FrameSet], None]] = None
+        super().__init__()
         self.source = CountingSource()
         self.processed = np.zeros((SMALL[1], SMALL[0], 8), np.uint8)
-
-    def raw_wanted(self) -> contextlib.AbstractContextManager[None]:
-        return contextlib.nullcontext()
-
-    @contextlib.contextmanager
-    def every_frame(self, sink: Callable[[FrameSet], None]) -> Iterator[None]:
-        self.sink = sink
-        try:
-            yield
-        finally:
-            self.sink = None
 
     def frame(self, count: int) -> FrameSet:
         """Frame ``count`` (its FRAME_COUNT and its stamp), grabbed now."""

@@ -11,10 +11,12 @@
 //   (the preview is fetched here, a PNG, not JSON; the access token goes as the page's cookie)
 // Returns { fit, fitQuery }: fit() is the chosen mode ("exact" | "crop" | "pad" | "scale"),
 // fitQuery() the "?fit=<mode>" to append to POST /api/virtual-camera ("" for exact). The same
-// two functions are exported for modules that import this one.
+// two functions are exported for modules that import this one, and uploadForm($), the chosen files
+// as the FormData both the preview and the upload send.
 //
 // Wiring the upload (stereocam/server/http/static/js/virtual.js, upload()):
-//   import { fitQuery } from "./fit.js";
+//   import { fitQuery, uploadForm } from "./fit.js";
+//   const form = uploadForm($);  // null: nothing usable chosen
 //   const res = await api("POST", "/api/virtual-camera" + fitQuery(), form);
 //   ... and show res.fit.text (what was done) in #upload-info when res.fit && res.fit.mode !== "exact".
 //
@@ -57,9 +59,9 @@ export function fitQuery() {
   return mode === "exact" ? "" : "?fit=" + encodeURIComponent(mode);
 }
 
-// The upload form's files as a FormData, or null when neither a pair nor an sbs image is chosen.
-function formData() {
-  const $ = ctx.$;
+// The upload form's files as a FormData, or null when neither a pair nor an sbs image is chosen:
+// what the preview here and the upload (virtual.js) send. $ is document.getElementById.
+export function uploadForm($) {
   const file = (id) => ($(id) && $(id).files && $(id).files[0]) || null;
   const l = file("upload-left"), r = file("upload-right"), s = file("upload-sbs");
   const form = new FormData();
@@ -112,7 +114,7 @@ function showProblem(status, why) {
 
 // POST the chosen files to /api/virtual-camera/preview and show the PNG it answers.
 async function preview(explicit) {
-  const form = formData();
+  const form = uploadForm(ctx.$);
   if (!form) {
     clearPreview(explicit ? "choose a left and a right image, or one side-by-side image" : "");
     return;

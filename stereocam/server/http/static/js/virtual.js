@@ -1,6 +1,6 @@
 // The virtual camera's upload and Verify (POST /api/virtual-camera, POST /api/verify).
 import { $, ApiError, api, action, bust, fmt, loadImage, showInfo, showSuccess } from "./core.js";
-import { fitQuery } from "./fit.js";
+import { fitQuery, uploadForm } from "./fit.js";
 import { setSourceRadios } from "./source.js";
 
 // ---- virtual camera and verify --------------------------------------------------
@@ -9,14 +9,8 @@ async function upload(ev) {
   ev.preventDefault();
   const btn = $("btn-upload");
   await action(btn, async () => {
-    const l = $("upload-left").files[0], r = $("upload-right").files[0], s = $("upload-sbs").files[0];
-    const form = new FormData();
-    if (l && r) {
-      form.append("left", l, l.name);
-      form.append("right", r, r.name);
-    } else if (s && !l && !r) {
-      form.append("sbs", s, s.name);
-    } else {
+    const form = uploadForm($);
+    if (!form) {
       throw new ApiError("Choose a left and a right image, or one side-by-side image, then press Send.");
     }
     const res = await api("POST", "/api/virtual-camera" + fitQuery(), form);
