@@ -217,9 +217,37 @@ async def test_a_tight_budget_lowers_every_watched_view_and_says_why(start_daemo
 # -- the floor ---------------------------------------------------------------------------------
 
 def test_the_daemon_cpu_reading_leaves_out_the_emulated_fabric_thread() -> None:
+    """A thread named as the emulated fabric's burns a known CPU time and then waits: a reading that
+    leaves it out, taken first, and one that counts it, taken after, differ by at least that time
+    (the other threads' time only grows between the two, so a busy machine cannot reverse it)."""
     import os
 
-    assert daemon_cpu_seconds(os.getpid(), excluded="no-such-thread") >= daemon_cpu_seconds(os.getpid())
+    from stereocam.bench.budget import FABRIC_THREAD
+    from stereocam.overlays.emulated.clock import _name_os_thread
+
+    burnt: List[float] = []
+    done, release = threading.Event(), threading.Event()
+
+    def fabric() -> None:
+        _name_os_thread(FABRIC_THREAD)
+        start = time.thread_time()
+        while time.thread_time() - start < 0.3:
+            pass
+        burnt.append(time.thread_time())
+        done.set()
+        release.wait(WAIT_S)
+
+    thread = threading.Thread(target=fabric)
+    thread.start()
+    try:
+        assert done.wait(WAIT_S)
+        without = daemon_cpu_seconds(os.getpid())
+        with_it = daemon_cpu_seconds(os.getpid(), excluded="no-such-thread")
+    finally:
+        release.set()
+        thread.join(WAIT_S)
+    tick = 1 / os.sysconf("SC_CLK_TCK")  # /proc counts CPU time in clock ticks
+    assert with_it - without >= burnt[0] - 2 * tick
 
 
 def test_the_budget_bench_shares_0_3_cores_among_seven_views_and_leaves_one_view_be(capsys) -> None:
