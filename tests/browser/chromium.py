@@ -107,12 +107,24 @@ def daemon_and_page(tmp_path: Path, artifacts_dir: Path, *, fps: float, viewport
     assert not problems, problems
 
 
+def wait_frames(page: Page, views: Sequence[str]) -> None:
+    """Until each view's <img> has shown a frame.
+
+    The figures are built by views.js after GET /api/views answers, which may be after the page's
+    load event: a predicate must treat a missing element as "not yet", never throw on it.
+    """
+    for view in views:
+        page.wait_for_function(
+            "id => { const f = document.getElementById(id)?.dataset.frame;"
+            " return f !== undefined && f !== '' && Number(f) >= 0; }", arg="view-" + view)
+
+
 def wait_new_frames(page: Page, view: str, count: int = 2) -> None:
     """Wait until the view's <img> has shown ``count`` different frames from now on."""
     seen: Set[Optional[str]] = set()
     for _ in range(count):
         page.wait_for_function(
-            "([id, seen]) => { const f = document.getElementById(id).dataset.frame;"
+            "([id, seen]) => { const f = document.getElementById(id)?.dataset.frame;"
             " return f !== '' && f !== undefined && !seen.includes(f); }",
             arg=[f"view-{view}", sorted(f for f in seen if f)])
         seen.add(page.get_attribute(f"#view-{view}", "data-frame"))

@@ -167,7 +167,7 @@ def _drive_page(page: Page, base: str, width: int, height: int, left_png: Path, 
     expect(page.get_by_test_id("source-virtual")).to_be_checked()
     # The rect views now show the fabric's output of the upload: they received a new frame.
     page.wait_for_function(
-        "n => Number(document.getElementById('view-rect_left').dataset.received) > n", arg=rect_before)
+        "n => Number(document.getElementById('view-rect_left')?.dataset.received) > n", arg=rect_before)
 
     # 5. Verify (flow 5): identical, with a per-channel table and a difference image.
     page.get_by_test_id("btn-verify").click()
@@ -208,11 +208,11 @@ def test_views_are_thumbnails_until_clicked_and_show_why_the_budget_lowers_them(
             page.locator("figure[data-view=rect_left]").click()
             expect(page.locator("figure[data-view=rect_left]")).to_have_class(re.compile("view-enlarged"))
             page.wait_for_function(
-                "s => document.getElementById('view-rect_left').dataset.size === s", arg=f"{width}x{height}")
+                "s => document.getElementById('view-rect_left')?.dataset.size === s", arg=f"{width}x{height}")
             assert page.get_attribute("#view-rect_right", "data-size") == f"{width // 2}x{height // 2}"
             page.keyboard.press("Escape")
             page.wait_for_function(
-                "s => document.getElementById('view-rect_left').dataset.size === s",
+                "s => document.getElementById('view-rect_left')?.dataset.size === s",
                 arg=f"{width // 2}x{height // 2}")
             # A hidden page asks for nothing: the daemon stops every encoder.
             page.evaluate("() => { Object.defineProperty(document, 'hidden', {value: true,"

@@ -61,7 +61,7 @@ def _drive(page: Page, base: str, tmp_path: Path) -> None:
     for side in ("left", "right"):  # 54 corners, the first one ringed once more, joined by a line
         page.wait_for_function(
             "id => { const s = document.getElementById(id);"
-            " return s.dataset.corners === '54' && s.querySelectorAll('circle').length === 55"
+            " return s !== null && s.dataset.corners === '54' && s.querySelectorAll('circle').length === 55"
             " && s.querySelectorAll('polyline').length === 1; }", arg=f"corners-{side}")
 
     # Capture pairs until the counter says PAIRS; a refusal (the board has not moved) is shown and retried.

@@ -38,6 +38,7 @@ from .chromium import (
     assert_no_sideways_scroll,
     daemon_config,
     daemon_serving,
+    wait_frames,
     watched_page,
 )
 from .test_browser import DAEMON_FPS, _pattern_pair, _write_png
@@ -68,7 +69,7 @@ def _open(page: Page, base: str, window: Dict[str, int]) -> None:
     page.set_viewport_size(window)
     page.goto(base + "/")
     expect(page.get_by_test_id("conn")).to_have_text("live")
-    page.wait_for_function("() => document.getElementById('view-raw_left').dataset.frame !== ''")
+    wait_frames(page, ["raw_left"])
     assert_no_sideways_scroll(page, "loaded")
 
 

@@ -39,6 +39,7 @@ from .chromium import (
     daemon_config,
     daemon_serving,
     get_json,
+    wait_frames,
     watched_page,
 )
 
@@ -145,7 +146,7 @@ def test_phone_layout_themes_and_favicon(daemon: str, tmp_path: Path, artifacts_
         page.emulate_media(color_scheme="dark")
         page.goto(daemon + "/")
         expect(page.get_by_test_id("conn")).to_have_text("live")
-        page.wait_for_function("() => document.getElementById('view-raw_left').dataset.frame !== ''")
+        wait_frames(page, ["raw_left"])
         for testid in ("btn-capture", "view-raw_left"):
             box = page.get_by_test_id(testid).bounding_box()
             assert box is not None, testid
@@ -363,8 +364,9 @@ def test_calibration_corners_on_the_frame_bars_and_legend(checkerboard: str, tmp
         for side in ("left", "right"):
             svg = f"corners-{side}"
             page.wait_for_function(
-                "id => { const s = document.getElementById(id); return s.dataset.corners === '54' &&"
-                " s.dataset.frame !== '' && s.querySelector('image') !== null; }", arg=svg)
+                "id => { const s = document.getElementById(id);"
+                " return s !== null && s.dataset.corners === '54' && s.dataset.frame !== ''"
+                " && s.querySelector('image') !== null; }", arg=svg)
             shot = page.evaluate(
                 "id => { const s = document.getElementById(id); return {frame: s.dataset.frame,"
                 " href: s.querySelector('image').getAttribute('href'),"

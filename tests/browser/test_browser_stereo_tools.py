@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Iterator
 
 import pytest
-from playwright.sync_api import Page, expect
+from playwright.sync_api import expect
 
 from stereocam.server.frames import views
 
@@ -27,6 +27,7 @@ from .chromium import (
     assert_no_sideways_scroll,
     daemon_serving,
     get_json,
+    wait_frames,
     watched_page,
 )
 from .test_browser import DAEMON_FPS
@@ -44,17 +45,13 @@ def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
         yield base
 
 
-def _wait_frame(page: Page, view: str) -> None:
-    page.wait_for_function("id => Number(document.getElementById(id).dataset.frame) >= 0", arg="view-" + view)
-
-
 def test_epipolar_lines_and_exposure_tools(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
     width, height = get_json(daemon + "/api/status")["frame_size"]
     with watched_page(tmp_path, artifacts_dir, "stereo-tools.png") as page:
         page.set_viewport_size(DESKTOP)
         page.goto(daemon + "/")
         for view in [SBS, *RAW]:
-            _wait_frame(page, view)
+            wait_frames(page, [view])
         assert_no_sideways_scroll(page, "tools off at 1440x900")
 
         # Epipolar lines over the side-by-side view, the figure under it.

@@ -12,7 +12,7 @@ from playwright.sync_api import expect
 
 from stereocam.server.frames import views
 
-from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
+from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, wait_frames, watched_page
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
@@ -43,7 +43,7 @@ def test_figures_are_the_api_views_in_order(daemon: str, tmp_path: Path, artifac
                          "caption": v["caption"], "rate": "rate-" + v["name"], "corners": v["raw"]}, v
         # Every view gets frames over the WebSocket (the page subscribes to the registry's views).
         for v in api:
-            page.wait_for_function(f"() => document.getElementById('view-{v['name']}').dataset.frame !== ''")
+            wait_frames(page, [v["name"]])
 
         # The shortcuts: one digit per view, in the registry's order.
         page.keyboard.press("?")

@@ -22,7 +22,7 @@ import re
 import urllib.error
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Tuple
+from typing import Any, Dict, Iterator, Tuple
 
 import cv2
 import numpy as np
@@ -32,7 +32,14 @@ from playwright.sync_api import Page, expect
 from stereocam.server.frames import views
 
 from ..rig_truth import static_depth
-from .chromium import BROWSER_TEST_TIMEOUT, assert_no_sideways_scroll, daemon_serving, get_json, watched_page
+from .chromium import (
+    BROWSER_TEST_TIMEOUT,
+    assert_no_sideways_scroll,
+    daemon_serving,
+    get_json,
+    wait_frames,
+    watched_page,
+)
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
@@ -54,12 +61,6 @@ def _png(url: str) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     assert img is not None, url
     return img
-
-
-def _wait_frames(page: Page, views: List[str]) -> None:
-    for view in views:
-        page.wait_for_function("id => Number(document.getElementById(id).dataset.frame) >= 0",
-                               arg="view-" + view)
 
 
 def _image_pixel(box: Dict[str, float], natural: Tuple[int, int], full: Tuple[int, int],
@@ -120,7 +121,7 @@ def test_views_rates_legend_fullscreen_and_depth_under_the_pointer(daemon: str, 
     fb = scale["focal_px"] * scale["baseline_m"]
     with watched_page(tmp_path, artifacts_dir, "views.png") as page:
         page.goto(daemon + "/")
-        _wait_frames(page, VIEWS)
+        wait_frames(page, VIEWS)
 
         # Frame number and delivered / target rate on every view.
         for view in VIEWS:
@@ -161,7 +162,7 @@ def test_views_rates_legend_fullscreen_and_depth_under_the_pointer(daemon: str, 
 
         # Enlarged (full size): every image pixel is addressable, the mapping exact.
         page.locator("figure[data-view=disparity]").click()
-        page.wait_for_function("s => document.getElementById('view-disparity').dataset.size === s",
+        page.wait_for_function("s => document.getElementById('view-disparity')?.dataset.size === s",
                                arg=f"{w}x{h}")
         for px in WALL:
             r = _hover(page, "disparity", (w, h), px)
@@ -186,7 +187,7 @@ def test_views_rates_legend_fullscreen_and_depth_under_the_pointer(daemon: str, 
         page.wait_for_function("() => document.fullscreenElement === null")
         expect(button).to_have_text("fullscreen")
         page.locator("figure[data-view=disparity] figcaption").click()
-        page.wait_for_function("s => document.getElementById('view-disparity').dataset.size === s",
+        page.wait_for_function("s => document.getElementById('view-disparity')?.dataset.size === s",
                                arg=f"{w // 2}x{h // 2}")
 
         # The point readout on the rectified views: x, y and the pixel's values, as a lossless
@@ -244,7 +245,7 @@ def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon: str, tmp
     # The page's own checks that a deleted capture is gone (fetch) log a 404.
     with watched_page(tmp_path, artifacts_dir, "captures.png", expected=["status of 404"]) as page:
         page.goto(daemon + "/")
-        _wait_frames(page, ["rect_left"])
+        wait_frames(page, ["rect_left"])
         items = page.get_by_test_id("captures-list").locator("[data-testid=capture]")
         for n in (1, 2):
             page.get_by_test_id("btn-capture").click()

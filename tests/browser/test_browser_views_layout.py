@@ -30,6 +30,7 @@ from .chromium import (
     assert_no_sideways_scroll,
     daemon_serving,
     get_json,
+    wait_frames,
     watched_page,
 )
 from .test_browser import DAEMON_FPS
@@ -43,12 +44,6 @@ VIEWS = list(views.VIEWS)  # the registry, never a list of its own
 def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
         yield base
-
-
-def _wait_frames(page: Page, views: List[str]) -> None:
-    for view in views:
-        page.wait_for_function("id => Number(document.getElementById(id).dataset.frame) >= 0",
-                               arg="view-" + view)
 
 
 def _shown_order(page: Page) -> List[str]:
@@ -77,7 +72,7 @@ def test_seven_views_fit_1440x900_and_are_sharp_at_dpr_2(daemon: str, tmp_path: 
         page.set_viewport_size(DESKTOP)
         page.goto(daemon + "/")
         assert _shown_order(page) == VIEWS
-        _wait_frames(page, VIEWS)
+        wait_frames(page, VIEWS)
         boxes = page.evaluate("""() => [...document.querySelectorAll('#views figure.view')].map(f => {
             const r = f.getBoundingClientRect();
             return {view: f.dataset.view, left: r.left, top: r.top, right: r.right, bottom: r.bottom}; })""")
@@ -107,18 +102,18 @@ def test_views_the_cpu_budget_cannot_afford_at_full_size_say_so(tmp_path: Path, 
         with watched_page(tmp_path, artifacts_dir, "views-layout-budget.png", device_scale_factor=2) as page:
             page.set_viewport_size(DESKTOP)
             page.goto(base + "/")
-            _wait_frames(page, VIEWS)
+            wait_frames(page, VIEWS)
             for view in VIEWS:
                 w = width * (2 if view == "sbs" else 1)
                 note = page.get_by_test_id(f"note-{view}")
                 expect(note).to_have_text(f"shown at {w // 2} px: CPU budget")
-                page.wait_for_function("a => document.getElementById('view-' + a[0]).dataset.size === a[1]",
+                page.wait_for_function("a => document.getElementById('view-' + a[0])?.dataset.size === a[1]",
                                        arg=[view, f"{w // 2}x{height // 2}"])
             assert_no_sideways_scroll(page, "budget notes at 1440x900")
             # The enlarged view is asked at full size whatever the budget: its note goes.
             page.locator("figure[data-view=rect_left]").click()
             expect(page.get_by_test_id("note-rect_left")).to_be_hidden()
-            page.wait_for_function("s => document.getElementById('view-rect_left').dataset.size === s",
+            page.wait_for_function("s => document.getElementById('view-rect_left')?.dataset.size === s",
                                    arg=f"{width}x{height}")
             assert_no_sideways_scroll(page, "a view enlarged with budget notes")
 
@@ -128,7 +123,7 @@ def test_hidden_and_reordered_views_are_remembered_and_hidden_ones_not_encoded(
     with watched_page(tmp_path, artifacts_dir, "views-layout-menu.png") as page:
         page.set_viewport_size(DESKTOP)
         page.goto(daemon + "/")
-        _wait_frames(page, VIEWS)
+        wait_frames(page, VIEWS)
         assert _encoded_views(daemon) == sorted(VIEWS)
 
         # Hide the anaglyph with the keyboard: open the menu, tick its box off with Space.
@@ -163,7 +158,7 @@ def test_hidden_and_reordered_views_are_remembered_and_hidden_ones_not_encoded(
 
         # Both survive a reload, and the hidden view is never asked for.
         page.reload()
-        _wait_frames(page, expected)
+        wait_frames(page, expected)
         assert _shown_order(page) == expected
         expect(page.locator("figure[data-view=anaglyph]")).to_be_hidden()
         assert "anaglyph" not in _encoded_views(daemon)
@@ -173,7 +168,7 @@ def test_hidden_and_reordered_views_are_remembered_and_hidden_ones_not_encoded(
         page.get_by_test_id("views-menu-open").click()
         page.get_by_test_id("views-reset").click()
         assert _shown_order(page) == VIEWS
-        _wait_frames(page, ["anaglyph"])
+        wait_frames(page, ["anaglyph"])
         _wait_encoded(daemon, "anaglyph", True)
 
 
@@ -181,7 +176,7 @@ def test_phone_has_no_sideways_scroll_with_the_menu(daemon: str, tmp_path: Path,
     with watched_page(tmp_path, artifacts_dir, "views-layout-phone.png") as page:
         page.set_viewport_size(PHONE)
         page.goto(daemon + "/")
-        _wait_frames(page, VIEWS)
+        wait_frames(page, VIEWS)
         assert_no_sideways_scroll(page, "seven views at 375x812")
         page.get_by_test_id("views-menu-open").click()
         expect(page.get_by_test_id("views-menu-list")).to_be_visible()
