@@ -37,6 +37,7 @@ import numpy as np
 
 from .cpu_budget import PRIOR_ENCODE_S_PER_BYTE, PRIOR_MATCH_S_PER_PIXEL, CpuBudget, Demand, ViewPlan
 from .feed import BroadcastClosed, FeedItem, FrameFeed, Latest
+from .held import HeldFrames, ShownLatest
 from .pipeline import FrameSet, NoSignal, Pipeline, RateMeter
 from .views import (
     RAW_VIEWS,
@@ -285,7 +286,8 @@ class Encoders:
         self.observe = observe
         self.on_error = on_error
         self.budget = budget
-        self.disparity_output: Latest[FeedItem] = Latest()
+        self.held = HeldFrames()  # the disparity view's recent frames and the frozen ones (freeze, ruler)
+        self.disparity_output: Latest[FeedItem] = ShownLatest(self.held)
         self.disparity = DisparityWorker(feed.frames, self.disparity_output, fps=disparity_fps,
                                          charge=budget.charge if budget is not None else None)
         self._encoders: Dict[EncoderKey, Encoder] = {}

@@ -6,6 +6,11 @@
   comes back from the store's trash).
 - ``GET /api/point?x=&y=``: the rectified pixels, the disparity and the depth (metres, from the
   calibration's Q matrix) at one pixel of the newest frame the disparity view showed.
+- ``GET /api/ruler?x0=&y0=&x1=&y1=[&frame=]``: the 3-D points at two rectified left pixels and the
+  distance between them, in metres (the readout's maths at each point).
+- ``POST /api/freeze``, ``GET /api/freeze``, ``DELETE /api/freeze/{frame}``: hold a frame a page froze
+  at, so its readouts and ruler keep reading that frame (:mod:`..frames.held`); ``frame=N`` of the
+  readouts is answered for frame N only (410 once it is no longer held), never for another.
 - ``GET /api/disparity``: what the disparity view's colours mean (its range and colour map) and
   the depth of each disparity (``focal_px`` x ``baseline_m`` / d) under the active calibration.
 
@@ -33,20 +38,22 @@ from aiohttp import web
 from ...overlays.spec import pixel
 from ..errors import ApiError
 from ..frames.feed import BroadcastClosed
+from ..frames.held import PINNED_MAX, RECENT
 from ..frames.pipeline import FrameSet
 from ..frames.views import STEREO_BM, disparity_raw
 from ..stores.captures import THUMB_FRAMES, CaptureStore, capture_file
-from ..stores.frame_calibration import DepthScale, FrameCalibration
-from .bodies import json_response
+from ..stores.frame_calibration import NO_DEPTH_NONE, DepthScale, FrameCalibration
+from .bodies import json_response, read_json
 from .errors import shutting_down
 from .security import TOKEN_PARAM
 from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
 
-__all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_readout"]
+__all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_readout", "ruler_between", "frame_for"]
 
 THUMB_CACHE_ENTRIES = 256  # about 5 KB each
 FRESH_S = 1.0  # a frame set older than this is not "the newest": /api/point waits for the next one
 POINT_QUERY = ("x", "y", "frame")
+RULER_QUERY = ("x0", "y0", "x1", "y1", "frame")
 
 
 class ThumbnailCache:
@@ -140,36 +147,75 @@ def point_at(fs: FrameSet, x: int, y: int, depth: Optional[DepthScale]) -> Dict[
     return out
 
 
-def _int_param(request: web.Request, name: str, hi: int) -> int:
+def _int_param(request: web.Request, name: str, hi: int, point: str = "") -> int:
+    """Query parameter ``name``, a whole number in 0..hi-1 (``point``: which of the ruler's points it
+    places, for the message)."""
     text = request.query.get(name)
+    what = f"{point}: " if point else ""
     if text is None:
-        raise ApiError(f"give {name}: a pixel of the rectified left image, 0 to {hi - 1}", status=400)
+        raise ApiError(f"{what}give {name}: a pixel of the rectified left image, 0 to {hi - 1}", status=400)
     try:
         value = int(text)
     except ValueError:
-        raise ApiError(f"{name} must be a whole number of pixels, not {text[:20]!r}", status=400) from None
+        raise ApiError(f"{what}{name} must be a whole number of pixels, not {text[:20]!r}",
+                       status=400) from None
     if not 0 <= value < hi:
-        raise ApiError(f"{name} = {value} is outside the image: 0 to {hi - 1}", status=400)
+        raise ApiError(f"{what}{name} = {value} is outside the image: 0 to {hi - 1}"
+                       + ("; pick a point on the picture" if point else ""), status=400)
     return value
 
 
-def _newest(app: web.Application, frame: Optional[int]) -> Optional[FrameSet]:
-    """The frame set the disparity view showed last (or ``frame`` if that is one at hand), if fresh."""
+def _newest(app: web.Application) -> Optional[FrameSet]:
+    """The frame set the disparity view showed last (else the feed's newest), if fresh."""
     now = time.time()
-    candidates = []
-    _, shown = app[ENCODERS].disparity_output.current()
-    if isinstance(shown, FrameSet):
-        candidates.append(shown)
-    last = app[FEED].last_frame
-    if last is not None:
-        candidates.append(last)
-    for fs in candidates:
-        if frame is not None and fs.frame == frame:
-            return fs
-    for fs in candidates:
-        if now - fs.timestamp <= FRESH_S:
+    for fs in _candidates(app):
+        if fs is not None and now - fs.timestamp <= FRESH_S:
             return fs
     return None
+
+
+def _candidates(app: web.Application) -> List[Optional[FrameSet]]:
+    _, shown = app[ENCODERS].disparity_output.current()
+    return [shown if isinstance(shown, FrameSet) else None, app[FEED].last_frame]
+
+
+def not_held(frame: int) -> ApiError:
+    return ApiError(f"frame {frame} is no longer held (the daemon keeps the disparity view's last {RECENT} "
+                    f"frames and {PINNED_MAX} frozen ones): freeze again, or ask without frame for the "
+                    "newest", status=410)
+
+
+async def frame_for(app: web.Application, frame: Optional[int]) -> FrameSet:
+    """Frame ``frame`` (410 when it is no longer held), or without one the newest (waiting for the
+    next when the newest is stale; 503 when none comes)."""
+    if frame is not None:
+        fs = app[ENCODERS].held.get(frame, _candidates(app))
+        if fs is None:
+            raise not_held(frame)
+        return fs
+    fs = _newest(app)
+    if fs is None:
+        timeout = app[SETTINGS].frame_wait_s
+        try:
+            fs = await app[FEED].next_frame(timeout=timeout)
+        except asyncio.TimeoutError:
+            raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
+        except BroadcastClosed:
+            raise shutting_down() from None
+    return fs
+
+
+def _frame_param(request: web.Request) -> Optional[int]:
+    return _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
+
+
+def _depth_of(app: web.Application, fs: FrameSet) -> Tuple[Dict[str, Any], Optional[DepthScale]]:
+    """The readout's calibration fields of ``fs`` and the scale to compute its depth with (None: none)."""
+    state = app[CALIBRATION].now  # one calibration, whole: the label, the id and the Q matrix agree
+    ran = state.for_frame(fs.fabric_count)
+    readout = depth_readout(ran, state.frame_calibration)
+    depth = ran.depth if ran is not None and "depth_unavailable" not in readout else None
+    return readout, depth
 
 
 async def get_point(request: web.Request) -> web.Response:
@@ -180,23 +226,94 @@ async def get_point(request: web.Request) -> web.Response:
                        status=400)
     w, h = app[FEED].frame_size
     x, y = _int_param(request, "x", w), _int_param(request, "y", h)
-    frame = _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
-    fs = _newest(app, frame)
-    if fs is None:
-        timeout = app[SETTINGS].frame_wait_s
-        try:
-            fs = await app[FEED].next_frame(timeout=timeout)
-        except asyncio.TimeoutError:
-            raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
-        except BroadcastClosed:
-            raise shutting_down() from None
-    state = app[CALIBRATION].now  # one calibration, whole: the label, the id and the Q matrix agree
-    ran = state.for_frame(fs.fabric_count)
-    readout = depth_readout(ran, state.frame_calibration)
-    depth = ran.depth if ran is not None and "depth_unavailable" not in readout else None
+    fs = await frame_for(app, _frame_param(request))
+    readout, depth = _depth_of(app, fs)
     body = await app[EXECUTORS].run(point_at, fs, x, y, depth)
     body.update(readout)
     return json_response(body, headers={"Cache-Control": "no-store"})
+
+
+# -- the ruler ---------------------------------------------------------------------------------
+
+def ruler_between(fs: FrameSet, points: List[Tuple[int, int]], depth: DepthScale) -> Dict[str, Any]:
+    """The 3-D points (metres, by ``depth``'s Q) at rectified left pixels ``points`` of ``fs`` and the
+    distance between the first two; ApiError 422 naming a point without a usable disparity (blocks)."""
+    found = []
+    for i, (x, y) in enumerate(points, start=1):
+        p = point_at(fs, x, y, depth)
+        if p["disparity_px"] is None:
+            raise ApiError(f"point {i} (x {x}, y {y}) has no disparity in frame {fs.frame}: the block "
+                           "matcher found no match there (too little texture, or seen by one camera "
+                           "only); pick a point on a textured surface", status=422)
+        if p["point_m"] is None:
+            raise ApiError(f"point {i} (x {x}, y {y}) has disparity {p['disparity_px']:g} px in frame "
+                           f"{fs.frame}: too far to measure; pick a nearer point", status=422)
+        found.append({k: p[k] for k in ("x", "y", "disparity_px", "depth_m", "point_m")})
+    a, b = (np.asarray(f["point_m"], dtype=np.float64) for f in found[:2])
+    return {"frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source, "points": found,
+            "distance_m": float(np.linalg.norm(b - a))}
+
+
+async def get_ruler(request: web.Request) -> web.Response:
+    app = request.app
+    unknown = sorted(set(request.query) - set(RULER_QUERY) - {TOKEN_PARAM})
+    if unknown:
+        raise ApiError(f"unknown query parameter {unknown[0][:20]!r}: give x0, y0, x1, y1 and optionally "
+                       "frame", status=400)
+    w, h = app[FEED].frame_size
+    points = [(_int_param(request, f"x{i}", w, f"point {i + 1}"),
+               _int_param(request, f"y{i}", h, f"point {i + 1}")) for i in range(2)]
+    fs = await frame_for(app, _frame_param(request))
+    readout, depth = _depth_of(app, fs)
+    if depth is None:
+        why = readout.get("depth_unavailable") or NO_DEPTH_NONE
+        raise ApiError(f"no distances without depth: {why}", status=409)
+    body = await app[EXECUTORS].run(ruler_between, fs, points, depth)
+    body.update(readout)
+    return json_response(body, headers={"Cache-Control": "no-store"})
+
+
+# -- freeze ------------------------------------------------------------------------------------
+
+def _freeze_state(app: web.Application) -> Dict[str, Any]:
+    return {"frozen": app[ENCODERS].held.frames(), "max_frozen": PINNED_MAX, "recent": RECENT}
+
+
+async def post_freeze(request: web.Request) -> web.Response:
+    """Hold one frame (the body's ``frame``, else the newest) for the readouts and the ruler."""
+    app = request.app
+    body = await read_json(request, example='{"frame": 1234}', optional=True)
+    if body is None:
+        body = {}
+    if not isinstance(body, dict) or set(body) - {"frame"}:
+        raise ApiError('send {"frame": N} (a frame a view showed) or nothing for the newest', status=400)
+    frame = body.get("frame")
+    if frame is not None and (isinstance(frame, bool) or not isinstance(frame, int) or frame < 0):
+        raise ApiError(f"frame must be a frame number (a whole number, 0 or more), not {frame!r:.30}",
+                       status=400)
+    fs = await frame_for(app, frame)
+    await app[EXECUTORS].run(disparity_raw, fs)  # the readouts of a frozen frame answer at once
+    released = app[ENCODERS].held.pin(fs)
+    return json_response({"frame": fs.frame, "timestamp": fs.timestamp, "source": fs.source,
+                          "released": released, **_freeze_state(app)},
+                         headers={"Location": f"/api/freeze/{fs.frame}"})
+
+
+async def get_freeze(request: web.Request) -> web.Response:
+    return json_response(_freeze_state(request.app), headers={"Cache-Control": "no-store"})
+
+
+async def delete_freeze(request: web.Request) -> web.Response:
+    """Release a frozen frame (the page's unfreeze)."""
+    text = request.match_info["frame"]
+    try:
+        frame = int(text)
+    except ValueError:
+        raise ApiError(f"a frame number is a whole number, not {text[:20]!r}", status=400) from None
+    if not request.app[ENCODERS].held.unpin(frame):
+        raise ApiError(f"frame {frame} is not frozen (it may have been released, or pushed out by "
+                       f"{PINNED_MAX} newer freezes): nothing to release", status=404)
+    return json_response({"released": frame, **_freeze_state(request.app)})
 
 
 async def get_disparity(request: web.Request) -> web.Response:
@@ -230,3 +347,7 @@ def setup_routes(app: web.Application) -> None:
     r.add_post(r"/api/captures/{id:[^/]+}/restore", restore_capture)
     r.add_get("/api/point", get_point)
     r.add_get("/api/disparity", get_disparity)
+    r.add_get("/api/ruler", get_ruler)
+    r.add_get("/api/freeze", get_freeze)
+    r.add_post("/api/freeze", post_freeze)
+    r.add_delete(r"/api/freeze/{frame:[^/]+}", delete_freeze)
