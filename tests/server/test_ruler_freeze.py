@@ -135,7 +135,8 @@ async def test_ruler_and_freeze_refuse_bad_input_with_what_to_do(start_daemon) -
     n = frozen["frame"]
     assert disparity_raw(d.app[ENCODERS].held.pinned[n])[240, 5] < 0  # the block matcher found none
     status, body = await _get(d, f"/api/ruler?x0={A[0]}&y0={A[1]}&x1=5&y1=240&frame={n}")
-    assert status == 422 and body["error"].startswith(f"point 2 (x 5, y 240) has no disparity in frame {n}"), body
+    assert status == 422, body
+    assert body["error"].startswith(f"point 2 (x 5, y 240) has no disparity in frame {n}"), body
     assert "pick a point on a textured surface" in body["error"]
     for bad, words in (({"frame": "x"}, "frame must be a frame number"), ({"frame": -1}, "frame must be"),
                        ({"frame": 1, "z": 2}, 'send {"frame": N}'), ([1], 'send {"frame": N}')):

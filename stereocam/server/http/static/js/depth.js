@@ -7,11 +7,15 @@
 //   disparity map the view shows; the page never reads depth from JPEG colours).
 // - Legend: the disparity view's JET colours 0..128 px (GET /api/disparity gives the daemon's exact
 //   colour table), labelled in pixels and, when a calibration is known, in metres (Z = f B / d).
+//   While the views are frozen (freeze.js) the readout reads the frozen frame (frame=N), whatever the
+//   daemon has made since; live, the frame the disparity view shows (the newest when it is gone).
 import { $, api, ApiError, VIEW_INFO, waitingForSignIn } from "./core.js";
+import { frozenFrame } from "./freeze.js";
 
 const READOUT_VIEWS = VIEW_INFO.filter((v) => v.readout).map((v) => v.name);  // the registry says which
 const LEGEND_TICKS = [0, 16, 32, 64, 96, 128];
 let scaleInfo = null;  // GET /api/disparity
+export function disparityScale() { return scaleInfo; }
 
 // The full-resolution pixel under (clientX, clientY) of an <img> showing a view of fullW x fullH pixels,
 // whatever its displayed size: the <img> is laid out with object-fit: contain (letterboxed to its
@@ -56,13 +60,21 @@ function attachReadout(view) {
   async function ask() {
     if (inFlight || !want) return;
     const target = want;
-    const key = target.x + "," + target.y + "," + target.side;
+    const key = keyOf(target);
     if (key === shownKey) return;
     inFlight = true;
     try {
-      const frame = $("view-disparity").dataset.frame;
-      const q = "/api/point?x=" + target.x + "&y=" + target.y + (frame ? "&frame=" + frame : "");
-      const p = await api("GET", q);
+      const frozen = frozenFrame();
+      const frame = frozen !== null ? String(frozen) : $("view-disparity").dataset.frame;
+      const q = "/api/point?x=" + target.x + "&y=" + target.y;
+      let p;
+      try {
+        p = await api("GET", q + (frame ? "&frame=" + frame : ""));
+      } catch (e) {
+        // live, the frame shown has left the daemon's few recent ones: the newest will do
+        if (!(e instanceof ApiError && e.status === 410 && frozen === null && frame)) throw e;
+        p = await api("GET", q);
+      }
       if (want) show(p, target);
       shownKey = key;
     } catch (e) {
@@ -72,8 +84,11 @@ function attachReadout(view) {
     } finally {
       inFlight = false;
     }
-    if (want && (want.x + "," + want.y + "," + want.side) !== shownKey) ask();
+    if (want && keyOf(want) !== shownKey) ask();
   }
+
+  function keyOf(t) { return t.x + "," + t.y + "," + t.side + "," + frozenFrame(); }
+  document.addEventListener("stereocam:freeze", () => { shownKey = ""; ask(); });
 
   function show(p, target) {
     const px = target.side === "right" ? p.rect_right : p.rect_left;

@@ -2,6 +2,7 @@
 import { $, VIEWS, WS_FPS, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt, signInNeeded,
          waitingForSignIn } from "./core.js";
 import { initDepth } from "./depth.js";
+import { isFrozen } from "./freeze.js";
 import { shownViews } from "./views.js";
 
 // ---- live views over one WebSocket ----------------------------------------------
@@ -32,7 +33,7 @@ function onFrame(buf) {
   let header;
   try { header = JSON.parse(decoder.decode(new Uint8Array(buf, 4, hlen))); } catch (e) { return; }
   const slot = live[header.view];
-  if (!slot) return;
+  if (!slot || isFrozen()) return;  // frozen: the views keep the frame they show
   const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + hlen)], { type: "image/jpeg" }));
   const previous = slot.url;
   slot.url = url;
@@ -90,7 +91,8 @@ function showNote(view, text) {
 }
 
 function subscribe() {
-  const views = document.hidden ? [] : shownViews();
+  // frozen (freeze.js): nothing, so the daemon encodes nothing for this page
+  const views = document.hidden || isFrozen() ? [] : shownViews();
   const full = [];
   let thumb = SCALES[0];
   for (const v of views) {
@@ -213,6 +215,7 @@ document.addEventListener("keydown", (ev) => {
 });
 initDepth();
 document.addEventListener("visibilitychange", subscribe);
+document.addEventListener("stereocam:freeze", subscribe);
 
 // Each view's delivered and planned rate, and why it is below what the page asked (/api/status).
 export function renderViewRates(st) {

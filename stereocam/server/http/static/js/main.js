@@ -9,6 +9,8 @@ import { initShortcuts } from "./shortcuts.js";
 import { refreshStatus } from "./status.js";
 import { initVirtual } from "./virtual.js";
 import { initTools } from "./tools.js";
+import { initFreeze } from "./freeze.js";
+import { initRuler } from "./ruler.js";
 import { initMessageNotice } from "./notice.js";
 import { $, api, initSignIn, showError, showInfo, waitingForSignIn } from "./core.js";
 import { init as initFit } from "./fit.js";
@@ -29,6 +31,8 @@ function init() {
   window.addEventListener("beforeunload", closeLive);
   connect();
   initTools();
+  initFreeze();
+  initRuler();
   refreshStatus();
   initCaptures();
   initCameras();

@@ -35,6 +35,8 @@ export const SHORTCUTS = [
   // One digit per view of the registry, in its order (the page's figures): 1 to 9 at most.
   [["1", "…", String(VIEW_KEYS.length)], "Enlarge view 1 to " + VIEW_KEYS.length + " (again: back to the thumbnail)",
    VIEW_KEYS, (ev) => { const fig = viewFigure(Number(ev.key)); if (fig) { fig.click(); fig.focus(); } }],
+  [["z"], "Freeze the live views (again: resume)", ["z", "Z"], () => click("btn-freeze")],
+  [["r"], "Ruler on or off (Esc clears its points)", ["r", "R"], () => click("btn-ruler")],
   [["f"], "Fullscreen the enlarged view (again: leave)", ["f", "F"], () => toggleFullscreen()],
   [["Enter"], "On a focused view: enlarge it", [], null],
   [["Esc"], "Back to the thumbnails; close this list", [], null],
