@@ -105,10 +105,18 @@ class Encoded:
     part: bytes
     jpeg_start: int
     ws: bytes = field(repr=False)
+    meta: Dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
     def jpeg(self) -> memoryview:
         return memoryview(self.part)[self.jpeg_start:len(self.part) - 2]
+
+    def ws_sent_at(self, now: float) -> bytes:
+        """The WebSocket message with ``age_s`` (``now`` minus the capture time, both the daemon's
+        wall clock) in its header: how old the frame is as it leaves, for the page's latency figure.
+        Built per send (a small header and one copy of the JPEG): the shared ``ws`` has no age."""
+        meta = json.dumps(dict(self.meta, age_s=round(max(0.0, now - self.timestamp), 4))).encode("utf-8")
+        return b"".join((struct.pack(">I", len(meta)), meta, self.jpeg))
 
     def headers(self) -> Dict[str, str]:
         """HTTP headers for this frame sent on its own (snapshots)."""
@@ -134,10 +142,11 @@ def _package(key: EncoderKey, frame: int, timestamp: float, signal: bool, jpeg: 
         + ("" if signal else "X-Signal: none\r\n")
         + "\r\n"
     ).encode("ascii")
-    meta = json.dumps({"view": key.view, "frame": frame, "timestamp": round(timestamp, 6), "signal": signal,
-                       "gray": key.gray}).encode("utf-8")
+    doc = {"view": key.view, "frame": frame, "timestamp": round(timestamp, 6), "signal": signal,
+           "gray": key.gray, "quality": key.quality, "scale": key.scale}
+    meta = json.dumps(doc).encode("utf-8")
     return Encoded(key=key, frame=frame, timestamp=timestamp, signal=signal, part=head + jpeg + b"\r\n",
-                   jpeg_start=len(head), ws=struct.pack(">I", len(meta)) + meta + jpeg)
+                   jpeg_start=len(head), ws=struct.pack(">I", len(meta)) + meta + jpeg, meta=doc)
 
 
 def encoded_for(key: EncoderKey, item: FeedItem,

@@ -47,6 +47,7 @@ def setup(app: web.Application) -> None:
     r.add_get(r"/api/recordings/{id:[^/]+}.zip", recording_zip)
     r.add_post(r"/api/recordings/{id:[^/]+}/stop", stop_recording)
     r.add_post(r"/api/recordings/{id:[^/]+}/restore", restore_recording)
+    r.add_get(r"/api/recordings/{id:[^/]+}/frames/{index}/{side}.png", recording_frame)
     r.add_get(r"/api/recordings/{id:[^/]+}", get_recording)
     r.add_delete(r"/api/recordings/{id:[^/]+}", delete_recording)
     app.on_shutdown.append(_end_recording)
@@ -159,6 +160,26 @@ async def delete_recording(request: web.Request) -> web.Response:
     # Into the store's trash, as captures go: POST /api/recordings/{id}/restore undoes it.
     await app[EXECUTORS].run(app[RECORDINGS].trash, rid)
     return web.Response(status=204)
+
+
+async def recording_frame(request: web.Request) -> web.Response:
+    """One stored frame of a finished recording (the capture viewer's stepping): the PNG as recorded,
+    with the frame count in ``X-Frames``."""
+    app, rid = request.app, request.match_info["id"]
+    text, side = request.match_info["index"], request.match_info["side"]
+    if side not in ("left", "right"):
+        raise ApiError(f"no side {side[:20]!r}: ask for left.png or right.png", status=404)
+    if not (text.isascii() and text.isdigit()) or len(text) > 9:
+        raise ApiError(f"frame index must be a whole number 0 or above, got {text[:20]!r}", status=400)
+    if app[RECORDER].get(rid) is not None:
+        raise ApiError(f"recording {rid} is still running: its frames can be stepped through once it ends",
+                       status=409)
+    body, frames = await app[EXECUTORS].run(app[RECORDINGS].frame_png, rid, int(text), side)
+    # an IHDR colour type of 0 is gray (every recording's PNG starts with a 25-byte header and IHDR)
+    color = "gray" if len(body) > 25 and body[25] == 0 else "rgb"
+    return web.Response(body=body, content_type="image/png", headers={
+        "X-Frames": str(frames), "X-Color": color, "Cache-Control": "private, max-age=3600",
+        "Content-Disposition": f'inline; filename="{rid}-{side}_{int(text):06d}.png"'})
 
 
 async def restore_recording(request: web.Request) -> web.Response:

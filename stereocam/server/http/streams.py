@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import fcntl
 import logging
+import math
 import struct
 import termios
 import time
@@ -406,6 +407,9 @@ async def ws_handler(request: web.Request) -> web.StreamResponse:
                 except BadParams as exc:
                     await ws.send_json({"error": exc.message})
                     continue
+                if isinstance(wanted, Ping):  # answered at once; the subscription stays as it is
+                    await ws.send_json({"pong": wanted.value})
+                    continue
                 stop_senders()
                 client.view = ",".join(p.view for p in wanted) or "-"
                 for p in wanted:
@@ -418,13 +422,30 @@ async def ws_handler(request: web.Request) -> web.StreamResponse:
     return ws
 
 
-def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
+@dataclass(frozen=True)
+class Ping:
+    """``{"ping": N}`` on the page's socket: answered ``{"pong": N}`` (the page's round-trip time)."""
+
+    value: float
+
+
+VIEW_OPTIONS = ("fps", "quality", "scale")  # what a view's own entry in "views" may set
+
+
+def _ws_request(request: web.Request, text: str) -> "list[StreamParams] | Ping":
+    """A subscription (each view with its own fps, quality and scale when its entry says so) or a ping."""
     try:
         doc = parse_json(text)
     except ValueError:
         raise BadParams(400, 'not JSON: send {"views": ["rect_left", ...], "fps": N}') from None
     if not isinstance(doc, dict):
         raise BadParams(400, 'send a JSON object {"views": [...], "fps": N}')
+    if "ping" in doc:
+        value = doc["ping"]
+        if set(doc) != {"ping"} or isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise BadParams(400, 'a ping is {"ping": N} alone, N a number')
+        return Ping(float(value))
     unknown = [k for k in doc if k not in ("views", "fps", "quality", "gray", "scale", "full")]
     if unknown:
         raise BadParams(400, f"unknown key {str(unknown[0])[:40]!r}: use views, fps, quality, gray, scale "
@@ -434,12 +455,47 @@ def _ws_request(request: web.Request, text: str) -> "list[StreamParams]":
         raise BadParams(400, f"full must be a list of view names ({', '.join(VIEWS)}): the views sent at "
                              "full size whatever scale says")
     views = doc.get("views", [])
-    if not isinstance(views, list) or not all(isinstance(v, str) for v in views) or len(views) > len(VIEWS):
-        raise BadParams(400, f"views must be a list of view names ({', '.join(VIEWS)})")
+    if not isinstance(views, list) or len(views) > len(VIEWS):
+        raise BadParams(400, f"views must be a list of view names ({', '.join(VIEWS)}) or of "
+                             '{"view": NAME, "fps": N, "quality": Q, "scale": S} objects')
     query = {k: str(int(v) if isinstance(v, bool) else v) for k, v in doc.items()
              if k not in ("views", "full")}
     full_query = {k: v for k, v in query.items() if k != "scale"}
-    return [_params_from(request, v, full_query if v in full else query) for v in dict.fromkeys(views)]
+    out: Dict[str, StreamParams] = {}
+    for entry in views:
+        name, own = _view_entry(entry)
+        if name in out:
+            continue  # the first entry of a view counts
+        base = full_query if name in full else query
+        try:
+            out[name] = _params_from(request, name, {**base, **own})
+        except BadParams as exc:
+            status = exc.status or 400
+            raise BadParams(status, exc.message if name not in VIEWS else f"{name}: {exc.message}") from None
+    return list(out.values())
+
+
+def _view_entry(entry: Any) -> Tuple[str, Dict[str, str]]:
+    """A ``views`` entry: a view name, or ``{"view": NAME, "fps"?, "quality"?, "scale"?}`` (its own
+    settings, over the message's)."""
+    if isinstance(entry, str):
+        return entry, {}
+    if not isinstance(entry, dict) or not isinstance(entry.get("view"), str):
+        raise BadParams(400, 'each entry of views is a view name or {"view": NAME, "fps": N, "quality": Q, '
+                             '"scale": S}')
+    name: str = entry["view"]
+    unknown = [k for k in entry if k != "view" and k not in VIEW_OPTIONS]
+    if unknown:
+        raise BadParams(400, f"{name[:40]}: unknown key {str(unknown[0])[:40]!r}: a view's entry may set "
+                             "fps, quality and scale")
+    own: Dict[str, str] = {}
+    for k in VIEW_OPTIONS:
+        if k not in entry:
+            continue
+        v = entry[k]
+        # bool and null are not numbers (parse_params refuses the text with the range it wants)
+        own[k] = repr(v) if isinstance(v, bool) or v is None else str(v)
+    return name, own
 
 
 def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> StreamParams:
@@ -450,8 +506,9 @@ def _params_from(request: web.Request, view: str, query: Dict[str, str]) -> Stre
 async def _ws_sender(request: web.Request, ws: web.WebSocketResponse, client: StreamClient,
                      params: StreamParams) -> None:
     async def write(encoded: Encoded) -> int:
-        await ws.send_bytes(encoded.ws)
-        return len(encoded.ws)
+        message = encoded.ws_sent_at(time.time())  # the frames' clock: FrameSet.timestamp
+        await ws.send_bytes(message)
+        return len(message)
 
     await send_newest(request, client, params, write, running=lambda: not ws.closed)
 

@@ -84,10 +84,11 @@ from typing import (
     List,
     Mapping,
     Optional,
+    Tuple,
 )
 
-from .errors import Conflict, DiskFull, InvalidId, NotFound, StoreError
-from .files import iso_utc, remove_tree
+from .errors import Conflict, Damaged, DiskFull, InvalidId, NotFound, StoreError
+from .files import iso_utc, read_member, remove_tree
 from .folder_store import DELETING_PREFIX, INCOMING_PREFIX, FolderStore
 from .recording_files import (
     ENDS,
@@ -290,6 +291,29 @@ class RecordingStore(FolderStore[RecordingInfo]):
             complete=complete if isinstance(complete, bool) else None, end_text=text("end_text"),
             error="; ".join(problems) or None, meta=doc,
         )
+
+    def frame_png(self, ident: object, index: int, side: str) -> Tuple[bytes, int]:
+        """Frame ``index``'s ``side`` (``left``|``right``) PNG as stored, and the recording's frame count:
+        what the capture viewer steps through. InvalidId/NotFound as :meth:`path`; NotFound for an index
+        out of range (the message gives the range); Damaged when that file is missing or unreadable."""
+        folder = self.path(ident)
+        rid = folder.name
+        try:
+            count = read_meta(folder).get("frames")
+        except (OSError, ValueError) as exc:
+            raise Damaged(f"recording {rid} cannot be read: its {META_FILE} is missing or damaged "
+                          f"({' '.join(str(exc).split())[:80]})") from None
+        frames = count if isinstance(count, int) and not isinstance(count, bool) else 0
+        if not 0 <= index < frames:
+            raise NotFound(f"recording {rid} has no frame {index}: its frames are 0 to {frames - 1}"
+                           if frames else f"recording {rid} has no frames")
+        name = frame_names(index)[0 if side == "left" else 1]
+        try:
+            return read_member(folder, name), frames
+        except FileNotFoundError:
+            raise Damaged(f"recording {rid} is damaged: {name} is missing") from None
+        except OSError as exc:
+            raise Damaged(f"recording {rid}: cannot read {name} ({exc.strerror or exc})") from None
 
     def _zip_names(self, folder: Path, info: RecordingInfo) -> List[str]:
         """recording.json, frames.jsonl, then every other regular file by name."""

@@ -3,12 +3,14 @@ import { $, VIEWS, WS_FPS, BACKOFF_MIN_MS, BACKOFF_MAX_MS, showError, fmt, signI
          waitingForSignIn } from "./core.js";
 import { initDepth } from "./depth.js";
 import { isFrozen } from "./freeze.js";
-import { shownViews } from "./views.js";
+import { shownViews, viewSettings } from "./views.js";
 
 // ---- live views over one WebSocket ----------------------------------------------
 const decoder = new TextDecoder("utf-8");
-const live = {};  // view -> {img, url (current blob URL), frames, caption}
-for (const v of VIEWS) live[v] = { img: $("view-" + v), url: null, caption: $("frame-" + v), frames: 0 };
+const live = {};  // view -> {img, url (current blob URL), frames, caption, got: [[t, bytes]], lat: [[t, ms]]}
+for (const v of VIEWS) {
+  live[v] = { img: $("view-" + v), url: null, caption: $("frame-" + v), frames: 0, got: [], lat: [] };
+}
 
 let ws = null;
 let backoff = BACKOFF_MIN_MS;
@@ -26,14 +28,80 @@ function showFallback(text) {
   if (text) { el.textContent = text; el.hidden = false; } else { el.textContent = ""; el.hidden = true; }
 }
 
+// ---- bandwidth and glass-to-glass latency (issue 24, item 4) -------------------------------------
+// Bandwidth: the bytes of each view's messages as they arrive (header and JPEG), over the last
+// NET_WINDOW_MS. Latency of a frame: its age when the daemon sent it (header age_s: the daemon's
+// clock at send minus the capture time, one clock), plus half the socket's round trip (a {"ping"}
+// every PING_MS, the median of the last few), plus the time from its arrival here to the first
+// animation frame after the JPEG decoded (when it is on screen).
+const NET_WINDOW_MS = 2000;
+const PING_MS = 2000;
+const rtts = [];
+let pingTimer = null;
+
+function rttMs() {
+  if (!rtts.length) return null;
+  const s = [...rtts].sort((a, b) => a - b);
+  return s[Math.floor(s.length / 2)];
+}
+
+function fmtRate(bps) {
+  if (bps >= 1e6) return (bps / 1e6).toFixed(bps >= 1e7 ? 0 : 1) + " MB/s";
+  if (bps >= 1e3) return (bps / 1e3).toFixed(0) + " kB/s";
+  return Math.round(bps) + " B/s";
+}
+
+function trim(list, now) { while (list.length && list[0][0] < now - NET_WINDOW_MS) list.shift(); }
+
+function renderNet() {
+  const now = performance.now();
+  let total = 0;
+  for (const v of VIEWS) {
+    const slot = live[v];
+    trim(slot.got, now);
+    trim(slot.lat, now);
+    const el = $("net-" + v);
+    if (!el) continue;
+    const bytes = slot.got.reduce((a, x) => a + x[1], 0);
+    // bytes over the window, or over the time since the first frame in it when the view just started
+    const span = slot.got.length > 1 ? Math.max(now - slot.got[0][0], 1000) : NET_WINDOW_MS;
+    const bps = slot.got.length ? bytes * 1000 / span : 0;
+    total += bps;
+    const lat = slot.lat.length ? slot.lat.reduce((a, x) => a + x[1], 0) / slot.lat.length : null;
+    if (!slot.got.length) { el.textContent = ""; el.title = ""; el.dataset.bps = ""; el.dataset.latencyMs = ""; continue; }
+    el.textContent = fmtRate(bps) + (lat === null ? "" : " · " + Math.round(lat) + " ms");
+    el.dataset.bps = String(Math.round(bps));
+    el.dataset.latencyMs = lat === null ? "" : lat.toFixed(1);
+    const rtt = rttMs();
+    el.title = "received: " + fmtRate(bps) + " over the last " + NET_WINDOW_MS / 1000 + " s" +
+      (lat === null ? "" : "; glass to glass " + Math.round(lat) + " ms: the frame's age as the daemon sent it" +
+       (rtt === null ? "" : ", half the round trip (" + Math.round(rtt) + " ms)") + ", and decoding to the screen");
+  }
+  const text = total > 0 ? fmtRate(total) : "";
+  const box = $("bw-total");
+  if (box) {
+    box.textContent = text ? "Received: " + text + " in all" : "";
+    box.dataset.bps = String(Math.round(total));
+  }
+  const summary = $("bw-summary");
+  if (summary) summary.textContent = text;
+}
+setInterval(renderNet, 1000);
+
+function ping() {
+  if (ws && ws.readyState === WebSocket.OPEN && !document.hidden) ws.send(JSON.stringify({ ping: performance.now() }));
+}
+
 function onFrame(buf) {
   if (!(buf instanceof ArrayBuffer) || buf.byteLength < 4) return;
+  const arrived = performance.now();
   const hlen = new DataView(buf).getUint32(0, false);
   if (4 + hlen > buf.byteLength) return;
   let header;
   try { header = JSON.parse(decoder.decode(new Uint8Array(buf, 4, hlen))); } catch (e) { return; }
   const slot = live[header.view];
   if (!slot || isFrozen()) return;  // frozen: the views keep the frame they show
+  slot.got.push([arrived, buf.byteLength]);
   const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + hlen)], { type: "image/jpeg" }));
   const previous = slot.url;
   slot.url = url;
@@ -50,6 +118,13 @@ function onFrame(buf) {
     img.dataset.size = img.naturalWidth + "x" + img.naturalHeight;
     img.dataset.timestamp = String(header.timestamp);
     img.dataset.received = String(received);
+    if (typeof header.age_s === "number") {
+      requestAnimationFrame(() => {
+        const shown = performance.now();
+        const rtt = rttMs();
+        slot.lat.push([shown, header.age_s * 1000 + (rtt === null ? 0 : rtt / 2) + (shown - arrived)]);
+      });
+    }
     if (slot.caption) slot.caption.textContent = "#" + header.frame;
     if (slot.caption) slot.caption.dataset.frame = String(header.frame);
   };
@@ -95,8 +170,16 @@ function subscribe() {
   const views = document.hidden || isFrozen() ? [] : shownViews();
   const full = [];
   let thumb = SCALES[0];
+  const own = {};  // view -> its chosen settings (views.js): sent as its own entry
   for (const v of views) {
     const need = neededScale(v);
+    const mine = viewSettings(v);
+    if (Object.keys(mine).length) own[v] = mine;
+    if (mine.scale !== undefined) {  // a size the user chose: no automatic sizing, no step down
+      asked[v] = mine.scale;
+      showNote(v, "");
+      continue;
+    }
     let scale = v === enlarged ? 1 : need.scale;
     let why = need.capped && v === enlarged ? "" : (need.capped ? "the camera's full width" : "");
     if (v !== enlarged && budgetCap[v] !== undefined && scale > budgetCap[v]) {  // enlarged: full size
@@ -108,9 +191,10 @@ function subscribe() {
     showNote(v, why ? "shown at " + Math.round(need.base * scale) + " px: " + why : "");
   }
   // the thumbnails share one scale: those asking less get the largest of them
-  for (const v of views) if (asked[v] !== 1) asked[v] = thumb;
+  for (const v of views) if (asked[v] !== 1 && (own[v] || {}).scale === undefined) asked[v] = thumb;
   if (!ws || ws.readyState !== WebSocket.OPEN) return;
-  const message = JSON.stringify({ views: views, fps: WS_FPS, scale: thumb, full: full });
+  const entries = views.map((v) => (own[v] ? { view: v, ...own[v] } : v));
+  const message = JSON.stringify({ views: entries, fps: WS_FPS, scale: thumb, full: full });
   if (message === lastMessage) return;
   lastMessage = message;
   ws.send(message);
@@ -224,6 +308,7 @@ export function renderViewRates(st) {
   for (const e of (st.encoders || [])) {
     // a full-size view the CPU budget slowed down steps down to half size (see subscribe)
     if (e.scale === 1 && asked[e.view] === 1 && e.view !== enlarged && e.planned_fps < e.target_fps &&
+        viewSettings(e.view).scale === undefined &&
         (e.limited_by || "").startsWith("CPU budget") && budgetCap[e.view] === undefined) {
       budgetCap[e.view] = BUDGET_FLOOR;
       lowered = true;
@@ -265,12 +350,21 @@ export function connect() {
     setConn("live", "badge-ok");
     showFallback("");
     subscribe();
+    rtts.length = 0;
+    ping();
+    clearInterval(pingTimer);
+    pingTimer = setInterval(ping, PING_MS);
   };
   sock.onmessage = (ev) => {
     if (typeof ev.data === "string") {
       // The daemon may send a JSON text message (e.g. {"error": ...}).
       try {
         const msg = JSON.parse(ev.data);
+        if (msg && typeof msg.pong === "number") {
+          rtts.push(performance.now() - msg.pong);
+          if (rtts.length > 5) rtts.shift();
+          return;
+        }
         if (msg && msg.error) showError("live view: " + msg.error);
       } catch (e) { /* not JSON: ignore */ }
       return;
@@ -280,6 +374,7 @@ export function connect() {
   sock.onclose = async (ev) => {
     if (ws !== sock) return;
     ws = null;
+    clearInterval(pingTimer);
     // Refused for want of the token (a 401 on the upgrade, or the daemon's token changed): the page
     // shows the sign-in state and the views wait for it instead of reconnecting over and over.
     if (!everConnected || ev.code !== 1000) {

@@ -31,10 +31,12 @@
 //
 // Test hooks: #recordings-panel data-recording = the running recording's id ("" when none);
 // #recordings-list data-count; each <li data-testid="recording" data-id data-state data-frames
-// data-end> holds a[data-testid=recording-download], button[data-testid=recording-replay] and
+// data-end> holds button[data-testid=recording-view] (the viewer, frame by frame),
+// a[data-testid=recording-download], button[data-testid=recording-replay] and
 // button[data-testid=recording-delete] (deletes at once; the message [data-testid=message-undo] offers
 // button[data-testid=btn-undo] for UNDO_MS).
 import { undoMessage } from "./core.js";
+import { openRecording } from "./viewer.js";
 
 const POLL_MS = 1000;
 const hidden = new Set();  // deleted here, DELETE not answered yet: never shown again by a refresh
@@ -118,6 +120,9 @@ function item(r) {
   dl.className = "btn";
   dl.setAttribute("download", r.id + ".zip");
   dl.setAttribute("data-testid", "recording-download");
+  // frame by frame in the capture viewer (viewer.js): zoom, pan, pixel values, ←/→
+  const view = button("view", "recording-view", "", () => openRecording(r.id));
+  view.title = "step through its frames in the viewer (← →)";
   const replay = button("replay", "recording-replay", "", async () => {
     const res = await ctx.api("POST", "/api/virtual-camera", { recording: r.id });
     ctx.showInfo("Playing recording " + r.id + " through the core (" + r.frames + " frames, looping); " +
@@ -149,7 +154,7 @@ function item(r) {
       });
     await refresh();
   });
-  li.append(info, dl, replay, del);
+  li.append(info, view, dl, replay, del);
   return li;
 }
 

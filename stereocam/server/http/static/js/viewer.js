@@ -7,6 +7,12 @@
 // "none") onto a canvas, scaled by `zoom` (CSS px per image px) with its origin at (tx, ty) CSS px in
 // the stage, without smoothing: image pixel (u, v) covers [tx + u*zoom, tx + (u+1)*zoom) across.
 // The canvas carries data-zoom, data-tx, data-ty, data-image and data-loaded (tests read them).
+//
+// A recording (openRecording) opens in the same viewer, one stored frame at a time: its left or right
+// raw image, stepped with the ⏮ ◀ ▶ ⏭ buttons or ←/→ (Home/End: first/last), "frame i / N" shown,
+// read from GET /api/recordings/{id}/frames/{i}/{side}.png (the PNG as recorded, X-Frames the count,
+// X-Color gray|rgb). The zoom and pan stay while stepping. The canvas then also carries
+// data-index (the frame shown) and data-frames.
 import { $, api, action, showMessage } from "./core.js";
 
 const IMAGES = [["raw_left", "raw left"], ["raw_right", "raw right"], ["rect_left", "rectified left"],
@@ -16,9 +22,11 @@ const ZOOM_MAX = 64;
 
 let dlg = null;
 let el = {};
+const SIDES = [["left", "left"], ["right", "right"]];
 const state = {
   id: null, meta: null, image: null, bitmap: null, pixels: null, ypixels: null, w: 0, h: 0,
   zoom: 1, tx: 0, ty: 0, drag: null, pointer: null, loadSeq: 0,
+  kind: "capture", index: 0, frames: 0, color: "rgb",  // kind "recording": stepping through its frames
 };
 
 function button(text, testid, title, onClick) {
@@ -52,6 +60,32 @@ function build() {
     el.choices[name] = b;
     choose.append(b);
   }
+  const sides = document.createElement("span");
+  sides.setAttribute("role", "group");
+  sides.setAttribute("aria-label", "camera");
+  el.sides = {};
+  for (const [name, label] of SIDES) {
+    const b = button(label, "cv-side-" + name, null, () => { state.image = name; showFrame(state.index); });
+    b.setAttribute("aria-pressed", "false");
+    el.sides[name] = b;
+    sides.append(b);
+  }
+  const steps = document.createElement("span");
+  steps.className = "cv-steps";
+  steps.setAttribute("role", "group");
+  steps.setAttribute("aria-label", "frames");
+  const frameText = document.createElement("span");
+  frameText.className = "cv-frame";
+  frameText.setAttribute("data-testid", "cv-frame");
+  frameText.setAttribute("aria-live", "polite");
+  frameText.title = "the frame shown / the last frame (the first is 0)";
+  el.stepButtons = {
+    first: button("⏮", "cv-first", "first frame (Home)", () => showFrame(0)),
+    prev: button("◀", "cv-prev", "previous frame (←)", () => showFrame(state.index - 1)),
+    next: button("▶", "cv-next", "next frame (→)", () => showFrame(state.index + 1)),
+    last: button("⏭", "cv-last", "last frame (End)", () => showFrame(state.frames - 1)),
+  };
+  steps.append(el.stepButtons.first, el.stepButtons.prev, frameText, el.stepButtons.next, el.stepButtons.last);
   const zoomOut = button("−", "cv-zoom-out", "zoom out (−)", () => zoomBy(1 / ZOOM_STEP));
   const zoomText = document.createElement("span");
   zoomText.className = "cv-zoom";
@@ -66,7 +100,7 @@ function build() {
   png.textContent = "PNG";
   png.setAttribute("data-testid", "cv-download");
   const close = button("×", "cv-close", "close (Esc)", () => dlg.close());
-  bar.append(title, choose, zoomOut, zoomText, zoomIn, fit, one, replay, png, close);
+  bar.append(title, choose, sides, steps, zoomOut, zoomText, zoomIn, fit, one, replay, png, close);
   const stage = document.createElement("div");
   stage.className = "cv-stage";
   stage.setAttribute("data-testid", "cv-stage");
@@ -83,7 +117,8 @@ function build() {
   meta.setAttribute("data-testid", "cv-meta");
   dlg.append(bar, stage, readoutBox, meta);
   document.body.append(dlg);
-  el = { ...el, title, zoomText, png, stage, canvas, readout: readoutBox, meta };
+  el = { ...el, title, zoomText, png, stage, canvas, readout: readoutBox, meta, choose, sides, steps, frameText,
+         replay };
 
   stage.addEventListener("wheel", (ev) => {
     ev.preventDefault();
@@ -114,6 +149,10 @@ function build() {
     if (ev.key === "+" || ev.key === "=") { ev.preventDefault(); zoomBy(ZOOM_STEP); }
     else if (ev.key === "-") { ev.preventDefault(); zoomBy(1 / ZOOM_STEP); }
     else if (ev.key === "0") { ev.preventDefault(); fitView(); draw(); }
+    else if (state.kind === "recording" && !ev.ctrlKey && !ev.metaKey && !ev.altKey) {
+      const to = { ArrowLeft: state.index - 1, ArrowRight: state.index + 1, Home: 0, End: state.frames - 1 }[ev.key];
+      if (to !== undefined) { ev.preventDefault(); showFrame(to); }
+    }
   });
   dlg.addEventListener("close", () => {
     state.id = null;
@@ -180,7 +219,8 @@ function readout() {
   }
   const i = 4 * (y * state.w + x);
   const p = state.pixels;
-  const info = (state.meta && state.meta.images && state.meta.images[state.image]) || {};
+  const info = state.kind === "recording" ? { color: state.color }
+    : (state.meta && state.meta.images && state.meta.images[state.image]) || {};
   const values = info.color === "gray" ? { gray: p[i] } : { r: p[i], g: p[i + 1], b: p[i + 2] };
   if (state.ypixels) values.y = state.ypixels[i];
   box.textContent = "x " + x + " · y " + y + " · " +
@@ -200,7 +240,7 @@ async function decode(url) {
   off.height = bitmap.height;
   const ctx = off.getContext("2d", { willReadFrequently: true });
   ctx.drawImage(bitmap, 0, 0);
-  return { bitmap, pixels: ctx.getImageData(0, 0, bitmap.width, bitmap.height).data };
+  return { bitmap, pixels: ctx.getImageData(0, 0, bitmap.width, bitmap.height).data, headers: resp.headers };
 }
 
 async function show(name) {
@@ -235,6 +275,94 @@ async function show(name) {
   }
 }
 
+// ---- a recording, frame by frame ---------------------------------------------------------------------
+function setMode(kind) {
+  state.kind = kind;
+  const rec = kind === "recording";
+  el.choose.hidden = rec;
+  el.replay.hidden = rec;
+  el.sides.hidden = !rec;
+  el.steps.hidden = !rec;
+  el.canvas.dataset.index = "";
+  el.canvas.dataset.frames = "";
+}
+
+function showSteps() {
+  const { index, frames } = state;
+  el.frameText.textContent = frames ? "frame " + index + " / " + (frames - 1) : "no frames";
+  el.frameText.dataset.index = String(index);
+  el.stepButtons.first.disabled = el.stepButtons.prev.disabled = index <= 0;
+  el.stepButtons.next.disabled = el.stepButtons.last.disabled = index >= frames - 1;
+  for (const [n, b] of Object.entries(el.sides)) b.setAttribute("aria-pressed", n === state.image ? "true" : "false");
+}
+
+async function showFrame(index) {
+  if (state.kind !== "recording" || !state.id || !state.frames) return;
+  index = Math.max(0, Math.min(state.frames - 1, index));
+  const seq = ++state.loadSeq;
+  const id = state.id;
+  const side = state.image === "right" ? "right" : "left";
+  state.index = index;
+  showSteps();
+  el.canvas.dataset.loaded = "";
+  const url = "/api/recordings/" + encodeURIComponent(id) + "/frames/" + index + "/" + side + ".png";
+  try {
+    const main = await decode(url);
+    if (seq !== state.loadSeq) { main.bitmap.close(); return; }
+    const sameSize = state.w === main.bitmap.width && state.h === main.bitmap.height;
+    if (state.bitmap) state.bitmap.close();
+    state.bitmap = main.bitmap;
+    state.pixels = main.pixels;
+    state.ypixels = null;
+    state.color = main.headers.get("X-Color") === "gray" ? "gray" : "rgb";
+    const frames = Number(main.headers.get("X-Frames"));
+    if (frames > 0 && frames !== state.frames) { state.frames = frames; showSteps(); }
+    state.w = main.bitmap.width;
+    state.h = main.bitmap.height;
+    if (!sameSize) fitView();  // stepping keeps the zoom and the pan
+    el.png.href = url;
+    el.png.setAttribute("download", id + "-" + side + "_" + String(index).padStart(6, "0") + ".png");
+    draw();
+    readout();
+    el.canvas.dataset.image = side;
+    el.canvas.dataset.index = String(index);
+    el.canvas.dataset.frames = String(state.frames);
+    el.canvas.dataset.loaded = side + ":" + index;
+  } catch (e) {
+    if (seq === state.loadSeq) {
+      showMessage("cannot show frame " + index + " of recording " + id + ": " + e.message +
+                  "; list the recordings again (it may have been deleted)", "error");
+    }
+  }
+}
+
+/** Open a finished recording in the viewer at frame ``index`` (0: the first). */
+export async function openRecording(id, index) {
+  if (!dlg) build();
+  setMode("recording");
+  state.id = id;
+  state.meta = null;
+  state.w = state.h = 0;
+  state.index = index || 0;
+  state.frames = 0;
+  state.image = "left";
+  el.title.textContent = id;
+  el.meta.textContent = "";
+  el.canvas.dataset.loaded = "";
+  showSteps();
+  if (!dlg.open) dlg.showModal();
+  await action(null, async () => {
+    const info = await api("GET", "/api/recordings/" + encodeURIComponent(id));
+    if (state.id !== id) return;
+    state.frames = info.frames || 0;
+    el.meta.textContent = ["recording", info.frames + " frames", info.fps ? info.fps.toFixed(1) + " fps" : "",
+                           info.created, info.source, "calibration " + (info.calibration_id || "none"),
+                           info.error ? "damaged: " + info.error : ""].filter(Boolean).join(" · ");
+    showSteps();
+    await showFrame(state.index);
+  });
+}
+
 export async function replayCapture(id, btn) {
   return action(btn, async () => {
     const res = await api("POST", "/api/virtual-camera", { capture: id });
@@ -246,6 +374,7 @@ export async function replayCapture(id, btn) {
 
 export async function openViewer(id, image) {
   if (!dlg) build();
+  setMode("capture");
   state.id = id;
   state.meta = null;
   state.w = state.h = 0;

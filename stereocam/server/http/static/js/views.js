@@ -68,7 +68,9 @@ function figure(view) {
   const cap = document.createElement("figcaption");
   const note = span("view-note", "note-" + view.name, "note-" + view.name);
   note.hidden = true;  // "shown at N px: why" when the page could not ask for the size shown
+  // net-NAME: the bytes/s this page receives of the view and its glass-to-glass latency (live.js)
   cap.append(view.caption + " ", span("frame-no", "frame-" + view.name), " ", note, " ",
+             span("view-net", "net-" + view.name, "net-" + view.name), " ",
              span("view-rate", "rate-" + view.name, "rate-" + view.name));
   fig.append(cap);
   return fig;
@@ -91,14 +93,38 @@ function loadLayout() {
   // A view the registry gained since the layout was stored goes at its registry place (the end).
   for (const v of VIEWS) if (!order.includes(v)) order.push(v);
   const hidden = new Set((doc && Array.isArray(doc.hidden) ? doc.hidden : []).filter((v) => known.has(v)));
-  return { order: [...new Set(order)], hidden };
+  const settings = {};
+  const stored = doc && doc.settings && typeof doc.settings === "object" ? doc.settings : {};
+  for (const v of VIEWS) settings[v] = checkedSettings(stored[v]);
+  return { order: [...new Set(order)], hidden, settings };
 }
+
+// ---- each view's own quality, size and rate (issue 24, item 4) -----------------------------------
+// A view's settings: {quality?, scale?, fps?}; a key left out is "auto" (quality: the daemon's
+// default; size: the view's CSS width x devicePixelRatio, live.js; rate: the page's rate, ?fps=).
+// The choices are values the daemon takes (it refuses others over the socket, API.md).
+export const QUALITIES = [95, 90, 80, 70, 50, 30];
+export const SIZES = [[1, "full"], [0.5, "half"], [0.25, "quarter"]];
+export const RATES = [30, 15, 10, 5, 2, 1];
+
+function checkedSettings(doc) {
+  const out = {};
+  if (!doc || typeof doc !== "object") return out;
+  if (QUALITIES.includes(doc.quality)) out.quality = doc.quality;
+  if (SIZES.some(([s]) => s === doc.scale)) out.scale = doc.scale;
+  if (RATES.includes(doc.fps)) out.fps = doc.fps;
+  return out;
+}
+
+/** A view's chosen settings ({} when every one is auto). */
+export function viewSettings(view) { return (layout.settings && layout.settings[view]) || {}; }
 
 const layout = loadLayout();
 
 function saveLayout() {
   try {
-    localStorage.setItem(LAYOUT_KEY, JSON.stringify({ order: layout.order, hidden: [...layout.hidden] }));
+    localStorage.setItem(LAYOUT_KEY, JSON.stringify({ order: layout.order, hidden: [...layout.hidden],
+                                                      settings: layout.settings }));
   } catch (e) { /* storage refused (private mode, full): the layout lasts until the page reloads */ }
 }
 
@@ -175,13 +201,63 @@ function renderMenu() {
       if (again) again.focus();
     });
     label.append(box, " " + info[v].caption);
+    const opts = options(v, info[v].caption);
+    const gear = button("views-opts", "⚙", info[v].caption + ": quality, size and rate", "views-opts-" + v,
+                        () => {
+                          opts.hidden = !opts.hidden;
+                          gear.setAttribute("aria-expanded", opts.hidden ? "false" : "true");
+                          openOptions[opts.hidden ? "delete" : "add"](v);
+                        }, false);
+    opts.hidden = !openOptions.has(v);
+    gear.setAttribute("aria-expanded", opts.hidden ? "false" : "true");
+    gear.setAttribute("aria-controls", opts.id);
     li.append(label,
+              gear,
               button("views-up", "↑", "move " + info[v].caption + " up", "views-up-" + v,
                      () => move(v, -1, "views-up"), i === 0),
               button("views-down", "↓", "move " + info[v].caption + " down", "views-down-" + v,
-                     () => move(v, 1, "views-down"), i === layout.order.length - 1));
+                     () => move(v, 1, "views-down"), i === layout.order.length - 1),
+              opts);
     list.append(li);
   });
+}
+
+const openOptions = new Set();  // views whose settings row is open in the menu (kept across re-renders)
+
+function choice(v, key, label, choices, caption) {
+  const lab = document.createElement("label");
+  const sel = document.createElement("select");
+  sel.setAttribute("data-testid", "views-" + key + "-" + v);
+  sel.setAttribute("aria-label", caption + ": " + label);
+  for (const [value, text] of [["auto", "auto"], ...choices]) {
+    const o = document.createElement("option");
+    o.value = String(value);
+    o.textContent = text;
+    sel.append(o);
+  }
+  const now = viewSettings(v)[key];
+  sel.value = now === undefined ? "auto" : String(now);
+  sel.addEventListener("change", () => {
+    const mine = { ...viewSettings(v) };
+    if (sel.value === "auto") delete mine[key]; else mine[key] = Number(sel.value);
+    layout.settings[v] = mine;
+    changed();
+    const again = $id("views-menu-list").querySelector('[data-testid="views-' + key + "-" + v + '"]');
+    if (again) again.focus();
+  });
+  lab.append(label + " ", sel);
+  return lab;
+}
+
+function options(v, caption) {
+  const box = document.createElement("div");
+  box.className = "views-opts-row";
+  box.id = "views-opts-row-" + v;
+  box.setAttribute("data-testid", "views-opts-row-" + v);
+  box.append(choice(v, "quality", "quality", QUALITIES.map((q) => [q, String(q)]), caption),
+             choice(v, "scale", "size", SIZES, caption),
+             choice(v, "fps", "fps", RATES.map((r) => [r, String(r)]), caption));
+  return box;
 }
 
 const reset = $id("views-reset");
@@ -189,6 +265,7 @@ if (reset) {
   reset.addEventListener("click", () => {
     layout.order = [...VIEWS];
     layout.hidden.clear();
+    for (const v of VIEWS) layout.settings[v] = {};
     changed();
   });
 }
