@@ -26,6 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from ..spec import camera_in as ci
+from ..spec import frame_gate as fg
+from . import ip_estimates
 from . import toolchain as hdl
 
 TOP = "rectify_core"
@@ -433,12 +436,15 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
     """``stereocam hw synth``, added to the ``hw`` group by ``cli.build_parser``."""
     table, _ = builds()
     s = hw_sub.add_parser(
-        "synth", help="synthesise the rectify core with yosys and compare with the paper's Table 1",
+        "synth", help="synthesise the rectify core and the overlay's RTL with yosys; the whole "
+                      "overlay against the device",
         description=f"Run yosys synth_xilinx -family xc7 on every *.v in stereocam/overlays/rtl/ (top {TOP}) "
                     f"with the "
                     f"build's parameters, and print its LUT, LUTRAM, FF, BRAM36 and DSP48E1 beside the "
-                    f"paper's Table 1, the build's floor and the {DEVICE}'s totals. Results are cached in "
-                    f"~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
+                    f"paper's Table 1, the build's floor and the {DEVICE}'s totals; then the whole overlay "
+                    f"of the block design: its camera input and frame gates synthesised, its Xilinx IP "
+                    f"estimated from the product guides (cited), totals against the device. Results are "
+                    f"cached in ~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
                     f"2 on a tool or input error.")
     s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
                    help="which build's parameters (default gray)")
@@ -447,6 +453,9 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
     s.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"give up on yosys after S seconds (default {DEFAULT_TIMEOUT_S:g})")
     s.add_argument("--no-cache", action="store_true", help="run yosys even if an identical run is cached")
+    s.add_argument("--core-only", action="store_true",
+                   help="the rectify core alone, without the whole overlay's table (camera input, "
+                        "frame gates, Xilinx IP)")
     s.set_defaults(func=cmd_hw_synth)
 
 
@@ -458,13 +467,191 @@ def cmd_hw_synth(args: argparse.Namespace) -> int:
         rtl = Path(args.rtl) if args.rtl else rtl_dir()
         result = synthesize(rtl, parameters=build.parameters(), timeout=args.timeout,
                             use_cache=not args.no_cache)
+        parts = None if args.core_only else overlay_parts(build, result, timeout=args.timeout,
+                                                          use_cache=not args.no_cache)
     except HwSynthError as exc:
         print(f"stereocam hw synth: error: {exc}", file=sys.stderr)
         return 2
     report = report_dict(result, build, builds_from)
-    print(json.dumps(report) if args.json else format_table(report))
+    overlay = None if parts is None else overlay_dict(parts, build)
+    if overlay is not None:
+        report["overlay"] = overlay
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(format_table(report))
+        if overlay is not None:
+            print("\n" + format_overlay(overlay))
+    code = 0
     if report["over"]:
         print(f"stereocam hw synth: over the floor of build {build.name}: {', '.join(report['over'])}",
               file=sys.stderr)
-        return 1
-    return 0
+        code = 1
+    if overlay is not None and overlay["over_device"]:
+        print(f"stereocam hw synth: the whole overlay of build {build.name} is over the {DEVICE}: "
+              f"{', '.join(overlay['over_device'])}", file=sys.stderr)
+        code = 1
+    return code
+
+
+# --------------------------------------------------------------------------- the whole overlay
+
+#: The block design whose cells the whole-overlay table covers.
+BLOCK_DESIGN = Path(__file__).resolve().parent.parent / "vivado" / "block_design.tcl"
+CORE_VLNV_NAME = "rectify"
+CAMERA_VLNV_NAME = "camera_in"
+GATE_VLNV_NAME = "frame_gate"
+OVERLAY_NOTE = ("RTL rows are yosys counts of the block design's own cores with its parameters; Xilinx IP "
+                "rows are estimates from the product guides cited (not synthesised); Vivado's "
+                "report_utilization of a real build replaces them.")
+_CELL = re.compile(r"create_bd_cell\s+-type\s+ip\s+-vlnv\s+(\S+)\s+(\w+)")
+_CONFIG_BLOCK = re.compile(r"set_property\s+-dict\s+\[list(.*?)\]\s+\[get_bd_cells\s+(\w+)\]", re.S)
+_CONFIG_ITEM = re.compile(r"CONFIG\.(\w+)\s+(?:\{([^}]*)\}|(\$?\w+))")
+
+
+@dataclass(frozen=True)
+class BdCell:
+    """One ``create_bd_cell`` of the block design and its ``CONFIG.*`` values."""
+
+    name: str
+    vlnv: str
+    config: Dict[str, str]
+
+    @property
+    def ip(self) -> str:
+        parts = self.vlnv.split(":")
+        return parts[2] if len(parts) == 4 else self.vlnv
+
+
+def block_design_cells(path: Path = BLOCK_DESIGN) -> List[BdCell]:
+    """The IP cells of ``block_design.tcl`` in order, each with its literal ``CONFIG.*`` values."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise HwSynthError(f"cannot read the block design {path}: {exc}") from None
+    config: Dict[str, Dict[str, str]] = {}
+    for block, cell in _CONFIG_BLOCK.findall(text):
+        for key, braced, bare in _CONFIG_ITEM.findall(block):
+            config.setdefault(cell, {})[key] = braced if braced or not bare else bare
+    cells = [BdCell(name, vlnv, config.get(name, {})) for vlnv, name in _CELL.findall(text)]
+    if not cells:
+        raise HwSynthError(f"no create_bd_cell in {path}")
+    return cells
+
+
+@dataclass(frozen=True)
+class Part:
+    """One row of the whole-overlay table: a block-design cell (or several alike) and its resources."""
+
+    name: str  # row label
+    cells: Tuple[str, ...]  # block-design cells it counts
+    kind: str  # "yosys" (our RTL, synthesised) or "estimate" (Xilinx IP, from a product guide)
+    lut: int
+    ff: int
+    bram36: float
+    dsp: int
+    source: str  # yosys run (top, parameters) or the product guide and table
+
+    def values(self) -> Dict[str, float]:
+        return {"LUT": self.lut, "FF": self.ff, "BRAM36": self.bram36, "DSP48E1": self.dsp}
+
+    def to_dict(self) -> Dict[str, Any]:
+        return {"name": self.name, "cells": list(self.cells), "kind": self.kind,
+                "estimate": self.kind != "yosys", **self.values(), "source": self.source}
+
+
+#: The device the totals are held against (the Zynq-7020's PL), by resource.
+OVERLAY_DEVICE: Dict[str, int] = {"LUT": 53_200, "FF": 106_400, "BRAM36": 140, "DSP48E1": 220}
+
+
+def _rtl_part(name: str, cells: Sequence[str], result: SynthResult) -> Part:
+    c = result.counts
+    n = len(cells)
+    params = ", ".join(f"{k} {v}" for k, v in result.parameters.items())
+    return Part(name, tuple(cells), "yosys", c.lut * n, c.ff * n, c.bram36 * n, c.dsp * n,
+                f"yosys {SYNTH_COMMAND.format(top=result.top)} ({params})" + (f", x{n}" if n > 1 else ""))
+
+
+def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequence[BdCell]] = None,
+                  camera_dir: Optional[Path] = None, timeout: float = DEFAULT_TIMEOUT_S,
+                  use_cache: bool = True) -> List[Part]:
+    """Every cell of the block design as rows: the core (this build's), the camera input and each
+    frame gate synthesised with the block design's parameters, the Xilinx IP estimated.
+
+    A cell this cannot account for (an IP without an estimate) is refused, naming it.
+    """
+    cells = list(cells) if cells is not None else block_design_cells()
+    camera = camera_dir or rtl_dir() / "camera"
+    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]
+    parts: List[Part] = []
+    gates: Dict[Tuple[Tuple[str, str], ...], List[str]] = {}
+    for cell in cells:
+        if cell.ip == CORE_VLNV_NAME:
+            parts.append(_rtl_part(f"rectify core ({build.name})", [cell.name], core))
+        elif cell.ip == CAMERA_VLNV_NAME:
+            params = {"MAX_WIDTH": int(cell.config.get("MAX_WIDTH", ci.PARAMETERS["MAX_WIDTH"])),
+                      "BAYER_PHASE": int(cell.config.get("BAYER_PHASE", ci.CFA_PHASES.index(ci.BAYER_PHASE)))}
+            r = synthesize(camera, top=ci.TOP, parameters=params, extra_sources=shared, timeout=timeout,
+                           use_cache=use_cache)
+            parts.append(_rtl_part("camera_in", [cell.name], r))
+        elif cell.ip == GATE_VLNV_NAME:
+            gates.setdefault(tuple(sorted(cell.config.items())), []).append(cell.name)
+        else:
+            try:
+                est, fig = ip_estimates.estimate(cell.vlnv, cell.config)
+            except KeyError:
+                raise HwSynthError(f"block design cell {cell.name} ({cell.vlnv}) has no resource estimate in "
+                                   f"stereocam/overlays/rtl/ip_estimates.py: add one from its product "
+                                   f"guide") from None
+            parts.append(Part(f"{cell.ip} (estimate)", (cell.name,), "estimate", fig.lut, fig.ff, fig.bram36,
+                              fig.dsp, f"{est.citation}: {est.basis}"))
+    for config, names in gates.items():
+        params = {**fg.PARAMETERS, **{k: int(v) for k, v in config}}
+        r = synthesize(camera, top=fg.TOP, parameters=params, extra_sources=shared, timeout=timeout,
+                       use_cache=use_cache)
+        parts.append(_rtl_part(f"frame_gate x{len(names)}", names, r))
+    rank = {"rectify": 0, "camera_in": 1, "frame_gate": 2}
+    return sorted(parts, key=lambda p: rank.get(p.name.split()[0], 3))
+
+
+def overlay_totals(parts: Sequence[Part]) -> Dict[str, float]:
+    """The sum of the parts, by resource."""
+    total: Dict[str, float] = {k: 0 for k in OVERLAY_DEVICE}
+    for p in parts:
+        for k, v in p.values().items():
+            total[k] += v
+    return total
+
+
+def overlay_dict(parts: Sequence[Part], build: BuildParams) -> Dict[str, Any]:
+    """The ``overlay`` object of ``--json``: the rows, their totals, the share of the device."""
+    total = overlay_totals(parts)
+    over = [f"{k} {_num(v)} > {OVERLAY_DEVICE[k]:,}" for k, v in total.items() if v > OVERLAY_DEVICE[k]]
+    return {"build": build.name, "device": DEVICE, "device_totals": dict(OVERLAY_DEVICE),
+            "parts": [p.to_dict() for p in parts], "total": total,
+            "share_pct": {k: round(100 * v / OVERLAY_DEVICE[k], 1) for k, v in total.items()},
+            "over_device": over, "within_device": not over, "note": OVERLAY_NOTE}
+
+
+def format_overlay(overlay: Mapping[str, Any]) -> str:
+    """The whole-overlay table: one row per part, the total and its share of the device."""
+    rows: List[Tuple[str, ...]] = [("part", "cells", "LUT", "FF", "BRAM36", "DSP48E1", "source")]
+    keys = ("LUT", "FF", "BRAM36", "DSP48E1")
+    for p in overlay["parts"]:
+        rows.append((p["name"], ",".join(p["cells"]), *(_num(p[k]) for k in keys), p["source"]))
+    t = overlay["total"]
+    rows.append(("total", "", *(_num(t[k]) for k in keys), ""))
+    rows.append((f"% of {DEVICE}", "", *(f"{overlay['share_pct'][k]:.1f} %" for k in keys),
+                 "of " + ", ".join(f"{k} {v:,}" for k, v in overlay["device_totals"].items())))
+    widths = [max(len(r[i]) for r in rows) for i in range(6)]
+    lines = [f"whole overlay, build {overlay['build']} (stereocam/overlays/vivado/block_design.tcl)", ""]
+    for r in rows:
+        cols = [c.ljust(w) if i < 2 else c.rjust(w)
+                for i, (c, w) in enumerate(zip(r[:6], widths, strict=True))]
+        lines.append("  ".join(cols) + "  " + r[6])
+    lines += ["", overlay["note"]]
+    if overlay["over_device"]:
+        lines.append(f"OVER the {DEVICE}: " + ", ".join(overlay["over_device"]))
+    else:
+        lines.append(f"within the {DEVICE}")
+    return "\n".join(line.rstrip() for line in lines)
