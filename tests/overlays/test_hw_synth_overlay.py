@@ -165,4 +165,7 @@ def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[st
         assert overlay["total"][key] == sum(p[key] for p in overlay["parts"])
         assert overlay["total"][key] <= device
         assert overlay["device_totals"][key] == device
-    print(build, {k: overlay["total"][k] for k in ("LUT", "FF", "BRAM36", "DSP48E1")}, overlay["share_pct"])
+    # every product's four DSP48E1 in one PCOUT -> PCIN chain (tests/overlays/test_dsp_map.py has the detail)
+    assert report["dsp_cascade"] == {"DSP48E1": 52, "PCIN": 39, "C_from_P": 0, "PREG": 26}
+    print(build, {k: overlay["total"][k] for k in ("LUT", "FF", "BRAM36", "DSP48E1")}, overlay["share_pct"],
+          report["dsp_cascade"])

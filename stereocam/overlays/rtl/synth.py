@@ -28,7 +28,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from ..spec import camera_in as ci
 from ..spec import frame_gate as fg
-from . import ip_estimates
+from . import dsp_map, ip_estimates
 from . import toolchain as hdl
 
 TOP = "rectify_core"
@@ -246,7 +246,7 @@ def find_yosys() -> str:
 
 
 def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameters: Mapping[str, int],
-                 stat_json: str, defines: Mapping[str, str]) -> str:
+                 stat_json: str, defines: Mapping[str, str], netlist_json: Optional[str] = None) -> str:
     """The yosys script: read, set the build's parameters on the top, synthesise, count."""
     def q(p: Path) -> str:
         return '"' + str(p) + '"'
@@ -257,15 +257,19 @@ def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameter
     if parameters:
         lines.append("chparam " + " ".join(f"-set {k} {int(v)}" for k, v in parameters.items()) + f" {top}")
     lines += [SYNTH_COMMAND.format(top=top), f"tee -q -o {stat_json} stat -json", "stat"]
+    if netlist_json:
+        lines.append(f"write_json {netlist_json}")
     return "\n".join(lines) + "\n"
 
 
 def cache_key(sources_dir: Path, top: str, parameters: Mapping[str, int], defines: Mapping[str, str],
-              version: str, extra_sources: Sequence[Path] = ()) -> str:
+              version: str, extra_sources: Sequence[Path] = (), netlist: bool = False) -> str:
     """Hash of every source and header, the parameters, the defines, the flow and yosys's version."""
     h = hashlib.sha256()
     head = {"flow": FLOW_VERSION, "synth": SYNTH_COMMAND, "top": top, "yosys": version,
             "parameters": dict(sorted(parameters.items())), "defines": dict(sorted(defines.items()))}
+    if netlist:  # only then, so that the keys of runs without a netlist stay as they were
+        head["netlist"] = True
     h.update(json.dumps(head, sort_keys=True).encode())
     hashed = [p for p in sorted(sources_dir.iterdir()) if p.suffix in HASHED_SUFFIXES and p.is_file()]
     for p in [*hashed, *map(Path, extra_sources)]:
@@ -296,6 +300,7 @@ class SynthResult:
     seconds: float  # of the yosys run that produced it
     cached: bool
     log: Optional[Path]
+    netlist: Optional[Path] = None  # yosys's write_json of the mapped design, when asked for
 
     @property
     def counts(self) -> Counts:
@@ -305,7 +310,7 @@ class SynthResult:
 def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mapping[str, int]] = None,
                defines: Optional[Mapping[str, str]] = None, cache_dir: Optional[Path] = None,
                timeout: float = DEFAULT_TIMEOUT_S, use_cache: bool = True,
-               extra_sources: Sequence[Path] = ()) -> SynthResult:
+               extra_sources: Sequence[Path] = (), netlist: bool = False) -> SynthResult:
     """Run yosys on every ``*.v`` in ``sources_dir`` and ``extra_sources`` (modules shared from another
     folder), or return the cached counts of an identical run.
 
@@ -318,20 +323,23 @@ def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mappin
     yosys = find_yosys()
     version = yosys_version(yosys)
     cache = cache_dir or default_cache_dir()
-    key = cache_key(sources_dir, top, parameters, defines, version, extra_sources)
+    key = cache_key(sources_dir, top, parameters, defines, version, extra_sources, netlist)
     result_path = cache / f"{top}-{key}.json"
     log_path = cache / f"{top}-{key}.log"
-    if use_cache and result_path.is_file():
+    netlist_path = cache / f"{top}-{key}.netlist.json"
+    kept = netlist_path if netlist else None
+    if use_cache and result_path.is_file() and (not netlist or netlist_path.is_file()):
         try:
             saved = json.loads(result_path.read_text(encoding="utf-8"))
             return SynthResult(top, parameters, {k: int(v) for k, v in saved["cells"].items()}, version,
                                saved["script"], float(saved["seconds"]), True,
-                               log_path if log_path.is_file() else None)
+                               log_path if log_path.is_file() else None, kept)
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a damaged cache entry: run again
     cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=cache, prefix=f".{key}-") as work:
-        script = yosys_script(sources, sources_dir, top, parameters, "stat.json", defines)
+        script = yosys_script(sources, sources_dir, top, parameters, "stat.json", defines,
+                              "netlist.json" if netlist else None)
         (Path(work) / "synth.ys").write_text(script, encoding="utf-8")
         start = time.monotonic()
         try:
@@ -355,8 +363,12 @@ def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mappin
                  "script": script, "seconds": seconds, "cells": cells}
         tmp = Path(work, "result.json")
         tmp.write_text(json.dumps(saved, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+        if netlist:
+            if not Path(work, "netlist.json").is_file():
+                raise HwSynthError(f"yosys wrote no netlist.json (log: {log_path})")
+            os.replace(Path(work, "netlist.json"), netlist_path)
         os.replace(tmp, result_path)
-    return SynthResult(top, parameters, cells, version, script, seconds, False, log_path)
+    return SynthResult(top, parameters, cells, version, script, seconds, False, log_path, kept)
 
 
 # --------------------------------------------------------------------------- report
@@ -466,13 +478,15 @@ def cmd_hw_synth(args: argparse.Namespace) -> int:
         build = table[args.build]
         rtl = Path(args.rtl) if args.rtl else rtl_dir()
         result = synthesize(rtl, parameters=build.parameters(), timeout=args.timeout,
-                            use_cache=not args.no_cache)
+                            use_cache=not args.no_cache, netlist=True)
         parts = None if args.core_only else overlay_parts(build, result, timeout=args.timeout,
                                                           use_cache=not args.no_cache)
     except HwSynthError as exc:
         print(f"stereocam hw synth: error: {exc}", file=sys.stderr)
         return 2
     report = report_dict(result, build, builds_from)
+    if result.netlist is not None:
+        report["dsp_cascade"] = dsp_map.summary(dsp_map.read_dsps(result.netlist))
     overlay = None if parts is None else overlay_dict(parts, build)
     if overlay is not None:
         report["overlay"] = overlay
@@ -480,6 +494,10 @@ def cmd_hw_synth(args: argparse.Namespace) -> int:
         print(json.dumps(report))
     else:
         print(format_table(report))
+        if "dsp_cascade" in report:
+            d = report["dsp_cascade"]
+            print(f"DSP48E1 cascades: {d['PCIN']} of {d['DSP48E1']} take the previous DSP's P on PCIN, "
+                  f"{d['C_from_P']} take another DSP's P through fabric into C, {d['PREG']} use PREG")
         if overlay is not None:
             print("\n" + format_overlay(overlay))
     code = 0
