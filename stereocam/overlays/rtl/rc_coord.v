@@ -298,12 +298,13 @@ module rc_coord #(
 
     // Tangential terms, summed as they are made: cx12 = rnd(P1*2xy, PF) + rnd(P2*(r2 + 2 x2), PF),
     // cy12 = rnd(P2*2xy, PF) + rnd(P1*(r2 + 2 y2), PF); stage S_R2 + LM.
-    wire signed [XY2W-1:0] xy2 = {xy, 1'b0};
+    // 2xy enters as xy with LO one lower (the same integers): a constant-zero low bit in the
+    // DSPs' A port would stop yosys 0.23 cascading the product (rc_coord_mul.v, dsp_map.py).
     wire signed [CW-1:0] cx1, cy1, cx12, cy12;
-    rc_coord_mul #(.AW(XY2W), .BW(PPW), .LO(PF - 1), .CW(2), .SH(1), .OW(CW))
-        mul_cx1 (.clk(clk), .a(xy2), .b(`RC_PAR(S_SQ, `RC_P_P1, PPW)), .c(2'sd1), .p(cx1));
-    rc_coord_mul #(.AW(XY2W), .BW(PPW), .LO(PF - 1), .CW(2), .SH(1), .OW(CW))
-        mul_cy1 (.clk(clk), .a(xy2), .b(`RC_PAR(S_SQ, `RC_P_P2, PPW)), .c(2'sd1), .p(cy1));
+    rc_coord_mul #(.AW(XY2W - 1), .BW(PPW), .LO(PF - 2), .CW(2), .SH(1), .OW(CW))
+        mul_cx1 (.clk(clk), .a(xy), .b(`RC_PAR(S_SQ, `RC_P_P1, PPW)), .c(2'sd1), .p(cx1));
+    rc_coord_mul #(.AW(XY2W - 1), .BW(PPW), .LO(PF - 2), .CW(2), .SH(1), .OW(CW))
+        mul_cy1 (.clk(clk), .a(xy), .b(`RC_PAR(S_SQ, `RC_P_P2, PPW)), .c(2'sd1), .p(cy1));
     wire signed [QW-1:0] qx = {{QW-R2W{1'b0}}, r2} + {{QW-R2W-1{1'b0}}, x2_r2, 1'b0};
     wire signed [QW-1:0] qy = {{QW-R2W{1'b0}}, r2} + {{QW-R2W-1{1'b0}}, y2_r2, 1'b0};
     rc_coord_mul #(.AW(QW), .BW(PPW), .LO(PF - 1), .CW(CW + 1), .SH(1), .OW(CW))

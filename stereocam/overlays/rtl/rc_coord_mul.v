@@ -4,16 +4,20 @@
 // rounding bit and an addend cost one adder together.
 //
 // The product is four DSP48E1 in one cascade, written out register by register so that
-// synthesis maps it exactly so, every register inside a DSP48E1 (yosys 0.23 does; Vivado
-// could not be run here): with a = a1 2**17 + a0 and b = b1 2**17 + b0 (a0, b0 the
-// unsigned 17 low bits),
-//   DSP1  m1 = a0 b0                                        AREG BREG MREG
-//   DSP2  h1 = a0 b1 + (m1 >>> 17)            (PCIN >> 17)  AREG BREG MREG PREG
+// synthesis maps it exactly so, every register inside a DSP48E1 (yosys 0.23 does, in every
+// one of the core's thirteen products; Vivado could not be run here): with a = a1 2**17 + a0
+// and b = b1 2**17 + b0 (a0, b0 the unsigned 17 low bits),
+//   DSP1  m1 = a0 b0                                        AREG>=1 BREG>=1 MREG
+//   DSP2  h1 = a0 b1 + (m1 >>> 17)            (PCIN >> 17)  AREG>=1 BREG>=1 MREG PREG
 //   DSP3  d3 = a1 b0 + h1                     (PCIN)        AREG=2 BREG=2 MREG
 //   DSP4  h2 = a1 b1 + (d3 >>> 17)            (PCIN >> 17)  AREG=2 BREG=2 MREG PREG
-// so that a b = h2 2**34 + d3[16:0] 2**17 + m1[16:0]. Every path is one multiply or one
-// post-adder and a cascade between registers; a*b needs AW <= 42 and BW <= 35 (a1 fits the
-// 25-bit A port, b1 the 18-bit B port), both at least 18. Then one fabric adder takes the
+// (AREG>=1: a_r, and a register in front of the product when the caller has one, which
+// synthesis takes into the DSP as A1REG; BREG likewise. No P goes through fabric into a C.
+// stereocam/overlays/rtl/dsp_map.py reads this table and tests/overlays/test_dsp_map.py holds
+// the synthesised core's DSP48E1 cells against it.) So a b = h2 2**34 + d3[16:0] 2**17
+// + m1[16:0]. Every path is one multiply or one post-adder and a cascade between registers;
+// a*b needs AW <= 42 and BW <= 35 (a1 fits the 25-bit A port, b1 the 18-bit B port), both at
+// least 18. Then one fabric adder takes the
 // product bits from LO up (LO >= 17), adds c and drops SH more bits into the registered p.
 //
 // p is truncated to OW bits (two's complement): the caller chooses OW so that every value
@@ -71,12 +75,15 @@ module rc_coord_mul #(
     reg  signed [W4-1:0]    m4;
     reg  signed [WH1-1:0]   h1;             // cascade outputs (PREG of DSP2, DSP4)
     reg  signed [WH2-1:0]   h2;
-    wire signed [WD3-1:0]   d3 = {{WD3-W3{m3[W3-1]}}, m3} + {{WD3-WH1{h1[WH1-1]}}, h1};  // DSP3's post-adder
-    wire signed [WH1-1:0]   h1_next = {{WH1-W2{m2[W2-1]}}, m2} + {{WH1-W1+17{m1[W1-1]}}, m1[W1-1:17]};
-    localparam WS2 = ((W4 > WD3 - 17) ? W4 : WD3 - 17) + 1;
-    /* verilator lint_off UNUSEDSIGNAL */  // the top bit: a*b >>> 34 fits WH2 bits
-    wire signed [WS2-1:0]   h2_next = {{WS2-W4{m4[W4-1]}}, m4} + {{WS2-WD3+17{d3[WD3-1]}}, d3[WD3-1:17]};
-    /* verilator lint_on UNUSEDSIGNAL */
+    // The three post-adders are written as plain signed sums (Verilog sign-extends the operands
+    // to the widest of them and the result; h1 and h2 keep the low WH1, WH2 bits, which is all p
+    // needs: a*b >>> 34 fits WH2 bits). Written with explicit sign-extension slices instead,
+    // yosys 0.23 finds none of the three PCIN cascades once a register in front of the product
+    // is absorbed into AREG/BREG or the product shares its input with another, and takes each P
+    // through fabric into the next C.
+    /* verilator lint_off WIDTHEXPAND */
+    wire signed [WD3-1:0]   d3 = m3 + h1;   // DSP3's post-adder (PCIN)
+    /* verilator lint_on WIDTHEXPAND */
     reg         [16:0]      l3;             // d3[16:0]: product bits 17..33
 
     /* verilator lint_off UNUSEDSIGNAL */  // the bits below LO and the SH bits dropped
@@ -107,10 +114,18 @@ module rc_coord_mul #(
         a1_d <= a1;
         b0_d <= b0;
         b1_d <= b1;
-        h1 <= h1_next;
+        /* verilator lint_off WIDTHEXPAND */
+        /* verilator lint_off WIDTHTRUNC */
+        h1 <= m2 + (m1 >>> 17);             // DSP2's post-adder (PCIN >> 17)
+        /* verilator lint_on WIDTHTRUNC */
+        /* verilator lint_on WIDTHEXPAND */
         m3 <= a1_d * b0_d;
         m4 <= a1_d * b1_d;
-        h2 <= h2_next[WH2-1:0];
+        /* verilator lint_off WIDTHEXPAND */
+        /* verilator lint_off WIDTHTRUNC */
+        h2 <= m4 + (d3 >>> 17);             // DSP4's post-adder (PCIN >> 17)
+        /* verilator lint_on WIDTHTRUNC */
+        /* verilator lint_on WIDTHEXPAND */
         l3 <= d3[16:0];
         p <= sum[SW-1:SH];
     end

@@ -26,6 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from ..spec import camera_in as ci
+from ..spec import frame_gate as fg
+from . import dsp_map, ip_estimates
 from . import toolchain as hdl
 
 TOP = "rectify_core"
@@ -243,7 +246,7 @@ def find_yosys() -> str:
 
 
 def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameters: Mapping[str, int],
-                 stat_json: str, defines: Mapping[str, str]) -> str:
+                 stat_json: str, defines: Mapping[str, str], netlist_json: Optional[str] = None) -> str:
     """The yosys script: read, set the build's parameters on the top, synthesise, count."""
     def q(p: Path) -> str:
         return '"' + str(p) + '"'
@@ -254,15 +257,19 @@ def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameter
     if parameters:
         lines.append("chparam " + " ".join(f"-set {k} {int(v)}" for k, v in parameters.items()) + f" {top}")
     lines += [SYNTH_COMMAND.format(top=top), f"tee -q -o {stat_json} stat -json", "stat"]
+    if netlist_json:
+        lines.append(f"write_json {netlist_json}")
     return "\n".join(lines) + "\n"
 
 
 def cache_key(sources_dir: Path, top: str, parameters: Mapping[str, int], defines: Mapping[str, str],
-              version: str, extra_sources: Sequence[Path] = ()) -> str:
+              version: str, extra_sources: Sequence[Path] = (), netlist: bool = False) -> str:
     """Hash of every source and header, the parameters, the defines, the flow and yosys's version."""
     h = hashlib.sha256()
     head = {"flow": FLOW_VERSION, "synth": SYNTH_COMMAND, "top": top, "yosys": version,
             "parameters": dict(sorted(parameters.items())), "defines": dict(sorted(defines.items()))}
+    if netlist:  # only then, so that the keys of runs without a netlist stay as they were
+        head["netlist"] = True
     h.update(json.dumps(head, sort_keys=True).encode())
     hashed = [p for p in sorted(sources_dir.iterdir()) if p.suffix in HASHED_SUFFIXES and p.is_file()]
     for p in [*hashed, *map(Path, extra_sources)]:
@@ -293,6 +300,7 @@ class SynthResult:
     seconds: float  # of the yosys run that produced it
     cached: bool
     log: Optional[Path]
+    netlist: Optional[Path] = None  # yosys's write_json of the mapped design, when asked for
 
     @property
     def counts(self) -> Counts:
@@ -302,7 +310,7 @@ class SynthResult:
 def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mapping[str, int]] = None,
                defines: Optional[Mapping[str, str]] = None, cache_dir: Optional[Path] = None,
                timeout: float = DEFAULT_TIMEOUT_S, use_cache: bool = True,
-               extra_sources: Sequence[Path] = ()) -> SynthResult:
+               extra_sources: Sequence[Path] = (), netlist: bool = False) -> SynthResult:
     """Run yosys on every ``*.v`` in ``sources_dir`` and ``extra_sources`` (modules shared from another
     folder), or return the cached counts of an identical run.
 
@@ -315,20 +323,23 @@ def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mappin
     yosys = find_yosys()
     version = yosys_version(yosys)
     cache = cache_dir or default_cache_dir()
-    key = cache_key(sources_dir, top, parameters, defines, version, extra_sources)
+    key = cache_key(sources_dir, top, parameters, defines, version, extra_sources, netlist)
     result_path = cache / f"{top}-{key}.json"
     log_path = cache / f"{top}-{key}.log"
-    if use_cache and result_path.is_file():
+    netlist_path = cache / f"{top}-{key}.netlist.json"
+    kept = netlist_path if netlist else None
+    if use_cache and result_path.is_file() and (not netlist or netlist_path.is_file()):
         try:
             saved = json.loads(result_path.read_text(encoding="utf-8"))
             return SynthResult(top, parameters, {k: int(v) for k, v in saved["cells"].items()}, version,
                                saved["script"], float(saved["seconds"]), True,
-                               log_path if log_path.is_file() else None)
+                               log_path if log_path.is_file() else None, kept)
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a damaged cache entry: run again
     cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=cache, prefix=f".{key}-") as work:
-        script = yosys_script(sources, sources_dir, top, parameters, "stat.json", defines)
+        script = yosys_script(sources, sources_dir, top, parameters, "stat.json", defines,
+                              "netlist.json" if netlist else None)
         (Path(work) / "synth.ys").write_text(script, encoding="utf-8")
         start = time.monotonic()
         try:
@@ -352,8 +363,12 @@ def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mappin
                  "script": script, "seconds": seconds, "cells": cells}
         tmp = Path(work, "result.json")
         tmp.write_text(json.dumps(saved, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+        if netlist:
+            if not Path(work, "netlist.json").is_file():
+                raise HwSynthError(f"yosys wrote no netlist.json (log: {log_path})")
+            os.replace(Path(work, "netlist.json"), netlist_path)
         os.replace(tmp, result_path)
-    return SynthResult(top, parameters, cells, version, script, seconds, False, log_path)
+    return SynthResult(top, parameters, cells, version, script, seconds, False, log_path, kept)
 
 
 # --------------------------------------------------------------------------- report
@@ -433,12 +448,15 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
     """``stereocam hw synth``, added to the ``hw`` group by ``cli.build_parser``."""
     table, _ = builds()
     s = hw_sub.add_parser(
-        "synth", help="synthesise the rectify core with yosys and compare with the paper's Table 1",
+        "synth", help="synthesise the rectify core and the overlay's RTL with yosys; the whole "
+                      "overlay against the device",
         description=f"Run yosys synth_xilinx -family xc7 on every *.v in stereocam/overlays/rtl/ (top {TOP}) "
                     f"with the "
                     f"build's parameters, and print its LUT, LUTRAM, FF, BRAM36 and DSP48E1 beside the "
-                    f"paper's Table 1, the build's floor and the {DEVICE}'s totals. Results are cached in "
-                    f"~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
+                    f"paper's Table 1, the build's floor and the {DEVICE}'s totals; then the whole overlay "
+                    f"of the block design: its camera input and frame gates synthesised, its Xilinx IP "
+                    f"estimated from the product guides (cited), totals against the device. Results are "
+                    f"cached in ~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
                     f"2 on a tool or input error.")
     s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
                    help="which build's parameters (default gray)")
@@ -447,6 +465,9 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
     s.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"give up on yosys after S seconds (default {DEFAULT_TIMEOUT_S:g})")
     s.add_argument("--no-cache", action="store_true", help="run yosys even if an identical run is cached")
+    s.add_argument("--core-only", action="store_true",
+                   help="the rectify core alone, without the whole overlay's table (camera input, "
+                        "frame gates, Xilinx IP)")
     s.set_defaults(func=cmd_hw_synth)
 
 
@@ -457,14 +478,198 @@ def cmd_hw_synth(args: argparse.Namespace) -> int:
         build = table[args.build]
         rtl = Path(args.rtl) if args.rtl else rtl_dir()
         result = synthesize(rtl, parameters=build.parameters(), timeout=args.timeout,
-                            use_cache=not args.no_cache)
+                            use_cache=not args.no_cache, netlist=True)
+        parts = None if args.core_only else overlay_parts(build, result, timeout=args.timeout,
+                                                          use_cache=not args.no_cache)
     except HwSynthError as exc:
         print(f"stereocam hw synth: error: {exc}", file=sys.stderr)
         return 2
     report = report_dict(result, build, builds_from)
-    print(json.dumps(report) if args.json else format_table(report))
+    if result.netlist is not None:
+        report["dsp_cascade"] = dsp_map.summary(dsp_map.read_dsps(result.netlist))
+    overlay = None if parts is None else overlay_dict(parts, build)
+    if overlay is not None:
+        report["overlay"] = overlay
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(format_table(report))
+        if "dsp_cascade" in report:
+            d = report["dsp_cascade"]
+            print(f"DSP48E1 cascades: {d['PCIN']} of {d['DSP48E1']} take the previous DSP's P on PCIN, "
+                  f"{d['C_from_P']} take another DSP's P through fabric into C, {d['PREG']} use PREG")
+        if overlay is not None:
+            print("\n" + format_overlay(overlay))
+    code = 0
     if report["over"]:
         print(f"stereocam hw synth: over the floor of build {build.name}: {', '.join(report['over'])}",
               file=sys.stderr)
-        return 1
-    return 0
+        code = 1
+    if overlay is not None and overlay["over_device"]:
+        print(f"stereocam hw synth: the whole overlay of build {build.name} is over the {DEVICE}: "
+              f"{', '.join(overlay['over_device'])}", file=sys.stderr)
+        code = 1
+    return code
+
+
+# --------------------------------------------------------------------------- the whole overlay
+
+#: The block design whose cells the whole-overlay table covers.
+BLOCK_DESIGN = Path(__file__).resolve().parent.parent / "vivado" / "block_design.tcl"
+CORE_VLNV_NAME = "rectify"
+CAMERA_VLNV_NAME = "camera_in"
+GATE_VLNV_NAME = "frame_gate"
+OVERLAY_NOTE = ("RTL rows are yosys counts of the block design's own cores with its parameters; Xilinx IP "
+                "rows are estimates from the product guides cited (not synthesised); Vivado's "
+                "report_utilization of a real build replaces them.")
+_CELL = re.compile(r"create_bd_cell\s+-type\s+ip\s+-vlnv\s+(\S+)\s+(\w+)")
+_CONFIG_BLOCK = re.compile(r"set_property\s+-dict\s+\[list(.*?)\]\s+\[get_bd_cells\s+(\w+)\]", re.S)
+_CONFIG_ITEM = re.compile(r"CONFIG\.(\w+)\s+(?:\{([^}]*)\}|(\$?\w+))")
+
+
+@dataclass(frozen=True)
+class BdCell:
+    """One ``create_bd_cell`` of the block design and its ``CONFIG.*`` values."""
+
+    name: str
+    vlnv: str
+    config: Dict[str, str]
+
+    @property
+    def ip(self) -> str:
+        parts = self.vlnv.split(":")
+        return parts[2] if len(parts) == 4 else self.vlnv
+
+
+def block_design_cells(path: Path = BLOCK_DESIGN) -> List[BdCell]:
+    """The IP cells of ``block_design.tcl`` in order, each with its literal ``CONFIG.*`` values."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise HwSynthError(f"cannot read the block design {path}: {exc}") from None
+    config: Dict[str, Dict[str, str]] = {}
+    for block, cell in _CONFIG_BLOCK.findall(text):
+        for key, braced, bare in _CONFIG_ITEM.findall(block):
+            config.setdefault(cell, {})[key] = braced if braced or not bare else bare
+    cells = [BdCell(name, vlnv, config.get(name, {})) for vlnv, name in _CELL.findall(text)]
+    if not cells:
+        raise HwSynthError(f"no create_bd_cell in {path}")
+    return cells
+
+
+@dataclass(frozen=True)
+class Part:
+    """One row of the whole-overlay table: a block-design cell (or several alike) and its resources."""
+
+    name: str  # row label
+    cells: Tuple[str, ...]  # block-design cells it counts
+    kind: str  # "yosys" (our RTL, synthesised) or "estimate" (Xilinx IP, from a product guide)
+    lut: int
+    ff: int
+    bram36: float
+    dsp: int
+    source: str  # yosys run (top, parameters) or the product guide and table
+
+    def values(self) -> Dict[str, float]:
+        return {"LUT": self.lut, "FF": self.ff, "BRAM36": self.bram36, "DSP48E1": self.dsp}
+
+    def to_dict(self) -> Dict[str, Any]:
+        return {"name": self.name, "cells": list(self.cells), "kind": self.kind,
+                "estimate": self.kind != "yosys", **self.values(), "source": self.source}
+
+
+#: The device the totals are held against (the Zynq-7020's PL), by resource.
+OVERLAY_DEVICE: Dict[str, int] = {"LUT": 53_200, "FF": 106_400, "BRAM36": 140, "DSP48E1": 220}
+
+
+def _rtl_part(name: str, cells: Sequence[str], result: SynthResult) -> Part:
+    c = result.counts
+    n = len(cells)
+    params = ", ".join(f"{k} {v}" for k, v in result.parameters.items())
+    return Part(name, tuple(cells), "yosys", c.lut * n, c.ff * n, c.bram36 * n, c.dsp * n,
+                f"yosys {SYNTH_COMMAND.format(top=result.top)} ({params})" + (f", x{n}" if n > 1 else ""))
+
+
+def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequence[BdCell]] = None,
+                  camera_dir: Optional[Path] = None, timeout: float = DEFAULT_TIMEOUT_S,
+                  use_cache: bool = True) -> List[Part]:
+    """Every cell of the block design as rows: the core (this build's), the camera input and each
+    frame gate synthesised with the block design's parameters, the Xilinx IP estimated.
+
+    A cell this cannot account for (an IP without an estimate) is refused, naming it.
+    """
+    cells = list(cells) if cells is not None else block_design_cells()
+    camera = camera_dir or rtl_dir() / "camera"
+    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]
+    parts: List[Part] = []
+    gates: Dict[Tuple[Tuple[str, str], ...], List[str]] = {}
+    for cell in cells:
+        if cell.ip == CORE_VLNV_NAME:
+            parts.append(_rtl_part(f"rectify core ({build.name})", [cell.name], core))
+        elif cell.ip == CAMERA_VLNV_NAME:
+            params = {"MAX_WIDTH": int(cell.config.get("MAX_WIDTH", ci.PARAMETERS["MAX_WIDTH"])),
+                      "BAYER_PHASE": int(cell.config.get("BAYER_PHASE", ci.CFA_PHASES.index(ci.BAYER_PHASE)))}
+            r = synthesize(camera, top=ci.TOP, parameters=params, extra_sources=shared, timeout=timeout,
+                           use_cache=use_cache)
+            parts.append(_rtl_part("camera_in", [cell.name], r))
+        elif cell.ip == GATE_VLNV_NAME:
+            gates.setdefault(tuple(sorted(cell.config.items())), []).append(cell.name)
+        else:
+            try:
+                est, fig = ip_estimates.estimate(cell.vlnv, cell.config)
+            except KeyError:
+                raise HwSynthError(f"block design cell {cell.name} ({cell.vlnv}) has no resource estimate in "
+                                   f"stereocam/overlays/rtl/ip_estimates.py: add one from its product "
+                                   f"guide") from None
+            parts.append(Part(f"{cell.ip} (estimate)", (cell.name,), "estimate", fig.lut, fig.ff, fig.bram36,
+                              fig.dsp, f"{est.citation}: {est.basis}"))
+    for config, names in gates.items():
+        params = {**fg.PARAMETERS, **{k: int(v) for k, v in config}}
+        r = synthesize(camera, top=fg.TOP, parameters=params, extra_sources=shared, timeout=timeout,
+                       use_cache=use_cache)
+        parts.append(_rtl_part(f"frame_gate x{len(names)}", names, r))
+    rank = {"rectify": 0, "camera_in": 1, "frame_gate": 2}
+    return sorted(parts, key=lambda p: rank.get(p.name.split()[0], 3))
+
+
+def overlay_totals(parts: Sequence[Part]) -> Dict[str, float]:
+    """The sum of the parts, by resource."""
+    total: Dict[str, float] = {k: 0 for k in OVERLAY_DEVICE}
+    for p in parts:
+        for k, v in p.values().items():
+            total[k] += v
+    return total
+
+
+def overlay_dict(parts: Sequence[Part], build: BuildParams) -> Dict[str, Any]:
+    """The ``overlay`` object of ``--json``: the rows, their totals, the share of the device."""
+    total = overlay_totals(parts)
+    over = [f"{k} {_num(v)} > {OVERLAY_DEVICE[k]:,}" for k, v in total.items() if v > OVERLAY_DEVICE[k]]
+    return {"build": build.name, "device": DEVICE, "device_totals": dict(OVERLAY_DEVICE),
+            "parts": [p.to_dict() for p in parts], "total": total,
+            "share_pct": {k: round(100 * v / OVERLAY_DEVICE[k], 1) for k, v in total.items()},
+            "over_device": over, "within_device": not over, "note": OVERLAY_NOTE}
+
+
+def format_overlay(overlay: Mapping[str, Any]) -> str:
+    """The whole-overlay table: one row per part, the total and its share of the device."""
+    rows: List[Tuple[str, ...]] = [("part", "cells", "LUT", "FF", "BRAM36", "DSP48E1", "source")]
+    keys = ("LUT", "FF", "BRAM36", "DSP48E1")
+    for p in overlay["parts"]:
+        rows.append((p["name"], ",".join(p["cells"]), *(_num(p[k]) for k in keys), p["source"]))
+    t = overlay["total"]
+    rows.append(("total", "", *(_num(t[k]) for k in keys), ""))
+    rows.append((f"% of {DEVICE}", "", *(f"{overlay['share_pct'][k]:.1f} %" for k in keys),
+                 "of " + ", ".join(f"{k} {v:,}" for k, v in overlay["device_totals"].items())))
+    widths = [max(len(r[i]) for r in rows) for i in range(6)]
+    lines = [f"whole overlay, build {overlay['build']} (stereocam/overlays/vivado/block_design.tcl)", ""]
+    for r in rows:
+        cols = [c.ljust(w) if i < 2 else c.rjust(w)
+                for i, (c, w) in enumerate(zip(r[:6], widths, strict=True))]
+        lines.append("  ".join(cols) + "  " + r[6])
+    lines += ["", overlay["note"]]
+    if overlay["over_device"]:
+        lines.append(f"OVER the {DEVICE}: " + ", ".join(overlay["over_device"]))
+    else:
+        lines.append(f"within the {DEVICE}")
+    return "\n".join(line.rstrip() for line in lines)

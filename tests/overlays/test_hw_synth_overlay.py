@@ -1,0 +1,171 @@
+"""``stereocam hw synth``'s whole-overlay table: every block-design cell counted, totals, citations,
+the device.
+
+The RTL rows are real yosys runs of the camera input and the frame gate (seconds; cached);
+the core is stood in for by a fixed cell count except in the per-build test, which runs it.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from typing import Dict, List
+
+import pytest
+
+from stereocam.cli import build_parser
+from stereocam.overlays.rtl import ip_estimates
+from stereocam.overlays.rtl import synth as hw_synth
+from stereocam.overlays.rtl.synth import BdCell, Part, SynthResult
+
+pytestmark = pytest.mark.slow
+
+# A stand-in for the core's yosys result: known numbers, so the core's row is checkable by hand.
+CORE_CELLS: Dict[str, int] = {"LUT6": 1000, "RAM32M": 10, "FDRE": 2000, "RAMB36E1": 30, "RAMB18E1": 2,
+                              "DSP48E1": 52}
+
+
+def fake_core() -> SynthResult:
+    return SynthResult("rectify_core", {"COLOUR": 0}, dict(CORE_CELLS), "Yosys 0.23", "", 0.0, True, None)
+
+
+def gray() -> hw_synth.BuildParams:
+    return hw_synth.builds()[0]["gray"]
+
+
+def parts_of(cells: List[BdCell]) -> List[Part]:
+    return hw_synth.overlay_parts(gray(), fake_core(), cells=cells)
+
+
+@pytest.fixture(scope="module")
+def cells() -> List[BdCell]:
+    return hw_synth.block_design_cells()
+
+
+@pytest.fixture(scope="module")
+def parts(cells: List[BdCell]) -> List[Part]:
+    return parts_of(cells)
+
+
+def run(argv: List[str]) -> int:
+    args: argparse.Namespace = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+def test_the_block_design_is_read_with_its_configuration(cells: List[BdCell]) -> None:
+    by_name = {c.name: c for c in cells}
+    assert by_name["vdma_raw"].vlnv == "xilinx.com:ip:axi_vdma:6.3"
+    assert by_name["vdma_raw"].config["c_include_mm2s"] == "0"
+    assert by_name["vdma_raw"].config["c_s2mm_linebuffer_depth"] == "512"
+    assert by_name["gate_raw"].config == {"DEPTH": "1024"}
+    assert by_name["camera_in"].config == {"MAX_WIDTH": "752", "BAYER_PHASE": "3"}
+    assert [c.name for c in cells if c.ip == "frame_gate"] == ["gate_raw", "gate_live"]
+
+
+def test_every_cell_is_counted_once(cells: List[BdCell], parts: List[Part]) -> None:
+    counted = [name for p in parts for name in p.cells]
+    assert sorted(counted) == sorted(c.name for c in cells)
+    kinds = {name: p.kind for p in parts for name in p.cells}
+    assert {n for n, k in kinds.items() if k == "yosys"} == {"rectify", "camera_in", "gate_raw", "gate_live"}
+
+
+def test_core_row_is_the_core_and_gates_count_twice(parts: List[Part]) -> None:
+    core = parts[0]
+    assert core.cells == ("rectify",) and core.kind == "yosys"
+    # 1000 LUT6 + 10 RAM32M (4 LUT each); 30 RAMB36 + 2 RAMB18 (half each)
+    assert (core.lut, core.ff, core.bram36, core.dsp) == (1040, 2000, 31.0, 52)
+    gates = next(p for p in parts if p.cells == ("gate_raw", "gate_live"))
+    rtl = hw_synth.rtl_dir()
+    one = hw_synth.synthesize(rtl / "camera", top="frame_gate", parameters={"DEPTH": 1024},
+                              extra_sources=[rtl / "rc_ram.v", rtl / "rc_fifo.v"])
+    assert gates.lut == 2 * one.counts.lut and gates.bram36 == 2 * one.counts.bram36 > 0
+    camera = next(p for p in parts if p.cells == ("camera_in",))
+    assert camera.bram36 >= 3 and camera.lut > 500 and "BAYER_PHASE 3" in camera.source
+
+
+def test_totals_are_the_sum_of_the_parts(parts: List[Part]) -> None:
+    total = hw_synth.overlay_totals(parts)
+    for key in ("LUT", "FF", "BRAM36", "DSP48E1"):
+        assert total[key] == sum(p.values()[key] for p in parts)
+    assert total["DSP48E1"] == 52
+
+
+def test_without_the_camera_path_and_gates_the_total_drops(cells: List[BdCell], parts: List[Part]) -> None:
+    full = hw_synth.overlay_totals(parts)
+    cut = hw_synth.overlay_totals(parts_of([c for c in cells if c.ip not in ("camera_in", "frame_gate")]))
+    camera_and_gates = [p for p in parts if set(p.cells) & {"camera_in", "gate_raw", "gate_live"}]
+    for key in ("LUT", "FF", "BRAM36"):
+        assert cut[key] < full[key]
+        assert full[key] - cut[key] == sum(p.values()[key] for p in camera_and_gates)
+    assert full["BRAM36"] - cut["BRAM36"] >= 3.5 + 2 * 2
+
+
+def test_every_ip_row_cites_its_product_guide(parts: List[Part]) -> None:
+    guides = {"axi_vdma": "PG020", "axis_switch": "PG085", "axis_broadcaster": "PG085",
+              "smartconnect": "PG247", "axi_interconnect": "PG059", "proc_sys_reset": "PG164",
+              "processing_system7": "PG082"}
+    estimates = [p for p in parts if p.kind == "estimate"]
+    assert len(estimates) == 9
+    for p in estimates:
+        ip = p.name.split()[0]
+        est = ip_estimates.ESTIMATES[ip]
+        assert "(estimate)" in p.name and p.to_dict()["estimate"] is True
+        assert p.source.startswith(est.citation) and est.table and est.basis
+        if ip in guides:
+            assert est.document.startswith(guides[ip]), (ip, est.document)
+
+
+def test_vdma_block_ram_follows_its_line_buffers(parts: List[Part], cells: List[BdCell]) -> None:
+    by_cell = {p.cells[0]: p for p in parts}
+    assert by_cell["vdma_raw"].bram36 == 1  # S2MM only: 512 x 66 bits in one RAMB36
+    assert by_cell["vdma_proc"].bram36 == 2  # MM2S and S2MM, 512 deep each
+    raw = next(c for c in cells if c.name == "vdma_raw")
+    deeper = dataclasses.replace(raw, config={**raw.config, "c_s2mm_linebuffer_depth": "2048"})
+    _, fig = ip_estimates.estimate(deeper.vlnv, deeper.config)
+    assert fig.bram36 == 4  # 2048 x 66 bits = 3.7 RAMB36
+    assert fig.lut == by_cell["vdma_raw"].lut
+
+
+def test_an_ip_without_an_estimate_is_refused_by_name(cells: List[BdCell]) -> None:
+    odd = BdCell("fifo0", "xilinx.com:ip:axis_data_fifo:2.0", {})
+    with pytest.raises(hw_synth.HwSynthError, match=r"cell fifo0 \(xilinx.com:ip:axis_data_fifo:2.0\) has no "
+                                                    r"resource estimate"):
+        parts_of([*cells, odd])
+
+
+def test_text_table_has_a_row_per_part_and_the_total(parts: List[Part]) -> None:
+    overlay = hw_synth.overlay_dict(parts, gray())
+    text = hw_synth.format_overlay(overlay)
+    lines = text.splitlines()
+    for p in parts:
+        assert any(ln.startswith(p.name) for ln in lines), p.name
+    total = next(ln for ln in lines if ln.startswith("total"))
+    assert f"{overlay['total']['LUT']:,.0f}" in total
+    share = next(ln for ln in lines if ln.startswith("% of xc7z020"))
+    assert f"{overlay['share_pct']['BRAM36']:.1f} %" in share
+    assert "estimates" in text and text.endswith("within the xc7z020")
+    over = hw_synth.overlay_dict([*parts, Part("x", ("x",), "estimate", 60_000, 0, 0, 0, "t")], gray())
+    assert over["over_device"] == [f"LUT {overlay['total']['LUT'] + 60_000:,.0f} > 53,200"]
+    assert not over["within_device"]
+
+
+@pytest.mark.timeout(1800)  # a full yosys run of the core per build (about a minute); cached after that
+@pytest.mark.parametrize("build", ["gray", "colour"])
+def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code = run(["hw", "synth", "--build", build, "--json"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    report = json.loads(captured.out)
+    overlay = report["overlay"]
+    assert overlay["build"] == build and overlay["within_device"] and overlay["over_device"] == []
+    core = overlay["parts"][0]
+    assert core["cells"] == ["rectify"] and core["LUT"] == report["resources"]["LUT"]["yosys"]
+    assert core["BRAM36"] == report["resources"]["BRAM36"]["yosys"]
+    for key, device in {"LUT": 53_200, "FF": 106_400, "BRAM36": 140, "DSP48E1": 220}.items():
+        assert overlay["total"][key] == sum(p[key] for p in overlay["parts"])
+        assert overlay["total"][key] <= device
+        assert overlay["device_totals"][key] == device
+    # every product's four DSP48E1 in one PCOUT -> PCIN chain (tests/overlays/test_dsp_map.py has the detail)
+    assert report["dsp_cascade"] == {"DSP48E1": 52, "PCIN": 39, "C_from_P": 0, "PREG": 26}
+    print(build, {k: overlay["total"][k] for k in ("LUT", "FF", "BRAM36", "DSP48E1")}, overlay["share_pct"],
+          report["dsp_cascade"])
