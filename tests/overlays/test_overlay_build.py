@@ -162,8 +162,20 @@ class PackagedIP:
     windows: Dict[str, int] = field(default_factory=dict)  # AXI4-Lite interface -> register window bytes
 
 
+def ip_params_tcl() -> Dict[str, str]:
+    """The arrays of the generated ip_params.tcl, as "NAME(ip)" -> its word as written."""
+    return {words[1]: words[2] for words in tcl_commands(read_script("ip_params.tcl"))
+            if words[0] == "set"}
+
+
 def parse_package(text: str) -> Dict[str, PackagedIP]:
     """The IPs package_ip.tcl packages, by VLNV; a section starts at stereocam_packaging_project."""
+    generated = ip_params_tcl()
+
+    def value(word: str) -> str:
+        m = re.fullmatch(r"\$(\w+\(\w+\))", word)
+        return generated[m.group(1)] if m else word
+
     ips: List[PackagedIP] = []
     vendor = library = name = version = ""
     for words in tcl_commands(text):
@@ -184,6 +196,10 @@ def parse_package(text: str) -> Dict[str, PackagedIP]:
             version = words[2]
         elif verb == "stereocam_user_param":
             ips[-1].params[words[2]] = (int(words[3]), int(words[4]), int(words[5]))
+        elif verb == "stereocam_user_params":
+            for param in tcl_list(generated[f"STEREOCAM_IP_PARAMS({words[2]})"]):
+                pname, default, low, high = tcl_list(param)
+                ips[-1].params[pname] = (int(default), int(low), int(high))
         elif verb == "stereocam_require_interfaces":
             ips[-1].interfaces = tcl_list(words[2])
         elif verb == "stereocam_clock":
@@ -191,7 +207,7 @@ def parse_package(text: str) -> Dict[str, PackagedIP]:
         elif verb == "stereocam_free_clock":
             ips[-1].free_clocks.append(words[2])
         elif verb == "stereocam_register_window":
-            ips[-1].windows[words[2]] = int(words[3], 0)
+            ips[-1].windows[words[2]] = int(value(words[3]), 0)
     if ips:
         ips[-1].vlnv = f"{vendor}:{library}:{name}:{version}"
     return {ip.vlnv: ip for ip in ips}
@@ -1046,6 +1062,18 @@ def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_cop
     assert run.error == ""
     assert set(run.design.cells) >= set(overlay.INSTANCES)
     assert set(run.packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
+    # the register window and the user parameters come from the spec (through ip_params.tcl)
+    rect = run.packaged[rectify.VLNV]
+    assert rect.ranges == {"s_axil/reg0": rectify.RECTIFY_MAP.size}
+    build = rectify.DEFAULT_BUILD
+    defaults = {"MAX_WIDTH": build.max_width, "MAX_HEIGHT": build.max_height, "LB_ROWS": build.lb_rows,
+                "COLOUR": int(build.colour)}
+    assert {n: (int(p.default), p.low, p.high) for n, p in rect.params.items()} == {
+        n: (defaults[n], *limits) for n, limits in rectify.BUILD_LIMITS.items()}
+    gate = run.packaged[frame_gate.VLNV].params["DEPTH"]
+    assert (int(gate.default), gate.low, gate.high) == (
+        frame_gate.PARAMETERS["DEPTH"], *frame_gate.DEPTH_RANGE)
+    assert {n: int(p.default) for n, p in run.packaged[camera_in.VLNV].params.items()} == camera_in.PARAMETERS
 
 
 @pytest.mark.parametrize("script, old, new, message", [
