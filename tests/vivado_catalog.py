@@ -28,7 +28,7 @@ is the part of it that was checked; widen it with the source when a script needs
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Dict, FrozenSet, List, Mapping, Optional, Tuple
 
 #: The Vivado releases the README names (stereocam/overlays/vivado/README.md, "What you need"), and
@@ -108,7 +108,11 @@ class CatalogIP:
     # interface -> (VLNV of the bus, mode) for the .hwh
     intf_types: Callable[[Config], Dict[str, Tuple[str, str]]] = lambda c: {}
     interrupts: Callable[[Config], List[str]] = lambda c: []
-    extra: Mapping[str, str] = field(default_factory=dict)
+    #: the pins a cell drives (the others are its inputs), for the .hwh's PORT DIR
+    outputs: FrozenSet[str] = frozenset()
+    #: the HDL (model) parameters Vivado records in the .hwh beside the user parameters
+    model: Callable[[Config], Dict[str, str]] = lambda c: {}
+    iptype: str = "PERIPHERAL"
 
     def defaults(self) -> Dict[str, str]:
         return {name: p.default for name, p in self.params.items()}
@@ -201,6 +205,10 @@ VDMA = CatalogIP(
     segments=lambda c: {"S_AXI_LITE/Reg": "S_AXI_LITE"},
     intf_types=_vdma_types,
     interrupts=lambda c: [f"{ch.lower()}_introut" for ch in _vdma_channels(c)],
+    outputs=frozenset({"mm2s_introut", "s2mm_introut", "mm2s_frame_ptr_out", "s2mm_frame_ptr_out"}),
+    # the core's generics are the user parameters in capitals; both channels' address widths are c_addr_width
+    model=lambda c: {**{k.upper(): v for k, v in c.items()},
+                     **{f"C_M_AXI_{ch}_ADDR_WIDTH": c["c_addr_width"] for ch in ("MM2S", "S2MM")}},
 )
 
 # ---- PG085 AXI4-Stream switch and broadcaster ------------------------------------------------------
@@ -313,6 +321,7 @@ PS7 = CatalogIP(
     segments=lambda c: {f"S_AXI_HP{i}/HP{i}_DDR_LOWOCM": f"S_AXI_HP{i}"
                         for i in range(4) if _on(c, f"PCW_USE_S_AXI_HP{i}")},
     intf_types=_ps7_types,
+    outputs=frozenset({"FCLK_CLK0", "FCLK_CLK1", "FCLK_RESET0_N", "FCLK_RESET1_N"}),
 )
 
 # ---- PG247 SmartConnect, PG059 AXI Interconnect -----------------------------------------------------
@@ -327,6 +336,7 @@ SMARTCONNECT = CatalogIP(
                     + (["aresetn"] if _on(c, "HAS_ARESETN") else [])),
     intf_types=lambda c: {**{f"S{i:02d}_AXI": (AXIMM, "SLAVE") for i in range(_n(c, "NUM_SI"))},
                           **{f"M{i:02d}_AXI": (AXIMM, "MASTER") for i in range(_n(c, "NUM_MI"))}},
+    iptype="BUS",
 )
 
 
@@ -341,6 +351,7 @@ INTERCONNECT = CatalogIP(
     interfaces=lambda c: [f"{s}_AXI" for s in _slots(c)],
     pins=lambda c: ["ACLK", "ARESETN"] + [f"{s}_{p}" for s in _slots(c) for p in ("ACLK", "ARESETN")],
     intf_types=lambda c: {f"{s}_AXI": (AXIMM, "SLAVE" if s[0] == "S" else "MASTER") for s in _slots(c)},
+    iptype="BUS",
 )
 
 # ---- PG164 Processor System Reset, xlconcat ---------------------------------------------------------
@@ -355,6 +366,8 @@ RESET = CatalogIP(
     pins=lambda c: ["slowest_sync_clk", "ext_reset_in", "aux_reset_in", "mb_debug_sys_rst", "dcm_locked",
                     "mb_reset", "bus_struct_reset", "peripheral_reset", "interconnect_aresetn",
                     "peripheral_aresetn"],
+    outputs=frozenset({"mb_reset", "bus_struct_reset", "peripheral_reset", "interconnect_aresetn",
+                       "peripheral_aresetn"}),
 )
 
 CONCAT = CatalogIP(
@@ -362,6 +375,7 @@ CONCAT = CatalogIP(
     params={"NUM_PORTS": Int(2, 1, 32), **{f"IN{i}_WIDTH": Int(1, 1, 1024) for i in range(32)}},
     interfaces=lambda c: [],
     pins=lambda c: [f"In{i}" for i in range(_n(c, "NUM_PORTS"))] + ["dout"],
+    outputs=frozenset({"dout"}),
 )
 
 #: "vendor:library:name" -> the IP

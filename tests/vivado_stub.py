@@ -579,7 +579,17 @@ class FakeVivado:
         elif verb.startswith("get_bd_"):
             self._get(verb, args)
         elif verb == "apply_bd_automation":
-            self._cell(args[-1], verb)
+            cell = self._cell(args[-1], verb)
+            opts, _ = options(args, {"-rule", "-config"})
+            config = tcl_list(opts.get("-config", ""))
+            settings = dict(zip(config[::2], config[1::2], strict=False))
+            for intf in re.split(r"[,\s]+", settings.get("make_external", "").strip()):  # PS7: FIXED_IO, DDR
+                if not intf:
+                    continue
+                if intf not in cell.interfaces():
+                    raise VivadoError(f"apply_bd_automation: {cell.name} has no interface '{intf}'")
+                d.intf_ports[intf] = {"-mode": "Master"}
+                d.intf_nets.append((f"{cell.name}/{intf}", intf))
         elif verb == "create_bd_port":
             opts, rest = options(args, {"-dir", "-from", "-to", "-type", "-freq_hz"})
             d.ports[rest[-1]] = opts
