@@ -305,7 +305,10 @@ def _ps7_pins(c: Config) -> List[str]:
 
 
 def _ps7_types(c: Config) -> Dict[str, Tuple[str, str]]:
-    out = {"M_AXI_GP0": (AXIMM, "MASTER")} if _on(c, "PCW_USE_M_AXI_GP0") else {}
+    out = {"DDR": ("xilinx.com:interface:ddrx:1.0", "MASTER"),
+           "FIXED_IO": ("xilinx.com:display_processing_system7:fixedio:1.0", "MASTER")}
+    if _on(c, "PCW_USE_M_AXI_GP0"):
+        out["M_AXI_GP0"] = (AXIMM, "MASTER")
     out.update({f"S_AXI_HP{i}": (AXIMM, "SLAVE") for i in range(4) if _on(c, f"PCW_USE_S_AXI_HP{i}")})
     if "IIC_0" in _ps7_interfaces(c):
         out["IIC_0"] = (IIC, "MASTER")
