@@ -9,7 +9,7 @@ stubbed Vivado of :mod:`tests.vivado_stub`); other designs from a list of IP.
 
 Gating as in ``test_pynq_vdma.py`` (CI forbids skipped tests, so nothing here is
 ever skipped): with ``STEREOCAM_TEST_ENV=board`` pynq must import; elsewhere the
-tests exist only if pynq imports.
+tests exist only if pynq imports (but for the one that reads the ``.hwh`` alone).
 """
 from __future__ import annotations
 
@@ -69,6 +69,33 @@ OWNER = textwrap.dedent("""
     sys.stdin.readline()
     ov.close()
 """)
+
+
+
+def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(tmp_path: Path) -> None:
+    """What pynq reads but does not report (it lists interrupts only behind an AXI interrupt
+    controller; this design wires the VDMAs to IRQ_F2P through an xlconcat). Runs without pynq too."""
+    root = ElementTree.parse(write_overlay(tmp_path).with_suffix(".hwh")).getroot()
+    ranges = {r.get("INSTANCE"): r.get("ADDRESSBLOCK")
+              for r in root.iter("MEMRANGE") if r.get("MASTERBUSINTERFACE") == "M_AXI_GP0"}
+    assert ranges == {"vdma_raw": "Reg", "vdma_proc": "Reg", "rectify": "reg0", "mux": "Reg"}
+    (block,) = [b for b in root.iter("ADDRESSBLOCK")]
+    assert (block.get("INTERFACE"), block.get("NAME"), int(block.get("RANGE"))) == (
+        "s_axil", "reg0", RECTIFY_MAP.size)
+    modules = {m.get("INSTANCE"): m for m in root.iter("MODULE")}
+    irq = modules["processing_system7_0"].find("./PORTS/PORT[@NAME='IRQ_F2P']")
+    assert irq is not None
+    (source,) = irq.findall("./CONNECTIONS/CONNECTION")
+    concat = modules[source.get("INSTANCE")]
+    assert concat.get("MODTYPE") == "xlconcat" and source.get("PORT") == "dout"
+    lines = []
+    for i in range(int(concat.find("./PARAMETERS/PARAMETER[@NAME='NUM_PORTS']").get("VALUE"))):
+        (driver,) = concat.findall(f"./PORTS/PORT[@NAME='In{i}']/CONNECTIONS/CONNECTION")
+        lines.append((driver.get("INSTANCE"), driver.get("PORT")))
+        port = modules[driver.get("INSTANCE")].find(f"./PORTS/PORT[@NAME='{driver.get('PORT')}']")
+        assert port is not None and port.get("SIGIS") == "INTERRUPT"
+    assert tuple(lines) == INTERRUPTS
+    assert int(irq.get("LEFT")) == len(INTERRUPTS) - 1
 
 
 if pynq is not None:
@@ -137,31 +164,6 @@ if pynq is not None:
         ps7 = ov.ip_dict["processing_system7_0"]["parameters"]
         assert float(ps7["PCW_FPGA0_PERIPHERAL_FREQMHZ"]) * 1e6 == FABRIC_CLOCK_HZ
         assert board.dev.downloads == [] and board.dev.bus_accesses == 0
-
-    def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(board: Board) -> None:
-        """What pynq reads but does not report (it lists interrupts only behind an AXI interrupt
-        controller; this design wires the VDMAs to IRQ_F2P through an xlconcat)."""
-        root = ElementTree.parse(board.bit.with_suffix(".hwh")).getroot()
-        ranges = {r.get("INSTANCE"): r.get("ADDRESSBLOCK")
-                  for r in root.iter("MEMRANGE") if r.get("MASTERBUSINTERFACE") == "M_AXI_GP0"}
-        assert ranges == {"vdma_raw": "Reg", "vdma_proc": "Reg", "rectify": "reg0", "mux": "Reg"}
-        (block,) = [b for b in root.iter("ADDRESSBLOCK")]
-        assert (block.get("INTERFACE"), block.get("NAME"), int(block.get("RANGE"))) == (
-            "s_axil", "reg0", RECTIFY_MAP.size)
-        modules = {m.get("INSTANCE"): m for m in root.iter("MODULE")}
-        irq = modules["processing_system7_0"].find("./PORTS/PORT[@NAME='IRQ_F2P']")
-        assert irq is not None
-        (source,) = irq.findall("./CONNECTIONS/CONNECTION")
-        concat = modules[source.get("INSTANCE")]
-        assert concat.get("MODTYPE") == "xlconcat" and source.get("PORT") == "dout"
-        lines = []
-        for i in range(int(concat.find("./PARAMETERS/PARAMETER[@NAME='NUM_PORTS']").get("VALUE"))):
-            (driver,) = concat.findall(f"./PORTS/PORT[@NAME='In{i}']/CONNECTIONS/CONNECTION")
-            lines.append((driver.get("INSTANCE"), driver.get("PORT")))
-            port = modules[driver.get("INSTANCE")].find(f"./PORTS/PORT[@NAME='{driver.get('PORT')}']")
-            assert port is not None and port.get("SIGIS") == "INTERRUPT"
-        assert tuple(lines) == INTERRUPTS
-        assert int(irq.get("LEFT")) == len(INTERRUPTS) - 1
 
     def test_the_hwh_follows_the_block_design_script(board: Board) -> None:
         """A VDMA the script builds with MM2S gets it in the .hwh, its interrupt too: nothing typed twice."""
