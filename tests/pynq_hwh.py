@@ -299,10 +299,16 @@ def _hwh_of(run: TclRun, name: str) -> str:
             params["C_HIGHADDR"] = f"0x{ranges[0].offset + ranges[0].range - 1:08X}"
         blocks = ""
         if cell.own is not None and cell.own.segments:
-            blocks = "      <ADDRESSBLOCKS>\n" + "".join(
-                f'        <ADDRESSBLOCK ACCESS="read-write" INTERFACE={q(intf)} NAME={q(seg.split("/")[-1])} '
-                f'RANGE={q(cell.own.ranges.get(seg, 0))} USAGE="register"/>\n'
-                for seg, intf in cell.own.segments.items()) + "      </ADDRESSBLOCKS>\n"
+            blocks = "      <ADDRESSBLOCKS>\n"
+            for seg, intf in cell.own.segments.items():
+                declared = cell.own.registers.get(seg, {})
+                regs = "".join(_register(reg, props) for reg, props in declared.items())
+                blocks += (f'        <ADDRESSBLOCK ACCESS="read-write" INTERFACE={q(intf)} '
+                           f'NAME={q(seg.split("/")[-1])} RANGE={q(cell.own.ranges.get(seg, 0))} '
+                           'USAGE="register"'
+                           + (f">\n          <REGISTERS>\n{regs}          </REGISTERS>\n"
+                              "        </ADDRESSBLOCK>\n" if regs else "/>\n"))
+            blocks += "      </ADDRESSBLOCKS>\n"
         ports = ""
         for pin in cell.pins():
             endpoint = f"{cell.name}/{pin}"
@@ -355,6 +361,17 @@ def _hwh_of(run: TclRun, name: str) -> str:
         f"  <MODULES>\n{modules}  </MODULES>\n\n"
         "</EDKSYSTEM>\n"
     )
+
+
+def _register(name: str, props: Mapping[str, str]) -> str:
+    """One REGISTER of an ADDRESSBLOCK, as package_ip.tcl declared it (no fields: it declares none)."""
+    values = {"DESCRIPTION": name, "ADDRESS_OFFSET": props.get("address_offset", "0"),
+              "SIZE": props.get("size", "32"), "ACCESS": props.get("access", "read-write"),
+              "IS_ENABLED": "true", "RESET_VALUE": props.get("reset_value", "0")}
+    body = "".join(f"              <PROPERTY NAME={quoteattr(k)} VALUE={quoteattr(v)}/>\n"
+                   for k, v in values.items())
+    return (f"            <REGISTER NAME={quoteattr(name)}>\n{body}              <FIELDS/>\n"
+            "            </REGISTER>\n")
 
 
 def _ps7_clocks(config: Mapping[str, str]) -> Dict[str, str]:

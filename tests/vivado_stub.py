@@ -168,7 +168,8 @@ VIVADO_COMMANDS: Dict[str, str] = {
     "ipx::get_bus_interfaces": _FIRST, "ipx::get_bus_parameters": _FIRST, "ipx::add_bus_parameter": _FIRST,
     "ipx::associate_bus_interfaces": "", "ipx::infer_bus_interface": "",
     "ipx::get_memory_maps": "", "ipx::remove_memory_map": "", "ipx::add_memory_map": _FIRST,
-    "ipx::add_address_block": _FIRST, "ipx::get_user_parameters": _FIRST, "ipx::get_hdl_parameters": _FIRST,
+    "ipx::add_address_block": _FIRST, "ipx::add_register": _FIRST,
+    "ipx::get_user_parameters": _FIRST, "ipx::get_hdl_parameters": _FIRST,
     "ipx::create_xgui_files": "", "ipx::update_checksums": "", "ipx::check_integrity": "",
     "ipx::save_core": "",
 }
@@ -285,6 +286,8 @@ class OwnIP:
     pins: List[str] = field(default_factory=list)
     segments: Dict[str, str] = field(default_factory=dict)  # "intf/block" -> interface
     ranges: Dict[str, int] = field(default_factory=dict)  # "intf/block" -> bytes decoded
+    # "intf/block" -> its registers, each name -> {address_offset, size, access, reset_value}
+    registers: Dict[str, Dict[str, Dict[str, str]]] = field(default_factory=dict)
     hdl_ports: Dict[str, Tuple[str, int]] = field(default_factory=dict)  # name -> (direction, width)
     hdl_params: List[str] = field(default_factory=list)
 
@@ -402,6 +405,7 @@ class FakeVivado:
         self._core: Optional[OwnIP] = None
         self._core_parts: Dict[str, str] = {}
         self._block: Optional[Tuple[str, str]] = None
+        self._register = ""
 
     # -- helpers
 
@@ -443,7 +447,16 @@ class FakeVivado:
             block, memory_map = args[0], args[1]
             self._core.segments[f"{memory_map}/{block}"] = memory_map
             self._block = (block, f"{memory_map}/{block}")
+        elif verb == "ipx::add_register":
+            if self._block is None or args[1] != self._block[0]:
+                raise VivadoError(f"ipx::add_register {args[0]}: no address block '{args[1]}'")
+            registers = self._core.registers.setdefault(self._block[1], {})
+            if args[0] in registers:
+                raise VivadoError(f"ipx::add_register: {args[0]} is in {self._block[1]} already")
+            registers[args[0]] = {}
+            self._register = args[0]
         elif verb == "ipx::get_user_parameters":
+            self._register = ""
             name = args[0]
             if name not in self._core.hdl_params:
                 raise VivadoError(f"ipx::get_user_parameters: {self._top} has no parameter {name}")
@@ -459,6 +472,9 @@ class FakeVivado:
         assert self._core is not None
         if target == "core" and prop in ("name", "version"):
             self._core_parts[prop] = value
+            return
+        if self._block and self._register and target == self._register:
+            self._core.registers[self._block[1]][target][prop] = value
             return
         if self._block and target == self._block[0]:
             if prop == "range":

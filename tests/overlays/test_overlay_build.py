@@ -1065,6 +1065,11 @@ def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_cop
     # the register window and the user parameters come from the spec (through ip_params.tcl)
     rect = run.packaged[rectify.VLNV]
     assert rect.ranges == {"s_axil/reg0": rectify.RECTIFY_MAP.size}
+    declared = rect.registers["s_axil/reg0"]
+    assert {n: int(r["address_offset"], 0) for n, r in declared.items()} == {
+        reg.name: reg.offset for reg in rectify.RECTIFY_MAP}
+    assert {n: int(r["reset_value"], 0) for n, r in declared.items()} == {
+        reg.name: reg.reset for reg in rectify.RECTIFY_MAP}
     build = rectify.DEFAULT_BUILD
     defaults = {"MAX_WIDTH": build.max_width, "MAX_HEIGHT": build.max_height, "LB_ROWS": build.lb_rows,
                 "COLOUR": int(build.colour)}

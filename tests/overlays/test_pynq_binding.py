@@ -44,6 +44,7 @@ from stereocam.overlays.spec.overlay import (
     WINDOW_SIZE,
 )
 from stereocam.overlays.spec.rectify import CORE_ID, DEFAULT_BUILD, RECTIFY_MAP
+from stereocam.overlays.spec.regs import Access
 
 from .. import pynq_device as pd
 from ..pynq_hwh import Ip, pynq_for_tests, rectify_parameters, stereocam_ips, write_overlay
@@ -158,7 +159,10 @@ if pynq is not None:
         assert raw["C_S2MM_LINEBUFFER_DEPTH"] == proc["C_MM2S_LINEBUFFER_DEPTH"] == "512"
         rect = ov.ip_dict["rectify"]["parameters"]
         assert {k: rect[k] for k in rectify_parameters(DEFAULT_BUILD)} == rectify_parameters(DEFAULT_BUILD)
-        assert ov.ip_dict["rectify"]["registers"] == {}, "the packaged core declares no registers"
+        registers = ov.ip_dict["rectify"]["registers"]
+        assert {n: (r["address_offset"], r["access"]) for n, r in registers.items()} == {
+            reg.name: (reg.offset, "read-only" if reg.access is Access.RO else
+                       "write-only" if reg.access is Access.WO else "read-write") for reg in RECTIFY_MAP}
         mux = ov.ip_dict["mux"]["parameters"]
         assert (mux["NUM_SI"], mux["ROUTING_MODE"]) == (str(NUM_INPUTS), "1")
         ps7 = ov.ip_dict["processing_system7_0"]["parameters"]

@@ -83,8 +83,9 @@ proc stereocam_free_clock {core port} {
 }
 
 # The AXI4-Lite slave $busif decodes $range bytes: one register block "reg0" (the block design's
-# address segment is <cell>/$busif/reg0, and may map a larger window onto it).
-proc stereocam_register_window {core busif range} {
+# address segment is <cell>/$busif/reg0, and may map a larger window onto it) holding $registers,
+# each {name byte_offset access reset_value} (the .hwh lists them, and pynq's register_map).
+proc stereocam_register_window {core busif range {registers {}}} {
     foreach map [ipx::get_memory_maps -of_objects $core] {
         ipx::remove_memory_map [get_property NAME $map] $core
     }
@@ -94,6 +95,14 @@ proc stereocam_register_window {core busif range} {
     set_property range $range $block
     set_property width 32 $block
     set_property usage register $block
+    foreach reg $registers {
+        lassign $reg name offset access reset
+        set register [ipx::add_register $name $block]
+        set_property address_offset $offset $register
+        set_property size 32 $register
+        set_property access $access $register
+        set_property reset_value $reset $register
+    }
 }
 
 # Verilog parameter $name as a user parameter: its default and the range the GUI accepts.
@@ -147,7 +156,7 @@ set_property supported_families {zynq Production} $core
 stereocam_require_interfaces $core {aclk aresetn s_axil s_axis m_axis}
 stereocam_clock $core aclk aresetn {s_axil s_axis m_axis}
 # The register map (RECTIFY_MAP.size bytes); the block design maps a 64 KiB window onto it.
-stereocam_register_window $core s_axil $STEREOCAM_IP_WINDOW(rectify)
+stereocam_register_window $core s_axil $STEREOCAM_IP_WINDOW(rectify) $STEREOCAM_IP_REGISTERS(rectify)
 # Build parameters: defaults DEFAULT_BUILD (the colour build), ranges BUILD_LIMITS (spec/rectify.py).
 stereocam_user_params $core rectify
 stereocam_save_core $core
