@@ -18,10 +18,9 @@ from __future__ import annotations
 import math
 import re
 import shutil
-import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Set, Tuple
+from typing import Dict, List, Optional, Set, Tuple
 
 import pytest
 
@@ -32,6 +31,8 @@ from stereocam.overlays.emulated.logic import EmulatedFabric, StreamCore
 from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
 from stereocam.overlays.fabric import bind
 from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma
+
+from ..vivado_stub import TclRun, bracketed, options, run_tcl, tcl_commands, tcl_list, unbrace
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 VIVADO_DIR = REPO_ROOT / "stereocam" / "overlays" / "vivado"
@@ -47,116 +48,6 @@ CHANNELS = {  # VDMA channel -> (include parameter, stream interface, memory int
 }
 STREAM_WIDTH = {"S2MM": "c_s_axis_s2mm_tdata_width", "MM2S": "c_m_axis_mm2s_tdata_width"}
 USE_FSYNC_TUSER = "2"  # PG020 "Fsync Options": c_use_s2mm_fsync 2 = "s2mm tuser" (start of frame on TUSER)
-
-
-# ---- a small Tcl reader -----------------------------------------------------------------------------
-
-Command = List[str]
-
-
-def _word_end(text: str, i: int) -> int:
-    """Index just past the Tcl word that starts at ``text[i]`` (braced, quoted or bare)."""
-    n = len(text)
-    if text[i] == "{":
-        depth = 0
-        while i < n:
-            c = text[i]
-            if c == "\\":
-                i += 2
-                continue
-            if c == "{":
-                depth += 1
-            elif c == "}":
-                depth -= 1
-                if depth == 0:
-                    return i + 1
-            i += 1
-        raise ValueError("unbalanced braces")
-    quoted = text[i] == '"'
-    j = i + 1 if quoted else i
-    brackets = 0
-    while j < n:
-        c = text[j]
-        if c == "\\":
-            j += 2
-            continue
-        if c == "[":
-            brackets += 1
-        elif c == "]":
-            brackets -= 1
-        elif c == "{" and brackets > 0:
-            j = _word_end(text, j)
-            continue
-        elif quoted and c == '"' and brackets == 0:
-            return j + 1
-        elif not quoted and brackets == 0 and c in " \t\n;":
-            return j
-        j += 1
-    if quoted or brackets:
-        raise ValueError("unbalanced quotes or brackets")
-    return j
-
-
-def tcl_commands(text: str) -> List[Command]:
-    """The commands of a Tcl script (top level only), each as its words with braces and brackets kept."""
-    text = re.sub(r"\\\n[ \t]*", " ", text)
-    commands: List[Command] = []
-    words: Command = []
-    i = 0
-    while i < len(text):
-        c = text[i]
-        if c in " \t\r":
-            i += 1
-        elif c in "\n;":
-            if words:
-                commands.append(words)
-                words = []
-            i += 1
-        elif c == "#" and not words:
-            while i < len(text) and text[i] != "\n":
-                i += 1
-        else:
-            end = _word_end(text, i)
-            words.append(text[i:end])
-            i = end
-    if words:
-        commands.append(words)
-    return commands
-
-
-def unbrace(word: str) -> str:
-    """The value of a braced or quoted word."""
-    if len(word) >= 2 and (word[0], word[-1]) in (("{", "}"), ('"', '"')):
-        return word[1:-1]
-    return word
-
-
-def tcl_list(word: str) -> List[str]:
-    """The elements of a Tcl list value."""
-    commands = tcl_commands(unbrace(word).replace("\n", " "))
-    return [unbrace(w) for w in commands[0]] if commands else []
-
-
-def bracketed(word: str) -> Command:
-    """The command inside ``[...]`` (one command), its words unbraced."""
-    assert word.startswith("[") and word.endswith("]"), f"expected [command], got {word!r}"
-    (command,) = tcl_commands(word[1:-1])
-    return [unbrace(w) for w in command]
-
-
-def options(words: Sequence[str], valued: Set[str]) -> Tuple[Dict[str, str], List[str]]:
-    """``-flag value`` pairs (for the flags in ``valued``; other flags count as switches) and the rest."""
-    opts: Dict[str, str] = {}
-    rest: List[str] = []
-    it = iter(words)
-    for w in it:
-        if w.startswith("-") and w in valued:
-            opts[w] = next(it)
-        elif w.startswith("-") and not w[1:2].isdigit():
-            opts[w] = ""
-        else:
-            rest.append(w)
-    return opts, rest
 
 
 def read_script(name: str) -> str:
@@ -175,6 +66,7 @@ def settings() -> Dict[str, str]:
 def substitute(word: str, variables: Dict[str, str]) -> str:
     """``$NAME`` and ``${NAME}`` of settings.tcl replaced by their values (others left as written)."""
     return re.sub(r"\$\{?(\w+)\}?", lambda m: variables.get(m.group(1), m.group(0)), word)
+
 
 
 # ---- the block design, as block_design.tcl writes it ------------------------------------------------
@@ -270,8 +162,20 @@ class PackagedIP:
     windows: Dict[str, int] = field(default_factory=dict)  # AXI4-Lite interface -> register window bytes
 
 
+def ip_params_tcl() -> Dict[str, str]:
+    """The arrays of the generated ip_params.tcl, as "NAME(ip)" -> its word as written."""
+    return {words[1]: words[2] for words in tcl_commands(read_script("ip_params.tcl"))
+            if words[0] == "set"}
+
+
 def parse_package(text: str) -> Dict[str, PackagedIP]:
     """The IPs package_ip.tcl packages, by VLNV; a section starts at stereocam_packaging_project."""
+    generated = ip_params_tcl()
+
+    def value(word: str) -> str:
+        m = re.fullmatch(r"\$(\w+\(\w+\))", word)
+        return generated[m.group(1)] if m else word
+
     ips: List[PackagedIP] = []
     vendor = library = name = version = ""
     for words in tcl_commands(text):
@@ -292,6 +196,10 @@ def parse_package(text: str) -> Dict[str, PackagedIP]:
             version = words[2]
         elif verb == "stereocam_user_param":
             ips[-1].params[words[2]] = (int(words[3]), int(words[4]), int(words[5]))
+        elif verb == "stereocam_user_params":
+            for param in tcl_list(generated[f"STEREOCAM_IP_PARAMS({words[2]})"]):
+                pname, default, low, high = tcl_list(param)
+                ips[-1].params[pname] = (int(default), int(low), int(high))
         elif verb == "stereocam_require_interfaces":
             ips[-1].interfaces = tcl_list(words[2])
         elif verb == "stereocam_clock":
@@ -299,7 +207,7 @@ def parse_package(text: str) -> Dict[str, PackagedIP]:
         elif verb == "stereocam_free_clock":
             ips[-1].free_clocks.append(words[2])
         elif verb == "stereocam_register_window":
-            ips[-1].windows[words[2]] = int(words[3], 0)
+            ips[-1].windows[words[2]] = int(value(words[3]), 0)
     if ips:
         ips[-1].vlnv = f"{vendor}:{library}:{name}:{version}"
     return {ip.vlnv: ip for ip in ips}
@@ -955,122 +863,6 @@ def test_the_drivers_bind_to_the_block_design(bd: BlockDesign) -> None:
         hw.close()
 
 
-# ---- running the scripts in Tcl, Vivado's commands recorded -----------------------------------------------
-
-# Every Vivado command the scripts may call, and what the stand-in returns (a Tcl body; $args are the
-# command's arguments). Any other command that is not Tcl's own fails as "invalid command name".
-_FIRST = "return [lindex $args 0]"
-_LAST = "return [lindex $args end]"
-VIVADO_COMMANDS: Dict[str, str] = {
-    # project
-    "version": "return $::stereocam_fake_version",
-    "create_project": "", "close_project": "", "current_project": "return project",
-    "add_files": "", "get_files": _LAST, "current_fileset": "return sources_1", "update_compile_order": "",
-    "update_ip_catalog": "", "get_property": "return [stereocam_fake_property {*}$args]", "set_property": "",
-    # block design
-    "create_bd_design": "", "create_bd_cell": _LAST, "get_bd_cells": _FIRST, "apply_bd_automation": "",
-    "create_bd_port": _LAST, "get_bd_ports": _FIRST, "get_bd_pins": _FIRST, "get_bd_intf_pins": _FIRST,
-    "create_bd_intf_port": _LAST, "get_bd_intf_ports": _FIRST,
-    "connect_bd_net": "", "connect_bd_intf_net": "", "assign_bd_address": "",
-    "get_bd_addr_spaces": _FIRST, "get_bd_addr_segs": _FIRST,
-    "validate_bd_design": "", "save_bd_design": "", "make_wrapper": "return /nowhere/stereocam_wrapper.v",
-    "generate_target": "",
-    # runs
-    "launch_runs": "", "wait_on_run": "", "get_runs": _FIRST,
-    # IP packaging
-    "ipx::package_project": "", "ipx::current_core": "return core",
-    "ipx::get_bus_interfaces": _FIRST, "ipx::get_bus_parameters": _FIRST, "ipx::add_bus_parameter": _FIRST,
-    "ipx::associate_bus_interfaces": "", "ipx::infer_bus_interface": "",
-    "ipx::get_memory_maps": "", "ipx::remove_memory_map": "", "ipx::add_memory_map": _FIRST,
-    "ipx::add_address_block": _FIRST, "ipx::get_user_parameters": _FIRST, "ipx::get_hdl_parameters": _FIRST,
-    "ipx::create_xgui_files": "", "ipx::update_checksums": "", "ipx::check_integrity": "",
-    "ipx::save_core": "",
-}
-
-_PRELUDE = r"""
-set ::stereocam_calls {}
-set ::stereocam_fake_version 2022.1
-namespace eval ipx {}
-proc stereocam_fake_property {name object} {
-    switch -- $name {
-        PROGRESS {return 100%}
-        STATUS {return {write_bitstream Complete!}}
-        DIRECTORY {return [file join $::stereocam_proj $::STEREOCAM_BD_NAME.runs $object]}
-        default {return $object}
-    }
-}
-"""
-
-
-@dataclass
-class TclRun:
-    calls: List[List[str]]
-    error: str
-    variables: Dict[str, str]
-
-    def of(self, verb: str) -> List[List[str]]:
-        return [c[1:] for c in self.calls if c[0] == verb]
-
-    def projects(self) -> List[str]:
-        """The names of the projects created, in order (create_project -force NAME DIR -part PART)."""
-        return [options(c, {"-part"})[1][0] for c in self.of("create_project")]
-
-
-def _brace(value: str) -> str:
-    assert not re.search(r"[{}\\]", value), value
-    return "{" + value + "}"
-
-
-def run_tcl(script: Path, tmp: Path, *, argv: Sequence[str] = (), preset: Optional[Dict[str, str]] = None,
-            read: Sequence[str] = ()) -> TclRun:
-    """Source ``script`` with Vivado's commands recorded: the calls, its error, the variables ``read``."""
-    out = tmp / "tcl-run.txt"
-    stubs = "\n".join(f"proc {name} args {{lappend ::stereocam_calls [list {name} {{*}}$args]; {body}}}"
-                      for name, body in VIVADO_COMMANDS.items())
-    lines = [_PRELUDE, stubs, f"set argv [list {' '.join(_brace(a) for a in argv)}]"]
-    lines += [f"set {k} {_brace(v)}" for k, v in (preset or {}).items()]
-    lines.append(f"""
-set stereocam_status [catch {{source {_brace(str(script))}}} stereocam_message]
-set f [open {_brace(str(out))} w]
-proc hex {{s}} {{return [binary encode hex [encoding convertto utf-8 $s]]}}
-foreach c $::stereocam_calls {{puts $f [join [lmap w $c {{hex $w}}] " "]}}
-puts $f "= [hex [expr {{$stereocam_status == 1 ? $stereocam_message : {{}}}}]]"
-foreach v {{{' '.join(read)}}} {{
-    puts $f "$ [hex $v] [hex [expr {{[info exists ::$v] ? [set ::$v] : {{}}}}]]"
-}}
-close $f
-""")
-    driver = tmp / "tcl-driver.tcl"
-    driver.write_text("\n".join(lines))
-    interp = None
-    try:
-        import tkinter
-        interp = tkinter.Tcl()
-    except Exception as exc:  # no _tkinter, or a Tcl without its library: try tclsh
-        reason = str(exc)
-    if interp is not None:
-        interp.eval(f"source {_brace(str(driver))}")
-    else:
-        tclsh = shutil.which("tclsh")
-        if tclsh is None:
-            pytest.fail(f"the Vivado scripts need Tcl: Python's tkinter ({reason}) or tclsh (Debian: tcl)")
-        subprocess.run([tclsh, str(driver)], check=True, timeout=120)
-
-    def unhex(word: str) -> str:
-        return bytes.fromhex(word).decode()
-
-    run = TclRun([], "", {})
-    for line in out.read_text().splitlines():
-        if line.startswith("= "):
-            run.error = unhex(line[2:].strip())
-        elif line.startswith("$ "):
-            _, name, value = (line.split(" ") + [""])[:3]
-            run.variables[unhex(name)] = unhex(value)
-        else:
-            run.calls.append([unhex(w) for w in line.split(" ")])
-    return run
-
-
 @pytest.fixture
 def rtl_copy(tmp_path: Path) -> Path:
     """The RTL folder as package_ip.tcl reads it, with a stand-in camera top until the real one exists."""
@@ -1244,3 +1036,93 @@ def test_package_ip_refuses_a_missing_frame_gate_rtl(tmp_path: Path, rtl_copy: P
                   preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
     assert f"no {frame_gate.TOP}.v in" in run.error and "frame_gate IP cannot be packaged" in run.error
     assert run.projects() == ["pkg_rectify", "pkg_camera_in"], "the other cores were packaged before"
+
+
+# ---- the stubbed Vivado checks what real Vivado would refuse ----------------------------------------------
+
+def vivado_copy(tmp_path: Path, script: str, old: str, new: str) -> Path:
+    """A copy of the scripts' folder with ``old`` replaced by ``new`` (once) in ``script``."""
+    folder = tmp_path / "vivado"
+    shutil.copytree(VIVADO_DIR, folder, ignore=shutil.ignore_patterns("build"))
+    path = folder / script
+    text = path.read_text()
+    assert text.count(old) >= 1, f"{old!r} is not in {script}"
+    path.write_text(text.replace(old, new, 1))
+    return folder
+
+
+def build_run(tmp_path: Path, folder: Path, rtl: Path) -> TclRun:
+    """build.tcl of ``folder`` through the block design, in the stubbed Vivado."""
+    return run_tcl(folder / "build.tcl", tmp_path, argv=["-to", "bd", "-proj", str(tmp_path / "p")],
+                   preset={"STEREOCAM_RTL_DIR": str(rtl)})
+
+
+def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_copy: Path) -> None:
+    run = build_run(tmp_path, vivado_copy(tmp_path, "settings.tcl", "", ""), rtl_copy)
+    assert run.error == ""
+    assert set(run.design.cells) >= set(overlay.INSTANCES)
+    assert set(run.packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
+    # the register window and the user parameters come from the spec (through ip_params.tcl)
+    rect = run.packaged[rectify.VLNV]
+    assert rect.ranges == {"s_axil/reg0": rectify.RECTIFY_MAP.size}
+    declared = rect.registers["s_axil/reg0"]
+    assert {n: int(r["address_offset"], 0) for n, r in declared.items()} == {
+        reg.name: reg.offset for reg in rectify.RECTIFY_MAP}
+    assert {n: int(r["reset_value"], 0) for n, r in declared.items()} == {
+        reg.name: reg.reset for reg in rectify.RECTIFY_MAP}
+    build = rectify.DEFAULT_BUILD
+    defaults = {"MAX_WIDTH": build.max_width, "MAX_HEIGHT": build.max_height, "LB_ROWS": build.lb_rows,
+                "COLOUR": int(build.colour)}
+    assert {n: (int(p.default), p.low, p.high) for n, p in rect.params.items()} == {
+        n: (defaults[n], *limits) for n, limits in rectify.BUILD_LIMITS.items()}
+    gate = run.packaged[frame_gate.VLNV].params["DEPTH"]
+    assert (int(gate.default), gate.low, gate.high) == (
+        frame_gate.PARAMETERS["DEPTH"], *frame_gate.DEPTH_RANGE)
+    assert {n: int(p.default) for n, p in run.packaged[camera_in.VLNV].params.items()} == camera_in.PARAMETERS
+
+
+@pytest.mark.parametrize("script, old, new, message", [
+    ("block_design.tcl", "xilinx.com:ip:smartconnect:1.0", "xilinx.com:ip:smartconnect:9.9",
+     "IP definition not found for VLNV xilinx.com:ip:smartconnect:9.9: Vivado 2022.1 has "
+     "xilinx.com:ip:smartconnect:1.0"),
+    ("block_design.tcl", "xilinx.com:ip:proc_sys_reset:5.0", "xilinx.com:ip:proc_sys_reset:0.1",
+     "IP definition not found for VLNV xilinx.com:ip:proc_sys_reset:0.1"),
+    ("block_design.tcl", "CONFIG.HAS_TKEEP {0}", "CONFIG.HAS_TKEEPZ {0}",
+     "set_property CONFIG.HAS_TKEEPZ on camera_split (xilinx.com:ip:axis_broadcaster:1.1): "
+     "xilinx.com:ip:axis_broadcaster:1.1 has no parameter HAS_TKEEPZ (PG085"),
+    ("block_design.tcl", "CONFIG.c_s2mm_max_burst_length {16}", "CONFIG.c_s2mm_max_burst_length {999}",
+     "set_property CONFIG.c_s2mm_max_burst_length on vdma_raw (xilinx.com:ip:axi_vdma:6.3): '999' is not one "
+     "of 2, 4, 8, 16, 32, 64, 128, 256 (PG020"),
+    ("block_design.tcl", "CONFIG.NUM_MI {4}", "CONFIG.NUM_MI {65}",
+     "set_property CONFIG.NUM_MI on axi_ctrl (xilinx.com:ip:axi_interconnect:2.1): 65 is outside 1..64"),
+    ("block_design.tcl", "stereocam:user:rectify:2.0 rectify", "stereocam:user:rectify:1.0 rectify",
+     "IP definition not found for VLNV stereocam:user:rectify:1.0: not in Vivado 2022.1's catalog, and "
+     "package_ip.tcl packaged stereocam:user:camera_in:1.0, stereocam:user:frame_gate:1.0, "
+     "stereocam:user:rectify:2.0"),
+    ("package_ip.tcl", "set_property version 1.0 $core\nset_property display_name {stereocam camera input}",
+     "set_property version 1.1 $core\nset_property display_name {stereocam camera input}",
+     "IP definition not found for VLNV stereocam:user:camera_in:1.0"),
+    ("block_design.tcl", "CONFIG.DEPTH {1024} \\\n] [get_bd_cells gate_raw]",
+     "CONFIG.DEPTH {8} \\\n] [get_bd_cells gate_raw]",
+     "set_property CONFIG.DEPTH on gate_raw (stereocam:user:frame_gate:1.0): 8 is outside 16..32768"),
+    ("block_design.tcl", "[get_bd_pins vdma_raw/s2mm_introut]", "[get_bd_pins vdma_raw/mm2s_introut]",
+     "get_bd_pins: vdma_raw (xilinx.com:ip:axi_vdma:6.3) has no pin 'mm2s_introut' in its configuration"),
+    ("block_design.tcl", "[get_bd_pins camera_in/cam1_line_valid]", "[get_bd_pins camera_in/cam1_lv]",
+     "get_bd_pins: camera_in (stereocam:user:camera_in:1.0) has no pin 'cam1_lv'"),
+    ("block_design.tcl", "[get_bd_intf_pins axi_ctrl/M03_AXI]", "[get_bd_intf_pins axi_ctrl/M04_AXI]",
+     "get_bd_intf_pins: axi_ctrl (xilinx.com:ip:axi_interconnect:2.1) has no interface 'M04_AXI'"),
+    ("block_design.tcl", "CONFIG.ROUTING_MODE {1}", "CONFIG.ROUTING_MODE {0}",
+     "get_bd_intf_pins: mux (xilinx.com:ip:axis_switch:1.1) has no interface 'S_AXI_CTRL'"),
+    ("block_design.tcl", "[get_bd_addr_segs rectify/s_axil/reg0]", "[get_bd_addr_segs rectify/s_axil/Reg]",
+     "get_bd_addr_segs: rectify (stereocam:user:rectify:2.0) has no address segment 's_axil/Reg' "
+     "(segments: s_axil/reg0)"),
+    ("block_design.tcl", "CONFIG.PCW_I2C0_I2C0_IO {EMIO}", "CONFIG.PCW_I2C0_I2C0_IO {MIO 10 .. 11}",
+     "get_bd_intf_pins: processing_system7_0 (xilinx.com:ip:processing_system7:5.5) has no interface "
+     "'IIC_0'"),
+])
+def test_the_stubbed_vivado_stops_on_what_vivado_would_refuse(tmp_path: Path, rtl_copy: Path, script: str,
+                                                                old: str, new: str, message: str) -> None:
+    run = build_run(tmp_path, vivado_copy(tmp_path, script, old, new), rtl_copy)
+    assert message in run.error
+    assert run.calls[-1][0] in ("create_bd_cell", "set_property", "get_bd_pins", "get_bd_intf_pins",
+                                "get_bd_addr_segs"), "Vivado stops at the failing command"

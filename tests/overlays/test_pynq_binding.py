@@ -3,12 +3,13 @@
 Everything runs pynq's own code (``Overlay``, its ``.hwh`` parser, ``DefaultIP``,
 ``MMIO``, ``allocate``) on :class:`EmulatedPynqDevice`, a ``pynq.Device`` whose
 PL is the emulated fabric and whose "programming" records pynq's PL state as
-the board's ``EmbeddedDevice`` does. The ``.bit``/``.hwh`` pairs are written
-from the spec by :mod:`tests.pynq_hwh`.
+the board's ``EmbeddedDevice`` does. The overlay's ``.hwh`` is written by
+:mod:`tests.pynq_hwh` from the block design the Vivado scripts build (run in the
+stubbed Vivado of :mod:`tests.vivado_stub`); other designs from a list of IP.
 
 Gating as in ``test_pynq_vdma.py`` (CI forbids skipped tests, so nothing here is
 ever skipped): with ``STEREOCAM_TEST_ENV=board`` pynq must import; elsewhere the
-tests exist only if pynq imports.
+tests exist only if pynq imports (but for the one that reads the ``.hwh`` alone).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import sys
 import textwrap
 from pathlib import Path
 from typing import Any, Iterator, List, Optional
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
@@ -31,9 +33,18 @@ from stereocam.drivers.switch import AxisSwitch
 from stereocam.drivers.vdma import VDMA
 from stereocam.overlays.emulated.logic import EmulatedFabric
 from stereocam.overlays.emulated.render import SyntheticRig
-from stereocam.overlays.spec.axis_switch import LIVE, VIRTUAL
-from stereocam.overlays.spec.overlay import ADDRESS_MAP, INSTANCES, VDMA_VLNVS, WINDOW_SIZE
+from stereocam.overlays.spec.axis_switch import LIVE, NUM_INPUTS, VIRTUAL
+from stereocam.overlays.spec.overlay import (
+    ADDRESS_MAP,
+    FABRIC_CLOCK_HZ,
+    INSTANCES,
+    INTERRUPTS,
+    NUM_FSTORES,
+    VDMA_VLNVS,
+    WINDOW_SIZE,
+)
 from stereocam.overlays.spec.rectify import CORE_ID, DEFAULT_BUILD, RECTIFY_MAP
+from stereocam.overlays.spec.regs import Access
 
 from .. import pynq_device as pd
 from ..pynq_hwh import Ip, pynq_for_tests, rectify_parameters, stereocam_ips, write_overlay
@@ -59,6 +70,33 @@ OWNER = textwrap.dedent("""
     sys.stdin.readline()
     ov.close()
 """)
+
+
+
+def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(tmp_path: Path) -> None:
+    """What pynq reads but does not report (it lists interrupts only behind an AXI interrupt
+    controller; this design wires the VDMAs to IRQ_F2P through an xlconcat). Runs without pynq too."""
+    root = ElementTree.parse(write_overlay(tmp_path).with_suffix(".hwh")).getroot()
+    ranges = {r.get("INSTANCE"): r.get("ADDRESSBLOCK")
+              for r in root.iter("MEMRANGE") if r.get("MASTERBUSINTERFACE") == "M_AXI_GP0"}
+    assert ranges == {"vdma_raw": "Reg", "vdma_proc": "Reg", "rectify": "reg0", "mux": "Reg"}
+    (block,) = [b for b in root.iter("ADDRESSBLOCK")]
+    assert (block.get("INTERFACE"), block.get("NAME"), int(block.get("RANGE"))) == (
+        "s_axil", "reg0", RECTIFY_MAP.size)
+    modules = {m.get("INSTANCE"): m for m in root.iter("MODULE")}
+    irq = modules["processing_system7_0"].find("./PORTS/PORT[@NAME='IRQ_F2P']")
+    assert irq is not None
+    (source,) = irq.findall("./CONNECTIONS/CONNECTION")
+    concat = modules[source.get("INSTANCE")]
+    assert concat.get("MODTYPE") == "xlconcat" and source.get("PORT") == "dout"
+    lines = []
+    for i in range(int(concat.find("./PARAMETERS/PARAMETER[@NAME='NUM_PORTS']").get("VALUE"))):
+        (driver,) = concat.findall(f"./PORTS/PORT[@NAME='In{i}']/CONNECTIONS/CONNECTION")
+        lines.append((driver.get("INSTANCE"), driver.get("PORT")))
+        port = modules[driver.get("INSTANCE")].find(f"./PORTS/PORT[@NAME='{driver.get('PORT')}']")
+        assert port is not None and port.get("SIGIS") == "INTERRUPT"
+    assert tuple(lines) == INTERRUPTS
+    assert int(irq.get("LEFT")) == len(INTERRUPTS) - 1
 
 
 if pynq is not None:
@@ -107,13 +145,44 @@ if pynq is not None:
 
     def test_the_hwh_reads_as_the_spec_through_pynqs_parser(board: Board) -> None:
         ov = pynq.Overlay(str(board.bit), device=board.dev, download=False)
+        assert set(ov.ip_dict) == set(INSTANCES) | {"processing_system7_0"}, "the addressable cells, no more"
         for name, vlnvs in INSTANCES.items():
             desc = ov.ip_dict[name]
             assert (desc["type"], desc["phys_addr"], desc["addr_range"]) == (
                 vlnvs[-1], ADDRESS_MAP[name], WINDOW_SIZE)
-        assert ov.ip_dict["vdma_raw"]["parameters"]["C_NUM_FSTORES"] == "3"
-        assert ov.ip_dict["rectify"]["parameters"] == rectify_parameters(DEFAULT_BUILD)
+        assert {n: ov.ip_dict[n]["mem_id"] for n in INSTANCES} == {
+            "vdma_raw": "S_AXI_LITE", "vdma_proc": "S_AXI_LITE", "rectify": "s_axil", "mux": "S_AXI_CTRL"}
+        raw, proc = ov.ip_dict["vdma_raw"]["parameters"], ov.ip_dict["vdma_proc"]["parameters"]
+        assert raw["C_NUM_FSTORES"] == proc["C_NUM_FSTORES"] == str(NUM_FSTORES)
+        # as block_design.tcl builds them: vdma_raw S2MM only, 512-deep line buffers
+        assert (raw["C_INCLUDE_MM2S"], raw["C_INCLUDE_S2MM"], proc["C_INCLUDE_MM2S"]) == ("0", "1", "1")
+        assert raw["C_S2MM_LINEBUFFER_DEPTH"] == proc["C_MM2S_LINEBUFFER_DEPTH"] == "512"
+        rect = ov.ip_dict["rectify"]["parameters"]
+        assert {k: rect[k] for k in rectify_parameters(DEFAULT_BUILD)} == rectify_parameters(DEFAULT_BUILD)
+        registers = ov.ip_dict["rectify"]["registers"]
+        assert {n: (r["address_offset"], r["access"]) for n, r in registers.items()} == {
+            reg.name: (reg.offset, "read-only" if reg.access is Access.RO else
+                       "write-only" if reg.access is Access.WO else "read-write") for reg in RECTIFY_MAP}
+        mux = ov.ip_dict["mux"]["parameters"]
+        assert (mux["NUM_SI"], mux["ROUTING_MODE"]) == (str(NUM_INPUTS), "1")
+        ps7 = ov.ip_dict["processing_system7_0"]["parameters"]
+        assert float(ps7["PCW_FPGA0_PERIPHERAL_FREQMHZ"]) * 1e6 == FABRIC_CLOCK_HZ
         assert board.dev.downloads == [] and board.dev.bus_accesses == 0
+
+    def test_the_hwh_follows_the_block_design_script(board: Board) -> None:
+        """A VDMA the script builds with MM2S gets it in the .hwh, its interrupt too: nothing typed twice."""
+        edit = ("block_design.tcl", "CONFIG.c_include_mm2s {0}", "CONFIG.c_include_mm2s {1}")
+        bit = write_overlay(board.tmp / "mm2s", edits=(edit,))
+        ov = pynq.Overlay(str(bit), device=board.dev, download=False)
+        assert ov.ip_dict["vdma_raw"]["parameters"]["C_INCLUDE_MM2S"] == "1"
+        default = pynq.Overlay(str(board.bit), device=board.dev, download=False)
+        assert default.ip_dict["vdma_raw"]["parameters"]["C_INCLUDE_MM2S"] == "0"
+        text = bit.with_suffix(".hwh").read_text()
+        assert 'NAME="mm2s_introut" SENSITIVITY="LEVEL_HIGH" SIGIS="INTERRUPT"' in text
+        moved = ("block_design.tcl", "-offset 0x43C10000", "-offset 0x43C20000")
+        ov = pynq.Overlay(str(write_overlay(board.tmp / "moved", edits=(moved,))), device=board.dev,
+                          download=False)
+        assert ov.ip_dict["mux"]["phys_addr"] == 0x43C2_0000
 
     def test_a_plain_pynq_overlay_gives_our_drivers(board: Board) -> None:
         """The notebook way: ``pynq.Overlay("stereocam.bit")`` after our driver module was imported."""
@@ -180,9 +249,8 @@ if pynq is not None:
             ov.close()
 
     def test_an_hwh_that_disagrees_with_the_core_is_refused(board: Board) -> None:
-        ips = [ip if ip.name != "rectify" else Ip(ip.name, ip.vlnv, ip.base, rectify_parameters(lb_rows=64),
-                                                  interface=ip.interface) for ip in stereocam_ips()]
-        wrong = write_overlay(board.tmp / "lb64", "stereocam", ips)
+        edit = ("block_design.tcl", "CONFIG.LB_ROWS {80}", "CONFIG.LB_ROWS {64}")
+        wrong = write_overlay(board.tmp / "lb64", "stereocam", edits=(edit,))
         with pytest.raises(UnsupportedIP,
                            match=r"rectify: LB_ROWS=64 in the \.hwh but 80 in the core's register"):
             board.open(wrong)

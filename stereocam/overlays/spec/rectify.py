@@ -51,6 +51,15 @@ DEFAULT_LB_ROWS = DEFAULT_BUILD.lb_rows
 DEFAULT_WIDTH = 752
 DEFAULT_HEIGHT = 480
 SIZE_BITS = 11  # column and row counters: MAX_WIDTH and MAX_HEIGHT are below 2**SIZE_BITS
+#: The range each build parameter may take (the packaged IP's user parameters, which the Vivado GUI
+#: enforces): sizes below 2**SIZE_BITS and of at least 2 (a 2x2 Bayer cell), at least one line-buffer
+#: row, COLOUR 0 (gray build) or 1 (colour build).
+BUILD_LIMITS: Dict[str, Tuple[int, int]] = {
+    "MAX_WIDTH": (2, (1 << SIZE_BITS) - 1),
+    "MAX_HEIGHT": (2, (1 << SIZE_BITS) - 1),
+    "LB_ROWS": (1, (1 << SIZE_BITS) - 1),
+    "COLOUR": (0, 1),
+}
 #: Clocks per beat on the stream ports: the coordinate engine serves the two cameras on alternate
 #: clocks (RECTIFY_CORE.md, "Latency and rates"; measured by tests/hdl/test_rectify_core_rtl.py).
 CLOCKS_PER_BEAT = 2

@@ -19,6 +19,9 @@
 # identities and parameters here against stereocam/overlays/spec/ and the RTL's module headers.
 
 source [file join [file dirname [file normalize [info script]]] settings.tcl]
+# The register window and the user parameters of each IP (STEREOCAM_IP_WINDOW, STEREOCAM_IP_PARAMS),
+# generated from stereocam/overlays/spec/ (python -m stereocam.overlays.spec.verilog).
+source [file join $STEREOCAM_VIVADO_DIR ip_params.tcl]
 
 if {![info exists STEREOCAM_IP_REPO]} {
     if {[info exists argv] && [llength $argv] > 0} {
@@ -80,8 +83,9 @@ proc stereocam_free_clock {core port} {
 }
 
 # The AXI4-Lite slave $busif decodes $range bytes: one register block "reg0" (the block design's
-# address segment is <cell>/$busif/reg0, and may map a larger window onto it).
-proc stereocam_register_window {core busif range} {
+# address segment is <cell>/$busif/reg0, and may map a larger window onto it) holding $registers,
+# each {name byte_offset access reset_value} (the .hwh lists them, and pynq's register_map).
+proc stereocam_register_window {core busif range {registers {}}} {
     foreach map [ipx::get_memory_maps -of_objects $core] {
         ipx::remove_memory_map [get_property NAME $map] $core
     }
@@ -91,6 +95,14 @@ proc stereocam_register_window {core busif range} {
     set_property range $range $block
     set_property width 32 $block
     set_property usage register $block
+    foreach reg $registers {
+        lassign $reg name offset access reset
+        set register [ipx::add_register $name $block]
+        set_property address_offset $offset $register
+        set_property size 32 $register
+        set_property access $access $register
+        set_property reset_value $reset $register
+    }
 }
 
 # Verilog parameter $name as a user parameter: its default and the range the GUI accepts.
@@ -104,6 +116,14 @@ proc stereocam_user_param {core name default minimum maximum} {
     set_property value_validation_range_maximum $maximum $param
     set_property value $default $param
     set_property value $default [ipx::get_hdl_parameters $name -of_objects $core]
+}
+
+# Every user parameter of $ip in ip_params.tcl: {name default minimum maximum}.
+proc stereocam_user_params {core ip} {
+    global STEREOCAM_IP_PARAMS
+    foreach param $STEREOCAM_IP_PARAMS($ip) {
+        stereocam_user_param $core {*}$param
+    }
 }
 
 # Write the GUI files and checksums, check the core, save it and close its packaging project.
@@ -135,14 +155,10 @@ set_property description {Stereo rectification and lens undistortion at pixel ra
 set_property supported_families {zynq Production} $core
 stereocam_require_interfaces $core {aclk aresetn s_axil s_axis m_axis}
 stereocam_clock $core aclk aresetn {s_axil s_axis m_axis}
-# The register map is 4 KiB (RECTIFY_MAP.size); the block design maps a 64 KiB window onto it.
-stereocam_register_window $core s_axil 4096
-# Build parameters: name, default (DEFAULT_BUILD, the colour build), minimum, maximum
-# (MAX_WIDTH and MAX_HEIGHT stay below 2**SIZE_BITS; COLOUR is 0 for the gray build, 1 for colour).
-stereocam_user_param $core MAX_WIDTH 752 2 2047
-stereocam_user_param $core MAX_HEIGHT 1024 2 2047
-stereocam_user_param $core LB_ROWS 80 1 2047
-stereocam_user_param $core COLOUR 1 0 1
+# The register map (RECTIFY_MAP.size bytes); the block design maps a 64 KiB window onto it.
+stereocam_register_window $core s_axil $STEREOCAM_IP_WINDOW(rectify) $STEREOCAM_IP_REGISTERS(rectify)
+# Build parameters: defaults DEFAULT_BUILD (the colour build), ranges BUILD_LIMITS (spec/rectify.py).
+stereocam_user_params $core rectify
 stereocam_save_core $core
 
 # ---- stereocam:user:camera_in:1.0 (stereocam/overlays/spec/camera_in.py: VLNV) ---------------------------------
@@ -172,11 +188,10 @@ stereocam_require_interfaces $core {aclk aresetn m_axis}
 stereocam_clock $core aclk aresetn {m_axis}
 stereocam_free_clock $core cam0_pclk
 stereocam_free_clock $core cam1_pclk
-# Parameters: name, default (camera_in.PARAMETERS), minimum, maximum. MAX_WIDTH: MIN_WIDTH up to
-# MAX_WIDTH_LIMIT (the line FIFOs' length field); BAYER_PHASE: a CFA_PHASES code, the default for the
-# driver's full-size window (a window of another start parity needs another build).
-stereocam_user_param $core MAX_WIDTH 752 2 2047
-stereocam_user_param $core BAYER_PHASE 3 0 3
+# Parameters: defaults camera_in.PARAMETERS. MAX_WIDTH: MIN_WIDTH up to MAX_WIDTH_LIMIT (the line
+# FIFOs' length field); BAYER_PHASE: a CFA_PHASES code, the default for the driver's full-size window
+# (a window of another start parity needs another build).
+stereocam_user_params $core camera_in
 stereocam_save_core $core
 
 # ---- stereocam:user:frame_gate:1.0 (stereocam/overlays/spec/frame_gate.py: VLNV, SOURCES) -------------------------
@@ -204,6 +219,6 @@ set_property description {Always takes its input; forwards whole frames, drops t
 set_property supported_families {zynq Production} $core
 stereocam_require_interfaces $core {aclk aresetn s_axis m_axis}
 stereocam_clock $core aclk aresetn {s_axis m_axis}
-# Parameters: name, default (frame_gate.PARAMETERS), minimum, maximum (frame_gate.DEPTH_RANGE).
-stereocam_user_param $core DEPTH 1024 16 32768
+# Parameters: defaults frame_gate.PARAMETERS, range frame_gate.DEPTH_RANGE.
+stereocam_user_params $core frame_gate
 stereocam_save_core $core
