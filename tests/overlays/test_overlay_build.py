@@ -977,6 +977,9 @@ VIVADO_COMMANDS: Dict[str, str] = {
     "generate_target": "",
     # runs
     "launch_runs": "", "wait_on_run": "", "get_runs": _FIRST,
+    # routed timing: the summary file, and the worst setup (max) and hold (min) paths' slack
+    "open_run": "", "report_timing_summary": "stereocam_fake_summary {*}$args",
+    "get_timing_paths": "return timing_[lindex $args [expr {[lsearch $args -delay_type] + 1}]]",
     # IP packaging
     "ipx::package_project": "", "ipx::current_core": "return core",
     "ipx::get_bus_interfaces": _FIRST, "ipx::get_bus_parameters": _FIRST, "ipx::add_bus_parameter": _FIRST,
@@ -996,8 +999,16 @@ proc stereocam_fake_property {name object} {
         PROGRESS {return 100%}
         STATUS {return {write_bitstream Complete!}}
         DIRECTORY {return [file join $::stereocam_proj $::STEREOCAM_BD_NAME.runs $object]}
+        SLACK {return $::stereocam_fake_slack($object)}
         default {return $object}
     }
+}
+set ::stereocam_fake_slack(timing_max) 0.412
+set ::stereocam_fake_slack(timing_min) 0.051
+proc stereocam_fake_summary args {
+    set f [open [lindex $args [expr {[lsearch $args -file] + 1}]] w]
+    puts $f "Timing summary: WNS $::stereocam_fake_slack(timing_max) WHS $::stereocam_fake_slack(timing_min)"
+    close $f
 }
 """
 
@@ -1166,6 +1177,10 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
     # the outputs, found by the backend's own search
     assert (out / overlay.BITSTREAM).read_text() == bit.read_text()
     assert (out / overlay.BITSTREAM).with_suffix(".hwh").read_text() == hwh.read_text()
+    # the routed timing summary beside the bitstream, of the run that was opened
+    assert run.of("open_run") == [["impl_1"]]
+    assert (out / overlay.BITSTREAM).with_suffix(".timing.rpt").read_text().startswith("Timing summary: WNS 0.412")
+    assert [c[c.index("-delay_type") + 1] for c in run.of("get_timing_paths")] == ["max", "min"]
     monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
     monkeypatch.setattr(backend, "DEFAULT_BITSTREAM_DIRS", (out,))
     assert backend.find_bitstream() == out / overlay.BITSTREAM
@@ -1244,3 +1259,20 @@ def test_package_ip_refuses_a_missing_frame_gate_rtl(tmp_path: Path, rtl_copy: P
                   preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
     assert f"no {frame_gate.TOP}.v in" in run.error and "frame_gate IP cannot be packaged" in run.error
     assert run.projects() == ["pkg_rectify", "pkg_camera_in"], "the other cores were packaged before"
+
+
+@pytest.mark.parametrize("kind, slack", [("max", "-0.031"), ("min", "-0.002")])
+def test_build_tcl_stops_on_negative_routed_slack_and_writes_no_overlay(
+        tmp_path: Path, rtl_copy: Path, variables: Dict[str, str], kind: str, slack: str) -> None:
+    """A negative WNS (setup) or WHS (hold) stops the build naming the slack and the report; no .bit is copied."""
+    proj, out = tmp_path / "proj", tmp_path / "out"
+    _fake_vivado_outputs(proj, variables)
+    pins, _ = _filled_pins(tmp_path)
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path,
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy), f"stereocam_fake_slack(timing_{kind})": slack},
+                  argv=["-out", str(out), "--proj", str(proj), "-pins", str(pins), "-jobs", "1"])
+    name = {"max": "WNS", "min": "WHS"}[kind]
+    assert f"routed timing fails: {name} {slack} ns" in run.error
+    report = proj / f"{variables['STEREOCAM_BD_NAME']}.runs" / "impl_1" / f"{variables['STEREOCAM_OVERLAY']}.timing.rpt"
+    assert str(report) in run.error and report.is_file()
+    assert not (out / overlay.BITSTREAM).exists()
