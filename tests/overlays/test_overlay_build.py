@@ -1179,7 +1179,8 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
     assert (out / overlay.BITSTREAM).with_suffix(".hwh").read_text() == hwh.read_text()
     # the routed timing summary beside the bitstream, of the run that was opened
     assert run.of("open_run") == [["impl_1"]]
-    assert (out / overlay.BITSTREAM).with_suffix(".timing.rpt").read_text().startswith("Timing summary: WNS 0.412")
+    summary = (out / overlay.BITSTREAM).with_suffix(".timing.rpt").read_text()
+    assert summary.startswith("Timing summary: WNS 0.412")
     assert [c[c.index("-delay_type") + 1] for c in run.of("get_timing_paths")] == ["max", "min"]
     monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
     monkeypatch.setattr(backend, "DEFAULT_BITSTREAM_DIRS", (out,))
@@ -1264,7 +1265,7 @@ def test_package_ip_refuses_a_missing_frame_gate_rtl(tmp_path: Path, rtl_copy: P
 @pytest.mark.parametrize("kind, slack", [("max", "-0.031"), ("min", "-0.002")])
 def test_build_tcl_stops_on_negative_routed_slack_and_writes_no_overlay(
         tmp_path: Path, rtl_copy: Path, variables: Dict[str, str], kind: str, slack: str) -> None:
-    """A negative WNS (setup) or WHS (hold) stops the build naming the slack and the report; no .bit is copied."""
+    """A negative WNS (setup) or WHS (hold) stops the build, naming the slack and the report: no .bit."""
     proj, out = tmp_path / "proj", tmp_path / "out"
     _fake_vivado_outputs(proj, variables)
     pins, _ = _filled_pins(tmp_path)
@@ -1273,6 +1274,7 @@ def test_build_tcl_stops_on_negative_routed_slack_and_writes_no_overlay(
                   argv=["-out", str(out), "--proj", str(proj), "-pins", str(pins), "-jobs", "1"])
     name = {"max": "WNS", "min": "WHS"}[kind]
     assert f"routed timing fails: {name} {slack} ns" in run.error
-    report = proj / f"{variables['STEREOCAM_BD_NAME']}.runs" / "impl_1" / f"{variables['STEREOCAM_OVERLAY']}.timing.rpt"
+    runs = proj / f"{variables['STEREOCAM_BD_NAME']}.runs"
+    report = runs / "impl_1" / f"{variables['STEREOCAM_OVERLAY']}.timing.rpt"
     assert str(report) in run.error and report.is_file()
     assert not (out / overlay.BITSTREAM).exists()

@@ -106,7 +106,8 @@ class DelayModel:
 
 
 MODEL = DelayModel()
-MODEL_SOURCE = ("cells: DS187 (Zynq-7000 Z-7010/7015/7020 DC and AC switching characteristics), speed grade -1, "
+MODEL_SOURCE = ("cells: DS187 (Zynq-7000 Z-7010/7015/7020 DC and AC switching characteristics), "
+                "speed grade -1, "
                 "symbols as UG474/UG473/UG479 define them; routing: "
                 f"{MODEL.net_base} ns + {MODEL.net_per_log2_fanout} ns x log2(fanout) per hop, "
                 "this estimate's assumption; dedicated connections (carry chain, F7/F8 muxes, DSP cascade, "
@@ -152,6 +153,8 @@ class Graph:
     driver: Dict[Bit, Tuple[int, str]]  # bit -> (cell index, output pin)
     loads: Dict[Bit, List[Tuple[int, str]]]  # bit -> [(cell index, input pin)] (no clock pins)
     names: Dict[Bit, str]  # bit -> best RTL name, "sig[3]"
+    max_fanout: Dict[Bit, int] = field(default_factory=dict)  # from a (* max_fanout = N *) on the signal
+    hidden: Set[Bit] = field(default_factory=set)  # bits whose best name is one yosys made up
 
 
 def _param(params: Mapping[str, Any], name: str, default: int = 0) -> int:
@@ -191,15 +194,21 @@ def parse_netlist(data: Mapping[str, Any], top: Optional[str] = None) -> Graph:
         raise TimingError(f"the netlist has no module {top}")
     mod = modules[top]
     names: Dict[Bit, Tuple[int, str]] = {}  # bit -> (rank, name); lower rank is better
+    max_fanout: Dict[Bit, int] = {}
     for net, info in mod.get("netnames", {}).items():
-        hidden = bool(info.get("hide_name"))
+        is_hidden = bool(info.get("hide_name"))
         bits = info.get("bits", [])
         clean = net.lstrip("\\")
+        cap = _param(info.get("attributes", {}), "max_fanout")
+        if cap > 0:
+            for b in bits:
+                if isinstance(b, int):
+                    max_fanout[b] = cap
         for i, b in enumerate(bits):
             if not isinstance(b, int):
                 continue
             label = clean if len(bits) == 1 else f"{clean}[{i + int(info.get('offset', 0))}]"
-            rank = (2 if hidden else 0, len(clean))
+            rank = (2 if is_hidden else 0, len(clean))
             key = rank[0] * 100000 + rank[1]
             if b not in names or key < names[b][0]:
                 names[b] = (key, label)
@@ -217,16 +226,24 @@ def parse_netlist(data: Mapping[str, Any], top: Optional[str] = None) -> Graph:
                     continue  # a constant
                 pin = port if len(bits) == 1 else f"{port}[{i}]"
                 (outs if d == "output" else ins)[pin] = b
-        src = str(c.get("attributes", {}).get("src", ""))
+        src = rtl_src(str(c.get("attributes", {}).get("src", "")))
         idx = len(cells)
-        cells.append(Cell(cname.lstrip("\\"), str(c.get("type", "")), dict(c.get("parameters", {})), ins, outs, src))
+        params = dict(c.get("parameters", {}))
+        cells.append(Cell(cname.lstrip("\\"), str(c.get("type", "")), params, ins, outs, src))
         for pin, b in outs.items():
             driver[b] = (idx, pin)
         for pin, b in ins.items():
             if pin.split("[")[0] in CLOCK_PINS:
                 continue
             loads.setdefault(b, []).append((idx, pin))
-    return Graph(cells, driver, loads, {b: n for b, (_, n) in names.items()})
+    made_up = {b for b, (key, _) in names.items() if key >= 200000}
+    return Graph(cells, driver, loads, {b: n for b, (_, n) in names.items()}, max_fanout, made_up)
+
+
+def rtl_src(src: str) -> str:
+    """The RTL lines of a ``src`` attribute (file name and line), without yosys's own techmap files."""
+    parts = [p for p in src.split("|") if p and "share/yosys" not in p]
+    return "|".join(Path(p).name for p in parts)
 
 
 def _port(pin: str) -> Tuple[str, int]:
@@ -254,7 +271,7 @@ def cell_timing(cell: Cell, m: DelayModel = MODEL) -> CellTiming:
     t = CellTiming()
     typ = cell.type
     ins, outs = cell.inputs, cell.outputs
-    if typ.startswith("LUT") or typ == "INV":
+    if typ.startswith("LUT") or typ == "INV":  # an INV is a LUT1 Vivado folds into its load (no hop after it)
         for i in ins:
             for o in outs:
                 t.arcs.append((i, o, m.lut))
@@ -413,7 +430,8 @@ class TimingPath:
     levels: Dict[str, int]
 
     def to_dict(self) -> Dict[str, Any]:
-        return {"start": self.start, "end": self.end, "end_pin": self.end_pin, "delay_ns": round(self.delay_ns, 3),
+        return {"start": self.start, "end": self.end, "end_pin": self.end_pin,
+                "delay_ns": round(self.delay_ns, 3),
                 "levels": self.levels, "cells": [s.to_dict() for s in self.steps]}
 
 
@@ -437,7 +455,8 @@ class Analysis:
             for i, o, d in t.arcs:
                 self.arcs_to.setdefault((idx, o), []).append((i, d))
         self.arrival: Dict[Bit, float] = {}
-        self.pred: Dict[Bit, Optional[Tuple[int, str, str, Bit]]] = {}  # bit -> (cell, in pin, out pin, in bit)
+        # bit -> (cell, in pin, out pin, in bit)
+        self.pred: Dict[Bit, Optional[Tuple[int, str, str, Bit]]] = {}
         self._compute()
 
     def net_delay(self, bit: Bit, load: Tuple[int, str]) -> float:
@@ -447,6 +466,8 @@ class Analysis:
         drv = self.g.driver.get(bit)
         if drv is not None:
             dtype = self.g.cells[drv[0]].type
+            if dtype == "INV":
+                return 0.0  # folded into the LUT (or carry input) it feeds: the hop into it was counted
             ded = _DEDICATED.get((cell.type, base))
             if ded and any(dtype.startswith(p) for p in ded):
                 return 0.0
@@ -455,7 +476,14 @@ class Analysis:
             if (cell.type == "CARRY4" and base in ("S", "DI") and dtype.startswith("LUT")
                     and len(self.g.loads.get(bit, ())) == 1):
                 return 0.0  # the LUT of the carry's own slice
-        return self.m.net(len(self.g.loads.get(bit, ())))
+        return self.m.net(self.fanout(bit))
+
+    def fanout(self, bit: Bit) -> int:
+        """Loads of ``bit`` as routed: a register marked ``max_fanout`` is replicated by Vivado's synthesis
+        so that no copy drives more than that many."""
+        n = len(self.g.loads.get(bit, ()))
+        cap = self.g.max_fanout.get(bit)
+        return min(n, cap) if cap else n
 
     def _compute(self) -> None:
         """Arrival at every driven bit (at the driver's output), in dependency order."""
@@ -498,7 +526,7 @@ class Analysis:
                 state[bit] = 2
 
     def endpoints(self) -> Iterable[Tuple[float, int, str, Bit]]:
-        """(required-time arrival incl. setup, cell, pin, bit) of every clocked input fed by a clocked output."""
+        """(arrival plus setup, cell, pin, bit) of every clocked input fed by a clocked output."""
         for idx, t in enumerate(self.timing):
             for pin, setup in t.setup.items():
                 bit = self.g.cells[idx].inputs.get(pin)
@@ -510,18 +538,23 @@ class Analysis:
                 yield a + self.net_delay(bit, (idx, pin)) + setup, idx, pin, bit
 
     def name_of(self, bit: Bit, cell: Optional[int] = None) -> str:
+        """The RTL signal of ``bit``; without one (a name yosys made up), its driving cell and source line."""
         name = self.g.names.get(bit)
-        if name:
+        if name and bit not in self.g.hidden:
             return name
         if cell is not None:
             c = self.g.cells[cell]
             return f"{c.name} ({c.src})" if c.src else c.name
         return f"net {bit}"
 
+    def net_name(self, bit: Bit) -> str:
+        """Any name of ``bit``, yosys's own included (for the steps of a path)."""
+        return self.g.names.get(bit, f"net {bit}")
+
     def endpoint_name(self, cidx: int) -> str:
         """The capturing register, by the RTL signal it drives (a flip-flop's Q), else the cell's name."""
         c = self.g.cells[cidx]
-        if _FF.match(c.type) and "Q" in c.outputs:
+        if "Q" in c.outputs and c.outputs["Q"] in self.g.names and c.outputs["Q"] not in self.g.hidden:
             return self.name_of(c.outputs["Q"], cidx)
         return f"{c.type} {c.name}" + (f" ({c.src})" if c.src else "")
 
@@ -534,11 +567,12 @@ class Analysis:
             dcell, dpin = self.g.driver[b]
             c = self.g.cells[dcell]
             if p is None:
-                steps.append(PathStep(c.name, c.type, "(clock)", dpin, self.name_of(b), self.arrival[b], c.src))
+                steps.append(PathStep(c.name, c.type, "(clock)", dpin, self.net_name(b), self.arrival[b],
+                                      c.src))
                 start_bit = b
                 b = None
             else:
-                steps.append(PathStep(c.name, c.type, p[1], p[2], self.name_of(b), self.arrival[b], c.src))
+                steps.append(PathStep(c.name, c.type, p[1], p[2], self.net_name(b), self.arrival[b], c.src))
                 b = p[3]
         steps.reverse()
         end = self.g.cells[cidx]
@@ -609,10 +643,11 @@ class Netlist:
     path: Path
 
 
-def synth_netlist(sources_dir: Path, *, top: str = hw_synth.TOP, parameters: Optional[Mapping[str, int]] = None,
-                  cache_dir: Optional[Path] = None, timeout: float = hw_synth.DEFAULT_TIMEOUT_S,
+def synth_netlist(sources_dir: Path, *, top: str = hw_synth.TOP,
+                  parameters: Optional[Mapping[str, int]] = None, cache_dir: Optional[Path] = None,
+                  timeout: float = hw_synth.DEFAULT_TIMEOUT_S,
                   use_cache: bool = True) -> Netlist:
-    """yosys's mapped netlist of ``sources_dir`` (as ``stereocam hw synth`` synthesises it), cached gzipped."""
+    """yosys's mapped netlist of ``sources_dir`` (synthesised as ``stereocam hw synth`` does), cached."""
     parameters = dict(parameters or {})
     sources = hw_synth.find_sources(sources_dir, top)
     headers = sorted(p for p in sources_dir.iterdir() if p.suffix in hw_synth.HASHED_SUFFIXES and p.is_file())
@@ -681,15 +716,18 @@ def report_dict(paths: Sequence[TimingPath], build: hw_synth.BuildParams, netlis
 
 def format_report(report: Mapping[str, Any]) -> str:
     b = report["build"]
-    lines = [f"{report['top']}, build {b['name']}: clock {report['clock_mhz']:g} MHz ({report['clock_from']}), "
+    lines = [f"{report['top']}, build {b['name']}: clock {report['clock_mhz']:g} MHz "
+             f"({report['clock_from']}), "
              f"period {report['period_ns']:g} ns, limit {report['limit_ns']:g} ns (75 %)",
-             f"worst estimated path {report['worst_ns']:.2f} ns ({100 * report['share_of_period']:.0f} % of the "
+             f"worst estimated path {report['worst_ns']:.2f} ns "
+             f"({100 * report['share_of_period']:.0f} % of the "
              f"period, ~{report['estimated_fmax_mhz']} MHz)", ""]
     for p in report["paths"]:
         lv = ", ".join(f"{k} {v}" for k, v in sorted(p["levels"].items()))
         lines.append(f"{p['delay_ns']:6.2f} ns  {p['start']} -> {p['end']} ({p['end_pin']})  [{lv}]")
     if report["high_fanout_nets"]:
-        lines += ["", "highest fanout: " + ", ".join(f"{f['net']} {f['loads']:,}" for f in report["high_fanout_nets"])]
+        nets = ", ".join(f"{f['net']} {f['loads']:,}" for f in report["high_fanout_nets"])
+        lines += ["", "highest fanout: " + nets]
     lines += ["", "model: " + report["model_source"], report["note"]]
     return "\n".join(lines)
 
@@ -702,14 +740,16 @@ def add_timing_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParse
     table, _ = hw_synth.builds()
     s = hw_sub.add_parser(
         "timing", help="estimate the rectify core's worst register-to-register paths (-1 speed grade)",
-        description=f"Synthesise the rectify core with yosys (as `stereocam hw synth`) and estimate its worst "
+        description=f"Synthesise the rectify core with yosys (as `stereocam hw synth`) and estimate its "
+                    f"worst "
                     f"register-to-register paths with a stated xc7z020 -1 delay model, against the block "
                     f"design's clock ({clock_mhz():g} MHz). Exit 0 when the worst path is within "
                     f"{int(MARGIN_SHARE * 100)} % of the period, 1 when not, 2 on a tool or input error.")
     s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
                    help="which build's parameters (default gray)")
     s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    s.add_argument("--paths", type=int, default=DEFAULT_PATHS, metavar="N", help="how many paths (default 10)")
+    s.add_argument("--paths", type=int, default=DEFAULT_PATHS, metavar="N",
+                   help="how many paths (default 10)")
     s.add_argument("--rtl", metavar="DIR", help="the Verilog folder (default stereocam/overlays/rtl)")
     s.add_argument("--timeout", type=float, default=hw_synth.DEFAULT_TIMEOUT_S, metavar="S",
                    help="give up on yosys after S seconds")
@@ -726,7 +766,8 @@ def cmd_hw_timing(args: argparse.Namespace) -> int:
         table, _ = hw_synth.builds()
         build = table[args.build]
         rtl = Path(args.rtl) if args.rtl else hw_synth.rtl_dir()
-        net = synth_netlist(rtl, parameters=build.parameters(), timeout=args.timeout, use_cache=not args.no_cache)
+        net = synth_netlist(rtl, parameters=build.parameters(), timeout=args.timeout,
+                            use_cache=not args.no_cache)
         paths = analyse(net.data, hw_synth.TOP, args.paths)
         fanout = high_fanout(net.data, hw_synth.TOP)
     except hw_synth.HwSynthError as exc:
