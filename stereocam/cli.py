@@ -667,12 +667,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
     from .overlays.rtl.synth import add_synth_parser
+    from .overlays.rtl.timing import add_timing_parser
 
-    h = sub.add_parser("hw", help="the rectify core's HDL: synthesis with yosys",
+    h = sub.add_parser("hw", help="the rectify core's HDL: synthesis and a timing estimate with yosys",
                        description="Tools for the rectify core's Verilog in stereocam/overlays/rtl/.")
     hsub = h.add_subparsers(dest="action", metavar="ACTION")
     hsub.required = True
     add_synth_parser(hsub)
+    add_timing_parser(hsub)
 
     _add_server_commands(sub)
     return parser

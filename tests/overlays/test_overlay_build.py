@@ -958,6 +958,11 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
     # the outputs, found by the backend's own search
     assert (out / overlay.BITSTREAM).read_text() == bit.read_text()
     assert (out / overlay.BITSTREAM).with_suffix(".hwh").read_text() == hwh.read_text()
+    # the routed timing summary beside the bitstream, of the run that was opened
+    assert run.of("open_run") == [["impl_1"]]
+    summary = (out / overlay.BITSTREAM).with_suffix(".timing.rpt").read_text()
+    assert summary.startswith("Timing summary: WNS 0.412")
+    assert [c[c.index("-delay_type") + 1] for c in run.of("get_timing_paths")] == ["max", "min"]
     monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
     monkeypatch.setattr(backend, "DEFAULT_BITSTREAM_DIRS", (out,))
     assert backend.find_bitstream() == out / overlay.BITSTREAM
@@ -1126,3 +1131,21 @@ def test_the_stubbed_vivado_stops_on_what_vivado_would_refuse(tmp_path: Path, rt
     assert message in run.error
     assert run.calls[-1][0] in ("create_bd_cell", "set_property", "get_bd_pins", "get_bd_intf_pins",
                                 "get_bd_addr_segs"), "Vivado stops at the failing command"
+
+
+@pytest.mark.parametrize("kind, slack", [("max", "-0.031"), ("min", "-0.002")])
+def test_build_tcl_stops_on_negative_routed_slack_and_writes_no_overlay(
+        tmp_path: Path, rtl_copy: Path, variables: Dict[str, str], kind: str, slack: str) -> None:
+    """A negative WNS (setup) or WHS (hold) stops the build, naming the slack and the report: no .bit."""
+    proj, out = tmp_path / "proj", tmp_path / "out"
+    _fake_vivado_outputs(proj, variables)
+    pins, _ = _filled_pins(tmp_path)
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path,
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy), f"stereocam_fake_slack(timing_{kind})": slack},
+                  argv=["-out", str(out), "--proj", str(proj), "-pins", str(pins), "-jobs", "1"])
+    name = {"max": "WNS", "min": "WHS"}[kind]
+    assert f"routed timing fails: {name} {slack} ns" in run.error
+    runs = proj / f"{variables['STEREOCAM_BD_NAME']}.runs"
+    report = runs / "impl_1" / f"{variables['STEREOCAM_OVERLAY']}.timing.rpt"
+    assert str(report) in run.error and report.is_file()
+    assert not (out / overlay.BITSTREAM).exists()

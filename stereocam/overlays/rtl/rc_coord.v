@@ -139,7 +139,8 @@ module rc_coord #(
 
     // The camera of the sample in stage k: the left camera enters when ph = 0, so a sample
     // in an even stage belongs to camera ph and one in an odd stage to camera !ph.
-    reg ph;
+    // ~900 loads (every stage's camera select): replicated by Vivado's synthesis, 64 loads a copy at most
+    (* max_fanout = 64 *) reg ph;
     wire cam_even = ph;
     wire cam_odd  = ~ph;
 `define RC_CAM(k) ((((k) % 2) != 0) ? cam_odd : cam_even)

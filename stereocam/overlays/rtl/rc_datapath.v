@@ -452,8 +452,17 @@ reg signed [PW-1:0] h_iu_reg = {PW{1'b0}};
 reg signed [PW-1:0] h_iv_reg = {PW{1'b0}};
 reg                 h_ok_reg = 1'b0;
 
-wire row_complete = in_row_reg > e_is_reg;  // input row e(y) is in
 wire x_last = x_is_reg == f_w1;
+// row_complete = in_row_reg > e_is_reg (input row e(y) is in), kept in a register: it is computed
+// from the two counters' next values, so that the compare is not on the path into issue and the
+// coordinate FIFO's pop (the longest path of the core otherwise).
+wire [SZ-1:0] in_row_next = in_row_done ? in_row_reg + ONE : in_start ? {SZ{1'b0}} : in_row_reg;
+wire          e_is_go = o_state_reg == O_WAIT0 && in_row_reg > f_e0_reg;
+wire          e_is_inc = o_state_reg == O_RUN && phase_reg && x_last && e_is_reg != f_h1;
+wire [SZ-1:0] e_is_next = e_is_go ? f_e0_reg : e_is_inc ? e_is_reg + ONE : e_is_reg;
+reg           row_complete_reg = 1'b0;
+always @(posedge clk) row_complete_reg <= in_row_next > e_is_next;
+wire row_complete = row_complete_reg;
 wire y_last = y_is_reg == f_h1;
 wire issue = o_state_reg == O_RUN && !phase_reg && credit_used_reg < FIFO_DEPTH
     && (row_complete || in_ended_reg) && (f_bypass_reg || pos_valid);
@@ -479,6 +488,12 @@ reg                 p0_first_reg = 1'b0;
 reg                 p0_last_reg = 1'b0;
 reg                 p0_flast_reg = 1'b0;
 reg [SZ-1:0]        p0_e_reg = {SZ{1'b0}};
+// e(y) - y0 of the item (stage 1's window compares), computed as the item is loaded:
+// the subtract is then off the path through the compares into the tap flags
+reg signed [XW-1:0] p0_dd_reg = {XW{1'b0}};
+wire signed [PW-1:0] iv_l_sel = f_bypass_reg ? bypass_iv : pos_iv_l;
+wire signed [XW-1:0] dd_l = {{XW-SZ{1'b0}}, e_is_reg} - {{XW-IW{iv_l_sel[PW-1]}}, iv_l_sel[PW-1:FB]};
+wire signed [XW-1:0] dd_r = {{XW-SZ{1'b0}}, p0_e_reg} - {{XW-IW{h_iv_reg[PW-1]}}, h_iv_reg[PW-1:FB]};
 reg [SW-1:0]        p0_hr_reg = {SW{1'b0}};
 
 always @(posedge clk) begin
@@ -551,7 +566,8 @@ always @(posedge clk) begin
     p0_cam_reg <= phase_reg;
     if (issue) begin
         p0_iu_reg <= f_bypass_reg ? bypass_iu : pos_iu_l;
-        p0_iv_reg <= f_bypass_reg ? bypass_iv : pos_iv_l;
+        p0_iv_reg <= iv_l_sel;
+        p0_dd_reg <= dd_l;
         p0_ok_reg <= f_bypass_reg || pos_ok_l;
         h_iu_reg <= f_bypass_reg ? bypass_iu : pos_iu_r;
         h_iv_reg <= f_bypass_reg ? bypass_iv : pos_iv_r;
@@ -566,6 +582,7 @@ always @(posedge clk) begin
     end else if (phase_reg) begin
         p0_iu_reg <= h_iu_reg;
         p0_iv_reg <= h_iv_reg;
+        p0_dd_reg <= dd_r;
         p0_ok_reg <= h_ok_reg;
     end
 
@@ -583,8 +600,7 @@ wire signed [XW-1:0] x0s = {{XW-IW{x0[IW-1]}}, x0};
 wire signed [XW-1:0] y0s = {{XW-IW{y0[IW-1]}}, y0};
 wire signed [XW-1:0] width_s = {{XW-SZ{1'b0}}, f_width_reg};
 wire signed [XW-1:0] height_s = {{XW-SZ{1'b0}}, f_height_reg};
-wire signed [XW-1:0] e_s = {{XW-SZ{1'b0}}, p0_e_reg};
-wire signed [XW-1:0] dd = e_s - y0s;         // e(y) - y0
+wire signed [XW-1:0] dd = p0_dd_reg;         // e(y) - y0
 localparam signed [XW-1:0] S_ONE = 1;
 localparam signed [XW-1:0] S_MONE = -1;
 localparam [31:0] LB_ROWS_V = LB_ROWS;

@@ -91,7 +91,9 @@ module rectify_core #
 localparam NP = `RC_NPARAMS;
 localparam PW = `RC_POS_W;
 
-reg rst_reg = 1'b1;
+// ~4,000 loads: Vivado's synthesis replicates it so that no copy drives more than 64 (the timing
+// estimate, stereocam hw timing, assumes the same)
+(* max_fanout = 64 *) reg rst_reg = 1'b1;
 
 always @(posedge aclk) begin
     rst_reg <= !aresetn;

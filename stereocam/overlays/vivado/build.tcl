@@ -220,6 +220,22 @@ if {$stereocam_last == [lsearch -exact $stereocam_steps impl]} {
 wait_on_run impl_1
 stereocam_check_run impl_1
 set stereocam_impl_dir [get_property DIRECTORY [get_runs impl_1]]
+
+# Routed timing is the sign-off (`stereocam hw timing` only estimates it): write the timing summary
+# beside the bitstream, and stop when any setup (WNS) or hold (WHS) slack is negative.
+open_run impl_1
+set stereocam_timing [file join $stereocam_impl_dir $STEREOCAM_OVERLAY.timing.rpt]
+report_timing_summary -max_paths 10 -file $stereocam_timing
+set stereocam_wns [get_property SLACK [get_timing_paths -delay_type max -max_paths 1 -nworst 1]]
+set stereocam_whs [get_property SLACK [get_timing_paths -delay_type min -max_paths 1 -nworst 1]]
+foreach {stereocam_kind stereocam_slack} [list WNS $stereocam_wns WHS $stereocam_whs] {
+    if {$stereocam_slack ne "" && $stereocam_slack < 0} {
+        error "build.tcl: routed timing fails: $stereocam_kind $stereocam_slack ns at\
+            $STEREOCAM_FCLK0_MHZ MHz; no overlay written. Read $stereocam_timing, then pipeline the path\
+            (stereocam hw timing lists the estimated worst ones) or lower STEREOCAM_FCLK0_MHZ in settings.tcl"
+    }
+}
+puts "stereocam: routed WNS $stereocam_wns ns, WHS $stereocam_whs ns; summary in $stereocam_timing"
 if {$stereocam_last == [lsearch -exact $stereocam_steps impl]} {
     puts "stereocam: implemented; reports in $stereocam_impl_dir"
     return
@@ -245,4 +261,6 @@ if {$stereocam_hwh eq ""} {
 file mkdir $stereocam_out
 file copy -force $stereocam_bit [file join $stereocam_out $STEREOCAM_OVERLAY.bit]
 file copy -force $stereocam_hwh [file join $stereocam_out $STEREOCAM_OVERLAY.hwh]
-puts "stereocam: wrote [file join $stereocam_out $STEREOCAM_OVERLAY.bit] and $STEREOCAM_OVERLAY.hwh beside it"
+file copy -force $stereocam_timing [file join $stereocam_out $STEREOCAM_OVERLAY.timing.rpt]
+puts "stereocam: wrote [file join $stereocam_out $STEREOCAM_OVERLAY.bit], with $STEREOCAM_OVERLAY.hwh and\
+    $STEREOCAM_OVERLAY.timing.rpt beside it"
