@@ -138,13 +138,18 @@ def test_ruler_and_freeze(daemon: str, tmp_path: Path, artifacts_dir: Path) -> N
         assert distance == pytest.approx(frozen["distance_m"], rel=1e-12)
         # So does the depth readout under the pointer.
         page.mouse.move(*_client_of(page, "disparity", (w, h), A))
-        readout = page.get_by_test_id("readout-disparity")
-        expect(readout).to_have_attribute("data-frame", str(n))
-        rx, ry = int(readout.get_attribute("data-x") or -1), int(readout.get_attribute("data-y") or -1)
+        # Until the readout answers for the pixel now under the pointer (the one before may still
+        # show), read whole: its attributes change together when the next answer lands.
+        answer = page.wait_for_function(
+            """n => { const r = document.getElementById('readout-disparity');
+                     const [x, y] = (r.dataset.pointer || '').split(',');
+                     if (r.hidden || r.dataset.x !== x || r.dataset.y !== y || r.dataset.frame !== n)
+                         return null;
+                     return {...r.dataset}; }""", arg=str(n)).json_value()
+        rx, ry = int(answer["x"]), int(answer["y"])
         point = get_json(daemon + f"/api/point?x={rx}&y={ry}&frame={n}")
-        assert float(readout.get_attribute("data-disparity") or "nan") == point["disparity_px"]
-        depth = float(readout.get_attribute("data-depth") or "nan")
-        assert depth == pytest.approx(point["depth_m"], rel=1e-12)
+        assert float(answer["disparity"] or "nan") == point["disparity_px"]
+        assert float(answer["depth"] or "nan") == pytest.approx(point["depth_m"], rel=1e-12)
         page.screenshot(path=str(artifacts_dir / "ruler-frozen.png"))
 
         # Escape clears the ruler; typed points (Enter) measure the frozen frame again.
