@@ -225,12 +225,6 @@ _SWITCH_PARAMS: Dict[str, Param] = {
 }
 
 
-def _switch_interfaces(c: Config) -> List[str]:
-    out = [f"S{i:02d}_AXIS" for i in range(_n(c, "NUM_SI"))]
-    out += [f"M{i:02d}_AXIS" for i in range(_n(c, "NUM_MI"))]
-    return out + (["S_AXI_CTRL"] if _on(c, "ROUTING_MODE") else [])
-
-
 def _switch_types(c: Config) -> Dict[str, Tuple[str, str]]:
     out = {f"S{i:02d}_AXIS": (AXIS, "SLAVE") for i in range(_n(c, "NUM_SI"))}
     out.update({f"M{i:02d}_AXIS": (AXIS, "MASTER") for i in range(_n(c, "NUM_MI"))})
@@ -242,7 +236,7 @@ def _switch_types(c: Config) -> Dict[str, Tuple[str, str]]:
 SWITCH = CatalogIP(
     doc="PG085 (AXI4-Stream Switch v1.1)",
     params=_SWITCH_PARAMS,
-    interfaces=_switch_interfaces,
+    interfaces=lambda c: list(_switch_types(c)),
     pins=lambda c: ["aclk", "aresetn"] + (["s_axi_ctrl_aclk", "s_axi_ctrl_aresetn"]
                                           if _on(c, "ROUTING_MODE") else []),
     segments=lambda c: {"S_AXI_CTRL/Reg": "S_AXI_CTRL"} if _on(c, "ROUTING_MODE") else {},

@@ -40,19 +40,15 @@ def _word_end(text: str, i: int) -> int:
     """Index just past the Tcl word that starts at ``text[i]`` (braced, quoted or bare)."""
     n = len(text)
     if text[i] == "{":
-        depth = 0
-        while i < n:
-            c = text[i]
-            if c == "\\":
-                i += 2
+        depth, j = 0, i
+        while j < n:
+            if text[j] == "\\":  # an escaped character counts as neither brace
+                j += 2
                 continue
-            if c == "{":
-                depth += 1
-            elif c == "}":
-                depth -= 1
-                if depth == 0:
-                    return i + 1
-            i += 1
+            depth += {"{": 1, "}": -1}.get(text[j], 0)
+            if depth == 0:
+                return j + 1
+            j += 1
         raise ValueError("unbalanced braces")
     quoted = text[i] == '"'
     j = i + 1 if quoted else i
@@ -401,6 +397,15 @@ def _hdl_module(sources: Sequence[str], top: str) -> Tuple[List[str], Dict[str, 
     return [], {}
 
 
+# get_bd_* of a cell's member: (what Vivado calls it, path depth, the cell's method listing them)
+_MEMBERS: Dict[str, Tuple[str, int, str]] = {
+    "get_bd_pins": ("pin", 2, "pins"),
+    "get_bd_intf_pins": ("interface", 2, "interfaces"),
+    "get_bd_addr_spaces": ("address space", 2, "spaces"),
+    "get_bd_addr_segs": ("address segment", 3, "segments"),
+}
+
+
 class FakeVivado:
     """Vivado's answers to the recorded calls, in order: :meth:`call` raises :class:`VivadoError`."""
 
@@ -557,30 +562,13 @@ class FakeVivado:
         elif verb == "get_bd_intf_ports":
             if path not in d.intf_ports:
                 raise VivadoError(f"get_bd_intf_ports: no external interface port '{path}'")
-        elif verb == "get_bd_pins":
-            cell, pin = self._split(path, verb, 2)
-            if pin not in cell.pins():
-                raise VivadoError(f"get_bd_pins: {cell.name} ({cell.vlnv}) has no pin '{pin}' in its "
-                                  "configuration"
-                                  f" (pins: {', '.join(cell.pins())}; {cell.doc})")
-        elif verb == "get_bd_intf_pins":
-            cell, intf = self._split(path, verb, 2)
-            if intf not in cell.interfaces():
-                raise VivadoError(f"get_bd_intf_pins: {cell.name} ({cell.vlnv}) has no interface '{intf}' "
-                                  "in its "
-                                  f"configuration (interfaces: {', '.join(cell.interfaces())}; {cell.doc})")
-        elif verb == "get_bd_addr_spaces":
-            cell, space = self._split(path, verb, 2)
-            if space not in cell.spaces():
-                raise VivadoError(f"get_bd_addr_spaces: {cell.name} ({cell.vlnv}) has no address space "
-                                  f"'{space}'"
-                                  f" (spaces: {', '.join(cell.spaces()) or 'none'})")
-        elif verb == "get_bd_addr_segs":
-            cell, segment = self._split(path, verb, 3)
-            if segment not in cell.segments():
-                raise VivadoError(f"get_bd_addr_segs: {cell.name} ({cell.vlnv}) has no address segment "
-                                  f"'{segment}'"
-                                  f" (segments: {', '.join(cell.segments()) or 'none'})")
+        elif verb in _MEMBERS:
+            what, depth, listed = _MEMBERS[verb]
+            cell, name = self._split(path, verb, depth)
+            have = getattr(cell, listed)()
+            if name not in have:
+                raise VivadoError(f"{verb}: {cell.name} ({cell.vlnv}) has no {what} '{name}' in its "
+                                  f"configuration ({listed}: {', '.join(have) or 'none'}; {cell.doc})")
 
     def call(self, words: List[str]) -> None:
         """One recorded call."""

@@ -289,6 +289,27 @@ class Client:
         """Pixel (x, y) of the rectified pair: its colours, ``disparity_px``, ``depth_m``, ``point_m``."""
         return dict(self._json("GET", "/api/point", query={"x": x, "y": y, "frame": frame}))
 
+    def ruler(self, a: Tuple[int, int], b: Tuple[int, int], *, frame: Optional[int] = None) -> JSON:
+        """The distance in metres between rectified-left pixels ``a`` and ``b`` (``distance_m``) and
+        their 3-D points; of frame ``frame`` when given (one the daemon still holds, else 410)."""
+        query = {"x0": a[0], "y0": a[1], "x1": b[0], "y1": b[1], "frame": frame}
+        return dict(self._json("GET", "/api/ruler", query=query))
+
+    def freeze(self, frame: Optional[int] = None) -> JSON:
+        """Hold frame ``frame`` (None: the newest) so that ``point`` and ``ruler`` can read it at leisure;
+        ``release`` lets it go."""
+        if frame is None:
+            return dict(self._json("POST", "/api/freeze"))
+        return dict(self._json("POST", "/api/freeze", {"frame": frame}))
+
+    def frozen(self) -> List[int]:
+        """The frames held frozen, oldest first."""
+        return [int(n) for n in self._json("GET", "/api/freeze")["frozen"]]
+
+    def release(self, frame: int) -> None:
+        """Let a frozen frame go."""
+        self._request("DELETE", f"/api/freeze/{int(frame)}")
+
     def disparity_info(self) -> JSON:
         """What the disparity view's colours mean (``colors``, ``num_disparities``, ``focal_px``, ...)."""
         return dict(self._json("GET", "/api/disparity"))
@@ -375,6 +396,12 @@ class Client:
     def stop_recording(self, recording_id: str) -> JSON:
         """Stop a recording; its finished entry once written."""
         return dict(self._json("POST", f"/api/recordings/{_quoted(recording_id)}/stop"))
+
+    def recording_frame(self, recording_id: str, index: int, side: str = "left") -> np.ndarray:
+        """Frame ``index`` (0: the first) of a finished recording, one camera, exactly as stored."""
+        data, _ = self._request("GET", f"/api/recordings/{_quoted(recording_id)}/frames/{int(index)}/"
+                                       f"{_quoted(side)}.png")
+        return decode_image(data)
 
     def download_recording(self, recording_id: str, dest: Union[str, Path, BinaryIO]) -> None:
         """A finished recording as a zip (file path written whole or not at all, or an open binary file)."""

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Dict, Iterator, List, Optional, Sequence, Set, Tuple
 
 import pytest
-from playwright.sync_api import BrowserContext, Page, expect, sync_playwright
+from playwright.sync_api import BrowserContext, Locator, Page, expect, sync_playwright
 
 from stereocam.bench.serve import running_daemon
 
@@ -105,6 +105,27 @@ def daemon_and_page(tmp_path: Path, artifacts_dir: Path, *, fps: float, viewport
             page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
             yield base, context, page
     assert not problems, problems
+
+
+@contextlib.contextmanager
+def live_page(tmp_path: Path, artifacts_dir: Path, screenshot: str, *, fps: float,
+              viewport: Dict[str, int]) -> Iterator[Tuple[str, Page]]:
+    """A daemon and its page loaded at ``viewport`` (a :func:`watched_page`): (base URL, page)."""
+    with daemon_serving(tmp_path, artifacts_dir, fps=fps) as base:
+        with watched_page(tmp_path, artifacts_dir, screenshot) as page:
+            page.set_viewport_size(viewport)  # type: ignore[arg-type]
+            page.goto(base + "/")
+            yield base, page
+
+
+def record_in_page(page: Page, seconds: int) -> Locator:
+    """Record ``seconds`` from the page's Record panel; the recording's list item, once done."""
+    expect(page.get_by_test_id("conn")).to_have_text("live")
+    page.get_by_test_id("record-seconds").fill(str(seconds))
+    page.get_by_test_id("btn-record").click()
+    item = page.locator("[data-testid=recording]").first
+    expect(item).to_have_attribute("data-state", "done")
+    return item
 
 
 def wait_frames(page: Page, views: Sequence[str]) -> None:

@@ -23,10 +23,9 @@ import time
 import urllib.parse
 import urllib.request
 from pathlib import Path
-from typing import Iterator, List, Tuple
+from typing import List, Tuple
 
 import numpy as np
-import pytest
 from playwright.sync_api import Page, expect
 
 from stereocam.server.frames import views
@@ -46,13 +45,6 @@ VIEWS = list(views.VIEWS)  # the registry, never a list of its own
 DAEMON_FPS = 15.0
 # Chromium logs every non-2xx fetch; the one the test provokes on purpose (verify before upload) is fine.
 EXPECTED_409 = "status of 409"
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    """The real daemon on a free port (emulated fabric); yields its base URL."""
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _pattern_pair(width: int, height: int) -> Tuple[np.ndarray, np.ndarray]:

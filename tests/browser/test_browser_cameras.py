@@ -15,13 +15,12 @@ import math
 import time
 import urllib.request
 from pathlib import Path
-from typing import Iterator, Tuple
+from typing import Tuple
 
 import numpy as np
-import pytest
 from playwright.sync_api import Page, expect
 
-from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, watched_page
+from .chromium import BROWSER_TEST_TIMEOUT, get_json, watched_page
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
@@ -61,12 +60,6 @@ def _settled_brightness(base: str) -> float:
         if frame >= first + SETTLE_FRAMES:
             return mean
         assert time.monotonic() < deadline, f"frame {frame} (from {first}) after {WAIT_S} s"
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _set_exposure(page: Page, base: str, us: int) -> None:

@@ -22,7 +22,7 @@ import json
 import re
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Any, Dict, List, Optional
 
 import pytest
 from playwright.sync_api import Page, Response, expect
@@ -37,7 +37,6 @@ from .chromium import (
     assert_messages_clear_of_views,
     assert_no_sideways_scroll,
     daemon_config,
-    daemon_serving,
     wait_frames,
     watched_page,
 )
@@ -48,12 +47,6 @@ pytestmark = BROWSER_TEST_TIMEOUT
 WAIT_S = TIMEOUT_MS / 1000
 EXPECTED = ("status of 415", "status of 422", "status of 503")
 WINDOWS = pytest.mark.parametrize("window", [DESKTOP, PHONE], ids=["1440x900", "375x812"])
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _post(url: str, body: Optional[Dict[str, Any]] = None, method: str = "POST") -> Dict[str, Any]:

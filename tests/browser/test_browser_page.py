@@ -50,12 +50,6 @@ WAIT_S = TIMEOUT_MS / 1000
 EXPECTED = ("status of 409", "status of 422", "status of 404", "status of 503")
 
 
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
-
-
 def _png(path: Path, image: np.ndarray) -> Path:
     import cv2
 

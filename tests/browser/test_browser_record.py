@@ -19,7 +19,14 @@ import cv2
 import numpy as np
 from playwright.sync_api import expect
 
-from .chromium import BROWSER_TEST_TIMEOUT, assert_no_sideways_scroll, daemon_serving, get_json, watched_page
+from .chromium import (
+    BROWSER_TEST_TIMEOUT,
+    assert_no_sideways_scroll,
+    daemon_serving,
+    get_json,
+    record_in_page,
+    watched_page,
+)
 from .test_browser import DAEMON_FPS, _errors, _pattern_pair, _wait_status_source, _write_png
 
 pytestmark = BROWSER_TEST_TIMEOUT
@@ -77,11 +84,7 @@ def test_a_recording_is_made_listed_replayed_and_deleted(tmp_path: Path, artifac
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
         with watched_page(tmp_path, artifacts_dir, "page-recording.png", expected=["status of 404"]) as page:
             page.goto(base + "/")
-            expect(page.get_by_test_id("conn")).to_have_text("live")
-            page.get_by_test_id("record-seconds").fill("2")
-            page.get_by_test_id("btn-record").click()
-            item = page.locator("[data-testid=recording]").first
-            expect(item).to_have_attribute("data-state", "done")
+            item = record_in_page(page, 2)
             frames = int(item.get_attribute("data-frames") or 0)
             listed = get_json(base + "/api/recordings")["recordings"][0]
             assert frames == listed["frames"] and frames >= 2, listed

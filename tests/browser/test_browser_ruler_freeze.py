@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Iterator, Tuple
+from typing import Tuple
 
 import numpy as np
 import pytest
@@ -27,13 +27,11 @@ from .chromium import (
     DESKTOP,
     PHONE,
     assert_no_sideways_scroll,
-    daemon_serving,
     get_json,
     wait_frames,
     wait_new_frames,
     watched_page,
 )
-from .test_browser import DAEMON_FPS
 
 pytestmark = [BROWSER_TEST_TIMEOUT, pytest.mark.slow]
 
@@ -42,12 +40,6 @@ A, B = (615, 381), (180, 100)
 # A live ruler asks for the frame the disparity view shows; when the daemon no longer holds it (410)
 # it asks for the newest: Chromium logs that 410.
 EXPECTED = ("status of 410",)
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _client_of(page: Page, view: str, full: Tuple[int, int], px: Tuple[int, int]) -> Tuple[float, float]:

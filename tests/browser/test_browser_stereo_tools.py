@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 from playwright.sync_api import expect
@@ -25,24 +24,16 @@ from .chromium import (
     PHONE,
     assert_messages_clear_of_views,
     assert_no_sideways_scroll,
-    daemon_serving,
     get_json,
     wait_frames,
     watched_page,
 )
-from .test_browser import DAEMON_FPS
 
 pytestmark = [BROWSER_TEST_TIMEOUT, pytest.mark.slow]
 
 SBS = next(v.name for v in views.REGISTRY if v.renders == "hconcat")  # the registry says which
 RAW = [v.name for v in views.REGISTRY if v.raw]
 FIRST = views.VIEWS[0]
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def test_epipolar_lines_and_exposure_tools(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:

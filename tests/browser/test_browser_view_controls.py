@@ -31,10 +31,10 @@ from .chromium import (
     PHONE,
     TIMEOUT_MS,
     assert_no_sideways_scroll,
-    daemon_serving,
     get_json,
+    live_page,
+    record_in_page,
     wait_frames,
-    watched_page,
 )
 from .test_browser import DAEMON_FPS
 
@@ -69,78 +69,74 @@ def _choose(page: Page, view: str, quality: str, size: str, fps: str) -> None:
 
 def test_a_views_quality_size_and_rate_are_chosen_shown_and_remembered(tmp_path: Path,
                                                                          artifacts_dir: Path) -> None:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
+    with live_page(tmp_path, artifacts_dir, "view-controls.png", fps=DAEMON_FPS,
+                   viewport=DESKTOP) as (base, page):
         width, height = get_json(base + "/api/status")["frame_size"]
-        with watched_page(tmp_path, artifacts_dir, "view-controls.png") as page:
-            page.set_viewport_size(DESKTOP)
-            page.goto(base + "/")
-            wait_frames(page, VIEWS)
-            page.get_by_test_id("views-menu-open").click()
-            expect(page.get_by_test_id("views-opts-row-rect_left")).to_be_hidden()
-            page.get_by_test_id("views-opts-rect_left").click()
-            expect(page.get_by_test_id("views-opts-row-rect_left")).to_be_visible()
-            expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("auto")
-            _choose(page, "rect_left", "30", "0.25", "2")
-            expect(page.get_by_test_id("views-fps-rect_left")).to_be_focused()
-            assert_no_sideways_scroll(page, "a view's settings open at 1440x900")
-            _wait_encoded_as(base, "rect_left", quality=30, scale=0.25, asked_fps=2.0)
-            page.wait_for_function("s => document.getElementById('view-rect_left')?.dataset.size === s",
-                                   arg=f"{width // 4}x{height // 4}")
-            # Bandwidth and latency, per view and in all, from the frames received.
-            for view in ("rect_left", "disparity"):
-                net = page.get_by_test_id(f"net-{view}")
-                expect(net).to_have_text(NET)
-                page.wait_for_function(
-                    "v => { const d = document.getElementById('net-' + v)?.dataset;"
-                    " return d && Number(d.bps) > 0 && Number(d.latencyMs) > 0; }", arg=view)
-            total = page.get_by_test_id("bw-total")
-            expect(total).to_have_text(re.compile(r"^Received: \d+(\.\d)? (kB|MB)/s in all$"))
-            per_view = page.evaluate(
-                "() => [...document.querySelectorAll('.view-net')]"
-                ".reduce((a, e) => a + Number(e.dataset.bps || 0), 0)")
-            assert per_view > 0 and int(total.get_attribute("data-bps") or 0) > 0
-            # The smaller, rarer, lower-quality view costs less than a full-rate one of the same size.
+        wait_frames(page, VIEWS)
+        page.get_by_test_id("views-menu-open").click()
+        expect(page.get_by_test_id("views-opts-row-rect_left")).to_be_hidden()
+        page.get_by_test_id("views-opts-rect_left").click()
+        expect(page.get_by_test_id("views-opts-row-rect_left")).to_be_visible()
+        expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("auto")
+        _choose(page, "rect_left", "30", "0.25", "2")
+        expect(page.get_by_test_id("views-fps-rect_left")).to_be_focused()
+        assert_no_sideways_scroll(page, "a view's settings open at 1440x900")
+        _wait_encoded_as(base, "rect_left", quality=30, scale=0.25, asked_fps=2.0)
+        page.wait_for_function("s => document.getElementById('view-rect_left')?.dataset.size === s",
+                               arg=f"{width // 4}x{height // 4}")
+        # Bandwidth and latency, per view and in all, from the frames received.
+        for view in ("rect_left", "disparity"):
+            net = page.get_by_test_id(f"net-{view}")
+            expect(net).to_have_text(NET)
             page.wait_for_function(
-                "() => Number(document.getElementById('net-rect_left').dataset.bps)"
-                " < Number(document.getElementById('net-rect_right').dataset.bps)")
-            page.get_by_test_id("views-menu-open").click()  # closes the menu
-            assert_no_sideways_scroll(page, "captions with bandwidth and latency at 1440x900")
+                "v => { const d = document.getElementById('net-' + v)?.dataset;"
+                " return d && Number(d.bps) > 0 && Number(d.latencyMs) > 0; }", arg=view)
+        total = page.get_by_test_id("bw-total")
+        expect(total).to_have_text(re.compile(r"^Received: \d+(\.\d)? (kB|MB)/s in all$"))
+        per_view = page.evaluate(
+            "() => [...document.querySelectorAll('.view-net')]"
+            ".reduce((a, e) => a + Number(e.dataset.bps || 0), 0)")
+        assert per_view > 0 and int(total.get_attribute("data-bps") or 0) > 0
+        # The smaller, rarer, lower-quality view costs less than a full-rate one of the same size.
+        page.wait_for_function(
+            "() => Number(document.getElementById('net-rect_left').dataset.bps)"
+            " < Number(document.getElementById('net-rect_right').dataset.bps)")
+        page.get_by_test_id("views-menu-open").click()  # closes the menu
+        assert_no_sideways_scroll(page, "captions with bandwidth and latency at 1440x900")
 
-            # Kept with the layout: after a reload the daemon is asked the same.
-            page.reload()
-            wait_frames(page, VIEWS)
-            _wait_encoded_as(base, "rect_left", quality=30, scale=0.25, asked_fps=2.0)
-            page.get_by_test_id("views-menu-open").click()
-            page.get_by_test_id("views-opts-rect_left").click()
-            expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("30")
-            expect(page.get_by_test_id("views-scale-rect_left")).to_have_value("0.25")
-            expect(page.get_by_test_id("views-fps-rect_left")).to_have_value("2")
-            stored = json.loads(page.evaluate("() => localStorage.getItem('stereocam.views-layout')"))
-            assert stored["settings"]["rect_left"] == {"quality": 30, "scale": 0.25, "fps": 2}
+        # Kept with the layout: after a reload the daemon is asked the same.
+        page.reload()
+        wait_frames(page, VIEWS)
+        _wait_encoded_as(base, "rect_left", quality=30, scale=0.25, asked_fps=2.0)
+        page.get_by_test_id("views-menu-open").click()
+        page.get_by_test_id("views-opts-rect_left").click()
+        expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("30")
+        expect(page.get_by_test_id("views-scale-rect_left")).to_have_value("0.25")
+        expect(page.get_by_test_id("views-fps-rect_left")).to_have_value("2")
+        stored = json.loads(page.evaluate("() => localStorage.getItem('stereocam.views-layout')"))
+        assert stored["settings"]["rect_left"] == {"quality": 30, "scale": 0.25, "fps": 2}
 
-            # All auto again: the daemon's default quality, the page's rate.
-            page.get_by_test_id("views-reset").click()
-            expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("auto")
-            _wait_encoded_as(base, "rect_left", quality=Settings().default_quality, asked_fps=PAGE_FPS)
+        # All auto again: the daemon's default quality, the page's rate.
+        page.get_by_test_id("views-reset").click()
+        expect(page.get_by_test_id("views-quality-rect_left")).to_have_value("auto")
+        _wait_encoded_as(base, "rect_left", quality=Settings().default_quality, asked_fps=PAGE_FPS)
 
 
 def test_view_settings_on_a_phone_have_no_sideways_scroll(tmp_path: Path, artifacts_dir: Path) -> None:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
+    with live_page(tmp_path, artifacts_dir, "view-controls-phone.png", fps=DAEMON_FPS,
+                   viewport=PHONE) as (base, page):
         width, height = get_json(base + "/api/status")["frame_size"]
-        with watched_page(tmp_path, artifacts_dir, "view-controls-phone.png") as page:
-            page.set_viewport_size(PHONE)
-            page.goto(base + "/")
-            wait_frames(page, VIEWS)
-            expect(page.get_by_test_id("net-rect_left")).to_have_text(NET)
-            assert_no_sideways_scroll(page, "captions with bandwidth and latency at 375x812")
-            page.get_by_test_id("views-menu-open").click()
-            page.get_by_test_id("views-opts-sbs").click()
-            assert_no_sideways_scroll(page, "a view's settings open at 375x812")
-            page.get_by_test_id("views-scale-sbs").select_option("1")
-            _wait_encoded_as(base, "sbs", scale=1.0)
-            page.wait_for_function("s => document.getElementById('view-sbs')?.dataset.size === s",
-                                   arg=f"{2 * width}x{height}")
-            assert_no_sideways_scroll(page, "a view at a chosen size at 375x812")
+        wait_frames(page, VIEWS)
+        expect(page.get_by_test_id("net-rect_left")).to_have_text(NET)
+        assert_no_sideways_scroll(page, "captions with bandwidth and latency at 375x812")
+        page.get_by_test_id("views-menu-open").click()
+        page.get_by_test_id("views-opts-sbs").click()
+        assert_no_sideways_scroll(page, "a view's settings open at 375x812")
+        page.get_by_test_id("views-scale-sbs").select_option("1")
+        _wait_encoded_as(base, "sbs", scale=1.0)
+        page.wait_for_function("s => document.getElementById('view-sbs')?.dataset.size === s",
+                               arg=f"{2 * width}x{height}")
+        assert_no_sideways_scroll(page, "a view at a chosen size at 375x812")
 
 
 def _readout_matches_file(page: Page, png: Path) -> None:
@@ -159,49 +155,43 @@ def _readout_matches_file(page: Page, png: Path) -> None:
 @pytest.mark.parametrize("viewport", [DESKTOP, PHONE], ids=["1440x900", "375x812"])
 def test_a_recording_is_stepped_through_frame_by_frame(tmp_path: Path, artifacts_dir: Path,
                                                        viewport: Dict[str, int]) -> None:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        with watched_page(tmp_path, artifacts_dir, f"recording-steps-{viewport['width']}.png") as page:
-            page.set_viewport_size(viewport)
-            page.goto(base + "/")
-            expect(page.get_by_test_id("conn")).to_have_text("live")
-            page.get_by_test_id("record-seconds").fill("2")
-            page.get_by_test_id("btn-record").click()
-            item = page.locator("[data-testid=recording]").first
-            expect(item).to_have_attribute("data-state", "done")
-            frames = int(item.get_attribute("data-frames") or 0)
-            assert frames >= 3, frames
-            rid = item.get_attribute("data-id")
-            folder = tmp_path / "recordings" / str(rid)
-            item.get_by_test_id("recording-view").click()
-            canvas = page.get_by_test_id("cv-canvas")
-            expect(canvas).to_have_attribute("data-loaded", "left:0")
-            expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame 0 / {frames - 1}")
-            expect(page.get_by_test_id("cv-prev")).to_be_disabled()
-            expect(page.get_by_test_id("cv-first")).to_be_disabled()
-            expect(page.get_by_test_id("cv-replay")).to_be_hidden()  # a capture's, not a recording's
-            assert_no_sideways_scroll(page, "a recording in the viewer")
-            _readout_matches_file(page, folder / "left_000000.png")
+    with live_page(tmp_path, artifacts_dir, f"recording-steps-{viewport['width']}.png", fps=DAEMON_FPS,
+                   viewport=viewport) as (base, page):
+        item = record_in_page(page, 2)
+        frames = int(item.get_attribute("data-frames") or 0)
+        assert frames >= 3, frames
+        rid = item.get_attribute("data-id")
+        folder = tmp_path / "recordings" / str(rid)
+        item.get_by_test_id("recording-view").click()
+        canvas = page.get_by_test_id("cv-canvas")
+        expect(canvas).to_have_attribute("data-loaded", "left:0")
+        expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame 0 / {frames - 1}")
+        expect(page.get_by_test_id("cv-prev")).to_be_disabled()
+        expect(page.get_by_test_id("cv-first")).to_be_disabled()
+        expect(page.get_by_test_id("cv-replay")).to_be_hidden()  # a capture's, not a recording's
+        assert_no_sideways_scroll(page, "a recording in the viewer")
+        _readout_matches_file(page, folder / "left_000000.png")
 
-            page.keyboard.press("ArrowRight")
-            expect(canvas).to_have_attribute("data-loaded", "left:1")
-            expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame 1 / {frames - 1}")
-            _readout_matches_file(page, folder / "left_000001.png")
-            page.keyboard.press("End")
-            expect(canvas).to_have_attribute("data-loaded", f"left:{frames - 1}")
-            expect(page.get_by_test_id("cv-next")).to_be_disabled()
-            page.keyboard.press("ArrowRight")  # past the last: stays on it
-            expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame {frames - 1} / {frames - 1}")
-            page.get_by_test_id("cv-prev").click()
-            expect(canvas).to_have_attribute("data-loaded", f"left:{frames - 2}")
-            page.keyboard.press("Home")
-            expect(canvas).to_have_attribute("data-loaded", "left:0")
-            page.get_by_test_id("cv-side-right").click()
-            expect(canvas).to_have_attribute("data-loaded", "right:0")
-            page.get_by_test_id("cv-next").click()
-            expect(canvas).to_have_attribute("data-loaded", "right:1")
-            _readout_matches_file(page, folder / "right_000001.png")
-            page.get_by_test_id("cv-last").click()
-            expect(canvas).to_have_attribute("data-loaded", f"right:{frames - 1}")
-            assert_no_sideways_scroll(page, "a recording stepped to its last frame")
-            page.keyboard.press("Escape")
-            expect(page.get_by_test_id("capture-viewer")).to_be_hidden()
+        page.keyboard.press("ArrowRight")
+        expect(canvas).to_have_attribute("data-loaded", "left:1")
+        expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame 1 / {frames - 1}")
+        _readout_matches_file(page, folder / "left_000001.png")
+        page.keyboard.press("End")
+        expect(canvas).to_have_attribute("data-loaded", f"left:{frames - 1}")
+        expect(page.get_by_test_id("cv-next")).to_be_disabled()
+        page.keyboard.press("ArrowRight")  # past the last: stays on it
+        expect(page.get_by_test_id("cv-frame")).to_have_text(f"frame {frames - 1} / {frames - 1}")
+        page.get_by_test_id("cv-prev").click()
+        expect(canvas).to_have_attribute("data-loaded", f"left:{frames - 2}")
+        page.keyboard.press("Home")
+        expect(canvas).to_have_attribute("data-loaded", "left:0")
+        page.get_by_test_id("cv-side-right").click()
+        expect(canvas).to_have_attribute("data-loaded", "right:0")
+        page.get_by_test_id("cv-next").click()
+        expect(canvas).to_have_attribute("data-loaded", "right:1")
+        _readout_matches_file(page, folder / "right_000001.png")
+        page.get_by_test_id("cv-last").click()
+        expect(canvas).to_have_attribute("data-loaded", f"right:{frames - 1}")
+        assert_no_sideways_scroll(page, "a recording stepped to its last frame")
+        page.keyboard.press("Escape")
+        expect(page.get_by_test_id("capture-viewer")).to_be_hidden()

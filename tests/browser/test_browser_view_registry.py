@@ -5,24 +5,16 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Iterator
 
-import pytest
 from playwright.sync_api import expect
 
 from stereocam.server.frames import views
 
-from .chromium import BROWSER_TEST_TIMEOUT, daemon_serving, get_json, wait_frames, watched_page
+from .chromium import BROWSER_TEST_TIMEOUT, get_json, wait_frames, watched_page
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
 DAEMON_FPS = 10.0
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def test_figures_are_the_api_views_in_order(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:

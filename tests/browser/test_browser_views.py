@@ -22,7 +22,7 @@ import re
 import urllib.error
 import urllib.request
 from pathlib import Path
-from typing import Any, Dict, Iterator, Tuple
+from typing import Any, Dict, Tuple
 
 import cv2
 import numpy as np
@@ -35,7 +35,6 @@ from ..rig_truth import static_depth
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     assert_no_sideways_scroll,
-    daemon_serving,
     get_json,
     wait_frames,
     watched_page,
@@ -43,16 +42,10 @@ from .chromium import (
 
 pytestmark = BROWSER_TEST_TIMEOUT
 
+DAEMON_FPS = 10.0  # the daemon fixture's camera rate (tests/browser/conftest.py)
 VIEWS = list(views.VIEWS)  # the registry, never a list of its own
-DAEMON_FPS = 10.0
 # Pixels on the rig's back wall, never reached by its moving planes (rig_truth.static_depth says so).
 WALL = [(615, 381), (644, 350), (612, 404)]
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _png(url: str) -> np.ndarray:

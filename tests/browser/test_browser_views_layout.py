@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 import time
 from pathlib import Path
-from typing import Any, Dict, Iterator, List
+from typing import Any, Dict, List
 
 import pytest
 from playwright.sync_api import Page, expect
@@ -38,12 +38,6 @@ from .test_browser import DAEMON_FPS
 pytestmark = [BROWSER_TEST_TIMEOUT, pytest.mark.slow]
 
 VIEWS = list(views.VIEWS)  # the registry, never a list of its own
-
-
-@pytest.fixture
-def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
-        yield base
 
 
 def _shown_order(page: Page) -> List[str]:

@@ -259,6 +259,11 @@ async def test_recordings_listed_downloaded_and_opened_as_arrays(start_daemon, t
         for rl, rr in rec:
             np.testing.assert_array_equal(rl, raw[..., 0:3])
             np.testing.assert_array_equal(rr, raw[..., 4:7])
+        last = len(rec) - 1
+        np.testing.assert_array_equal(await call(c.recording_frame, rid, last, "right"), rec.pair(last)[1])
+    with pytest.raises(ClientError) as err:
+        await call(c.recording_frame, rid, done["frames"])
+    assert err.value.status == 404
     dest = tmp_path / "rec.zip"
     await call(c.download_recording, rid, dest)
     with Recording(dest) as again:
@@ -309,6 +314,27 @@ async def test_cameras_calibration_and_depth(start_daemon) -> None:
     with pytest.raises(ClientError) as err:
         await call(c.point, W, 0)
     assert err.value.status == 400
+    # Freeze a frame, measure on it, let it go.
+    held = await call(c.freeze)
+    n = held["frame"]
+    assert await call(c.frozen) == [n]
+    # Two pixels of that frame the matcher found (the readout says), measured on that frame.
+    seen = []
+    for x in range(W // 8, W, W // 16):
+        for y in (H // 4, H // 2, 3 * H // 4):
+            q = await call(c.point, x, y, frame=n)
+            if q["disparity_px"] and q["point_m"] is not None:
+                seen.append(((x, y), q["point_m"]))
+    assert len(seen) >= 2, "the rig's frame has texture to match"
+    (a, pa), (b, pb) = seen[0], seen[-1]
+    r = await call(c.ruler, a, b, frame=n)
+    assert r["frame"] == n and [q["point_m"] for q in r["points"]] == [pa, pb]
+    assert r["distance_m"] == pytest.approx(float(np.linalg.norm(np.subtract(pb, pa))))
+    with pytest.raises(ClientError) as err:
+        await call(c.ruler, a, (W, 0), frame=n)
+    assert err.value.status == 400 and "point 2" in err.value.message
+    await call(c.release, n)
+    assert await call(c.frozen) == []
 
 
 async def test_the_token_is_sent(start_daemon) -> None:

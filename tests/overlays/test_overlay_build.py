@@ -1120,7 +1120,7 @@ def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_cop
      "get_bd_intf_pins: mux (xilinx.com:ip:axis_switch:1.1) has no interface 'S_AXI_CTRL'"),
     ("block_design.tcl", "[get_bd_addr_segs rectify/s_axil/reg0]", "[get_bd_addr_segs rectify/s_axil/Reg]",
      "get_bd_addr_segs: rectify (stereocam:user:rectify:2.0) has no address segment 's_axil/Reg' "
-     "(segments: s_axil/reg0)"),
+     "in its configuration (segments: s_axil/reg0;"),
     ("block_design.tcl", "CONFIG.PCW_I2C0_I2C0_IO {EMIO}", "CONFIG.PCW_I2C0_I2C0_IO {MIO 10 .. 11}",
      "get_bd_intf_pins: processing_system7_0 (xilinx.com:ip:processing_system7:5.5) has no interface "
      "'IIC_0'"),

@@ -444,6 +444,17 @@ def format_table(report: Mapping[str, Any]) -> str:
 # --------------------------------------------------------------------------- command line
 
 
+def add_yosys_args(s: argparse.ArgumentParser, table: Mapping[str, BuildParams]) -> None:
+    """The options every ``stereocam hw`` command that runs yosys on a build takes."""
+    s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
+                   help="which build's parameters (default gray)")
+    s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    s.add_argument("--rtl", metavar="DIR", help="the Verilog folder (default stereocam/overlays/rtl)")
+    s.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
+                   help=f"give up on yosys after S seconds (default {DEFAULT_TIMEOUT_S:g})")
+    s.add_argument("--no-cache", action="store_true", help="run yosys even if an identical run is cached")
+
+
 def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
     """``stereocam hw synth``, added to the ``hw`` group by ``cli.build_parser``."""
     table, _ = builds()
@@ -458,13 +469,7 @@ def add_synth_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParser
                     f"estimated from the product guides (cited), totals against the device. Results are "
                     f"cached in ~/.cache/stereocam/hdl/synth/. Exit 0 within the floor, 1 over it, "
                     f"2 on a tool or input error.")
-    s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
-                   help="which build's parameters (default gray)")
-    s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    s.add_argument("--rtl", metavar="DIR", help="the Verilog folder (default stereocam/overlays/rtl)")
-    s.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
-                   help=f"give up on yosys after S seconds (default {DEFAULT_TIMEOUT_S:g})")
-    s.add_argument("--no-cache", action="store_true", help="run yosys even if an identical run is cached")
+    add_yosys_args(s, table)
     s.add_argument("--core-only", action="store_true",
                    help="the rectify core alone, without the whole overlay's table (camera input, "
                         "frame gates, Xilinx IP)")

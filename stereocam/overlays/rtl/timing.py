@@ -14,16 +14,10 @@ The clock is the block design's one fabric clock, :data:`stereocam.overlays.spec
 from __future__ import annotations
 
 import argparse
-import gzip
-import hashlib
 import json
 import math
-import os
 import re
-import subprocess
 import sys
-import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Set, Tuple
@@ -31,8 +25,6 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Set, 
 from ..spec.overlay import FABRIC_CLOCK_HZ
 from . import synth as hw_synth
 
-# Bump when the script, the netlist or the model changes, so cached netlists are not reused.
-NETLIST_FLOW_VERSION = 1
 #: The issue's floor: every build's worst estimated path at most this share of the period.
 MARGIN_SHARE = 0.75
 DEFAULT_PATHS = 10
@@ -376,30 +368,23 @@ def _dsp_timing(cell: Cell, t: CellTiming, m: DelayModel) -> None:
             t.launch[o] = launch
     for i in cell.inputs:
         b = _port(i)[0]
+        # (setup of the first register the input meets, or None) and the arc when it meets none
         if b in ("A", "ACIN", "B", "BCIN", "D"):
             reg = areg if b in ("A", "ACIN") else breg if b in ("B", "BCIN") else dreg
-            if reg:
-                t.setup[i] = m.dsp_in_reg_setup
-            elif mreg and mult:
-                t.setup[i] = m.dsp_ab_to_mreg
-            elif preg:
-                t.setup[i] = m.dsp_ab_to_preg
-            else:
-                t.arcs += [(i, o, m.dsp_comb_ab_to_p) for o in outputs]
+            setup = (m.dsp_in_reg_setup if reg else m.dsp_ab_to_mreg if mreg and mult
+                     else m.dsp_ab_to_preg if preg else None)
+            comb = m.dsp_comb_ab_to_p
         elif b == "C":
-            if creg:
-                t.setup[i] = m.dsp_in_reg_setup
-            elif preg:
-                t.setup[i] = m.dsp_c_to_preg
-            else:
-                t.arcs += [(i, o, m.dsp_comb_c_to_p) for o in outputs]
+            setup = m.dsp_in_reg_setup if creg else m.dsp_c_to_preg if preg else None
+            comb = m.dsp_comb_c_to_p
         elif b == "PCIN":
-            if preg:
-                t.setup[i] = m.dsp_pcin_to_preg
-            else:
-                t.arcs += [(i, o, m.dsp_comb_c_to_p) for o in outputs]
+            setup, comb = (m.dsp_pcin_to_preg if preg else None), m.dsp_comb_c_to_p
+        else:  # the control inputs (clock enables, resets, OPMODE, ALUMODE): always registered
+            setup, comb = m.dsp_ctrl_setup, 0.0
+        if setup is not None:
+            t.setup[i] = setup
         else:
-            t.setup[i] = m.dsp_ctrl_setup
+            t.arcs += [(i, o, comb) for o in outputs]
 
 
 # --------------------------------------------------------------------------- the longest paths
@@ -625,16 +610,6 @@ def clock_mhz() -> float:
     return FABRIC_CLOCK_HZ / 1e6
 
 
-def netlist_key(sources: Sequence[Path], top: str, parameters: Mapping[str, int], version: str) -> str:
-    h = hashlib.sha256()
-    head = {"flow": NETLIST_FLOW_VERSION, "synth": hw_synth.SYNTH_COMMAND, "top": top, "yosys": version,
-            "parameters": dict(sorted(parameters.items()))}
-    h.update(json.dumps(head, sort_keys=True).encode())
-    for p in sources:
-        h.update(b"\0" + p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
-    return h.hexdigest()[:20]
-
-
 @dataclass
 class Netlist:
     data: Dict[str, Any]
@@ -647,45 +622,12 @@ def synth_netlist(sources_dir: Path, *, top: str = hw_synth.TOP,
                   parameters: Optional[Mapping[str, int]] = None, cache_dir: Optional[Path] = None,
                   timeout: float = hw_synth.DEFAULT_TIMEOUT_S,
                   use_cache: bool = True) -> Netlist:
-    """yosys's mapped netlist of ``sources_dir`` (synthesised as ``stereocam hw synth`` does), cached."""
-    parameters = dict(parameters or {})
-    sources = hw_synth.find_sources(sources_dir, top)
-    headers = sorted(p for p in sources_dir.iterdir() if p.suffix in hw_synth.HASHED_SUFFIXES and p.is_file())
-    yosys = hw_synth.find_yosys()
-    version = hw_synth.yosys_version(yosys)
-    cache = cache_dir or (hw_synth.default_cache_dir().parent / "timing")
-    key = netlist_key(headers, top, parameters, version)
-    out = cache / f"{top}-{key}.json.gz"
-    if use_cache and out.is_file():
-        try:
-            with gzip.open(out, "rt", encoding="utf-8") as fh:
-                saved = json.load(fh)
-            return Netlist(saved["netlist"], True, float(saved["seconds"]), out)
-        except (OSError, ValueError, KeyError, EOFError):
-            pass
-    cache.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=cache, prefix=f".{key}-") as work:
-        script = hw_synth.yosys_script(sources, sources_dir, top, parameters, "stat.json", {})
-        script += "write_json netlist.json\n"
-        Path(work, "synth.ys").write_text(script, encoding="utf-8")
-        start = time.monotonic()
-        try:
-            proc = subprocess.run([yosys, "-q", "-l", "yosys.log", "-s", "synth.ys"], cwd=work,
-                                  capture_output=True, text=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            raise TimingError(f"yosys did not finish within {timeout:g} s (see --timeout)") from None
-        seconds = time.monotonic() - start
-        if proc.returncode != 0:
-            log = Path(work, "yosys.log")
-            text = log.read_text(encoding="utf-8", errors="replace") if log.is_file() else ""
-            raise TimingError(f"yosys failed (exit {proc.returncode}): "
-                              f"{hw_synth._yosys_error(text + proc.stderr + proc.stdout, top)}")
-        data = json.loads(Path(work, "netlist.json").read_text(encoding="utf-8"))
-        tmp = Path(work, "out.json.gz")
-        with gzip.open(tmp, "wt", encoding="utf-8") as fh:
-            json.dump({"seconds": seconds, "script": script, "netlist": data}, fh)
-        os.replace(tmp, out)
-    return Netlist(data, False, seconds, out)
+    """yosys's mapped netlist of ``sources_dir``: the very run (and cache) of ``stereocam hw synth``."""
+    result = hw_synth.synthesize(sources_dir, top=top, parameters=parameters, cache_dir=cache_dir,
+                                 timeout=timeout, use_cache=use_cache, netlist=True)
+    assert result.netlist is not None
+    data = json.loads(result.netlist.read_text(encoding="utf-8"))
+    return Netlist(data, result.cached, result.seconds, result.netlist)
 
 
 # --------------------------------------------------------------------------- report
@@ -745,15 +687,9 @@ def add_timing_parser(hw_sub: "argparse._SubParsersAction[argparse.ArgumentParse
                     f"register-to-register paths with a stated xc7z020 -1 delay model, against the block "
                     f"design's clock ({clock_mhz():g} MHz). Exit 0 when the worst path is within "
                     f"{int(MARGIN_SHARE * 100)} % of the period, 1 when not, 2 on a tool or input error.")
-    s.add_argument("--build", choices=sorted(table), default="gray" if "gray" in table else sorted(table)[0],
-                   help="which build's parameters (default gray)")
-    s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    hw_synth.add_yosys_args(s, table)
     s.add_argument("--paths", type=int, default=DEFAULT_PATHS, metavar="N",
                    help="how many paths (default 10)")
-    s.add_argument("--rtl", metavar="DIR", help="the Verilog folder (default stereocam/overlays/rtl)")
-    s.add_argument("--timeout", type=float, default=hw_synth.DEFAULT_TIMEOUT_S, metavar="S",
-                   help="give up on yosys after S seconds")
-    s.add_argument("--no-cache", action="store_true", help="run yosys even if an identical run is cached")
     s.set_defaults(func=cmd_hw_timing)
 
 

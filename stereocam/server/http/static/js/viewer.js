@@ -337,18 +337,23 @@ async function showFrame(index) {
 }
 
 /** Open a finished recording in the viewer at frame ``index`` (0: the first). */
-export async function openRecording(id, index) {
+/** The viewer emptied for ``id`` in ``mode`` (capture or recording), built on first use. */
+function reset(id, mode) {
   if (!dlg) build();
-  setMode("recording");
+  setMode(mode);
   state.id = id;
   state.meta = null;
   state.w = state.h = 0;
-  state.index = index || 0;
-  state.frames = 0;
-  state.image = "left";
   el.title.textContent = id;
   el.meta.textContent = "";
   el.canvas.dataset.loaded = "";
+}
+
+export async function openRecording(id, index) {
+  reset(id, "recording");
+  state.index = index || 0;
+  state.frames = 0;
+  state.image = "left";
   showSteps();
   if (!dlg.open) dlg.showModal();
   await action(null, async () => {
@@ -373,14 +378,7 @@ export async function replayCapture(id, btn) {
 }
 
 export async function openViewer(id, image) {
-  if (!dlg) build();
-  setMode("capture");
-  state.id = id;
-  state.meta = null;
-  state.w = state.h = 0;
-  el.title.textContent = id;
-  el.meta.textContent = "";
-  el.canvas.dataset.loaded = "";
+  reset(id, "capture");
   if (!dlg.open) dlg.showModal();
   await action(null, async () => {
     const info = await api("GET", "/api/captures/" + encodeURIComponent(id));
