@@ -95,6 +95,13 @@ async def test_ruler_measures_the_frozen_frame_by_the_calibration_and_the_rig(st
     for path in (f"/api/ruler?x0=1&y0=1&x1=2&y1=2&frame={n}", f"/api/point?x=1&y=1&frame={n}"):
         status, body = await _get(d, path)
         assert status == 410 and "freeze again" in body["error"], (path, body)
+    # A live page's readout and ruler may take the newest instead (no error), and learn which frame.
+    ruler = f"/api/ruler?x0={A[0]}&y0={A[1]}&x1={B[0]}&y1={B[1]}&frame={n}"
+    for path in (ruler, f"/api/point?x=1&y=1&frame={n}"):
+        status, body = await _get(d, path + "&fallback=newest")
+        assert status == 200 and body["frame"] > n, (path, body)
+        status, body = await _get(d, path + "&fallback=oldest")
+        assert status == 400 and "the only fallback is newest" in body["error"], (path, body)
 
 
 async def test_freeze_holds_a_few_frames_and_pushes_the_oldest_out(start_daemon) -> None:

@@ -52,8 +52,8 @@ __all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_readout", "ruler
 
 THUMB_CACHE_ENTRIES = 256  # about 5 KB each
 FRESH_S = 1.0  # a frame set older than this is not "the newest": /api/point waits for the next one
-POINT_QUERY = ("x", "y", "frame")
-RULER_QUERY = ("x0", "y0", "x1", "y1", "frame")
+POINT_QUERY = ("x", "y", "frame", "fallback")
+RULER_QUERY = ("x0", "y0", "x1", "y1", "frame", "fallback")
 
 
 class ThumbnailCache:
@@ -185,14 +185,15 @@ def not_held(frame: int) -> ApiError:
                     "newest", status=410)
 
 
-async def frame_for(app: web.Application, frame: Optional[int]) -> FrameSet:
-    """Frame ``frame`` (410 when it is no longer held), or without one the newest (waiting for the
-    next when the newest is stale; 503 when none comes)."""
+async def frame_for(app: web.Application, frame: Optional[int], or_newest: bool = False) -> FrameSet:
+    """Frame ``frame`` (410 when it is no longer held, unless ``or_newest``), or without one the newest
+    (waiting for the next when the newest is stale; 503 when none comes)."""
     if frame is not None:
-        fs = app[ENCODERS].held.get(frame, _candidates(app))
-        if fs is None:
+        held = app[ENCODERS].held.get(frame, _candidates(app))
+        if held is not None:
+            return held
+        if not or_newest:
             raise not_held(frame)
-        return fs
     fs = _newest(app)
     if fs is None:
         timeout = app[SETTINGS].frame_wait_s
@@ -205,8 +206,15 @@ async def frame_for(app: web.Application, frame: Optional[int]) -> FrameSet:
     return fs
 
 
-def _frame_param(request: web.Request) -> Optional[int]:
-    return _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
+def _frame_param(request: web.Request) -> Tuple[Optional[int], bool]:
+    """``frame=N`` (None: the newest) and whether ``fallback=newest`` lets a frame no longer held be
+    answered by the newest (a live page's readout: the frame it shows may just have gone; the answer
+    names the frame it is of)."""
+    fallback = request.query.get("fallback")
+    if fallback not in (None, "newest"):
+        raise ApiError(f"fallback={str(fallback)[:20]!r}: the only fallback is newest", status=400)
+    frame = _int_param(request, "frame", 1 << 62) if "frame" in request.query else None
+    return frame, fallback == "newest"
 
 
 def _depth_of(app: web.Application, fs: FrameSet) -> Tuple[Dict[str, Any], Optional[DepthScale]]:
@@ -226,7 +234,7 @@ async def get_point(request: web.Request) -> web.Response:
                        status=400)
     w, h = app[FEED].frame_size
     x, y = _int_param(request, "x", w), _int_param(request, "y", h)
-    fs = await frame_for(app, _frame_param(request))
+    fs = await frame_for(app, *_frame_param(request))
     readout, depth = _depth_of(app, fs)
     body = await app[EXECUTORS].run(point_at, fs, x, y, depth)
     body.update(readout)
@@ -263,7 +271,7 @@ async def get_ruler(request: web.Request) -> web.Response:
     w, h = app[FEED].frame_size
     points = [(_int_param(request, f"x{i}", w, f"point {i + 1}"),
                _int_param(request, f"y{i}", h, f"point {i + 1}")) for i in range(2)]
-    fs = await frame_for(app, _frame_param(request))
+    fs = await frame_for(app, *_frame_param(request))
     readout, depth = _depth_of(app, fs)
     if depth is None:
         why = readout.get("depth_unavailable") or NO_DEPTH_NONE

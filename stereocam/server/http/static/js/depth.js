@@ -67,14 +67,9 @@ function attachReadout(view) {
       const frozen = frozenFrame();
       const frame = frozen !== null ? String(frozen) : $("view-disparity").dataset.frame;
       const q = "/api/point?x=" + target.x + "&y=" + target.y;
-      let p;
-      try {
-        p = await api("GET", q + (frame ? "&frame=" + frame : ""));
-      } catch (e) {
-        // live, the frame shown has left the daemon's few recent ones: the newest will do
-        if (!(e instanceof ApiError && e.status === 410 && frozen === null && frame)) throw e;
-        p = await api("GET", q);
-      }
+      // live, the frame shown may have left the daemon's few recent ones: then the newest will do
+      const live = frozen === null ? "&fallback=newest" : "";
+      const p = await api("GET", q + (frame ? "&frame=" + frame + live : ""));
       if (want) show(p, target);
       shownKey = key;
     } catch (e) {

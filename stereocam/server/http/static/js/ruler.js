@@ -115,13 +115,9 @@ async function measure() {
   const frame = frozen !== null ? frozen : shownDisparityFrame();
   let res = null;
   try {
-    try {
-      res = await api("GET", base + (frame !== null ? "&frame=" + frame : ""));
-    } catch (e) {
-      // live: the frame shown has left the daemon's few recent ones; the newest will do
-      if (!(e instanceof ApiError && e.status === 410 && frozen === null && frame !== null)) throw e;
-      res = await api("GET", base);
-    }
+    // live, the frame shown may have left the daemon's few recent ones: then the newest will do
+    const live = frozen === null ? "&fallback=newest" : "";
+    res = await api("GET", base + (frame !== null ? "&frame=" + frame + live : ""));
   } catch (e) {
     if (e instanceof ApiError && e.status === 401) await signInNeeded();
     if (mine !== asked) return;

@@ -69,7 +69,10 @@ function figure(view) {
   const note = span("view-note", "note-" + view.name, "note-" + view.name);
   note.hidden = true;  // "shown at N px: why" when the page could not ask for the size shown
   // net-NAME: the bytes/s this page receives of the view and its glass-to-glass latency (live.js)
-  cap.append(view.caption + " ", span("frame-no", "frame-" + view.name), " ", note, " ",
+  const name = document.createElement("span");
+  name.className = "view-name";
+  name.textContent = view.caption;
+  cap.append(name, " ", span("frame-no", "frame-" + view.name), " ", note, " ",
              span("view-net", "net-" + view.name, "net-" + view.name), " ",
              span("view-rate", "rate-" + view.name, "rate-" + view.name));
   fig.append(cap);
