@@ -10,8 +10,6 @@ from typing import Iterator
 
 import pytest
 
-from .chromium import daemon_serving
-
 HERE = Path(__file__).parent
 DAEMON_FPS = 15.0  # the emulated cameras' rate unless a test module sets its own DAEMON_FPS
 
@@ -30,6 +28,8 @@ def daemon(request: pytest.FixtureRequest, tmp_path: Path, artifacts_dir: Path) 
 
     A module that needs other options defines its own ``daemon``.
     """
+    from .chromium import daemon_serving  # here: playwright is not in every environment that collects
+
     fps = float(getattr(request.module, "DAEMON_FPS", DAEMON_FPS))
     with daemon_serving(tmp_path, artifacts_dir, fps=fps) as base:
         yield base
