@@ -9,8 +9,9 @@ Event-loop side of the frame path:
   worker thread (never one published before it started: that one is as old
   as the time nobody watched), at most at the highest rate a subscriber asked for, and
   publishes the :class:`Encoded` bytes that every client of that key sends
-  as they are: the MJPEG part (headers included), the bare JPEG and the
-  WebSocket message are all built once, in the worker thread.
+  as they are: the MJPEG part (headers included) and the bare JPEG are built
+  once, in the worker thread; a WebSocket message adds its small header, with
+  the frame's age, as it is sent.
 - :class:`Encoders` is the registry: ``with encoders.subscribe(key, fps) as
   encoder:`` starts an encoder (and what it needs: the raw copy, the
   disparity worker) on first use and stops it when the last subscriber
@@ -94,8 +95,8 @@ class Encoded:
     """One encoded frame of one key, shared read-only by every client.
 
     ``part`` is the whole multipart/x-mixed-replace part (boundary, headers,
-    JPEG, CRLF); ``jpeg`` a view of the JPEG inside it; ``ws`` the WebSocket
-    message (4-byte big-endian header length, JSON header, JPEG).
+    JPEG, CRLF); ``jpeg`` a view of the JPEG inside it; ``ws_sent_at`` the
+    WebSocket message (4-byte big-endian header length, JSON header, JPEG).
     """
 
     key: EncoderKey
@@ -104,8 +105,7 @@ class Encoded:
     signal: bool
     part: bytes
     jpeg_start: int
-    ws: bytes = field(repr=False)
-    meta: Dict[str, Any] = field(default_factory=dict, repr=False)
+    meta: Dict[str, Any] = field(default_factory=dict, repr=False)  # the WebSocket header's fields
 
     @property
     def jpeg(self) -> memoryview:
@@ -114,7 +114,7 @@ class Encoded:
     def ws_sent_at(self, now: float) -> bytes:
         """The WebSocket message with ``age_s`` (``now`` minus the capture time, both the daemon's
         wall clock) in its header: how old the frame is as it leaves, for the page's latency figure.
-        Built per send (a small header and one copy of the JPEG): the shared ``ws`` has no age."""
+        Built per send (a small header and one copy of the JPEG): the age is the sender's."""
         meta = json.dumps(dict(self.meta, age_s=round(max(0.0, now - self.timestamp), 4))).encode("utf-8")
         return b"".join((struct.pack(">I", len(meta)), meta, self.jpeg))
 
@@ -144,9 +144,8 @@ def _package(key: EncoderKey, frame: int, timestamp: float, signal: bool, jpeg: 
     ).encode("ascii")
     doc = {"view": key.view, "frame": frame, "timestamp": round(timestamp, 6), "signal": signal,
            "gray": key.gray, "quality": key.quality, "scale": key.scale}
-    meta = json.dumps(doc).encode("utf-8")
     return Encoded(key=key, frame=frame, timestamp=timestamp, signal=signal, part=head + jpeg + b"\r\n",
-                   jpeg_start=len(head), ws=struct.pack(">I", len(meta)) + meta + jpeg, meta=doc)
+                   jpeg_start=len(head), meta=doc)
 
 
 def encoded_for(key: EncoderKey, item: FeedItem,
