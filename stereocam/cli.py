@@ -657,6 +657,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
     from .bench.budget import add_budget_parser  # stereocam bench budget
+    from .bench.depth import add_depth_parser  # stereocam bench depth
     from .bench.recording import add_recording_parser  # stereocam bench recording
     from .bench.robustness import add_robustness_parser  # stereocam bench robustness
 
@@ -664,6 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_robustness_parser(suites)
     add_budget_parser(suites)
     add_recording_parser(suites)
+    add_depth_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
     from .overlays.rtl.synth import add_synth_parser

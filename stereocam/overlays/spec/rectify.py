@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from .core_common import control_register, flags_register, progress_registers, size_registers
 from .regs import Access, Field, Register, RegisterMap
 
 CORE_ID = 0x52454354  # "RECT"
@@ -176,36 +177,19 @@ RECTIFY_MAP = RegisterMap(
         Register("LB_ROWS", 0x010, Access.RO, DEFAULT_LB_ROWS, doc="input rows an output row may read"),
         Register("CAPS", 0x014, Access.RO, int(DEFAULT_BUILD.colour),
                  fields=(Field("COLOUR", 0, doc="R, G, B rectified too"),)),
-        Register(
-            "CONTROL", 0x020, Access.RW, 0,
-            fields=(
-                Field("ENABLE", 0, doc="core accepts and emits frames"),
-                Field("BYPASS", 1, doc="output = input, no rectification"),
-                Field("GRAY", 2, doc="R, G, B outputs carry the rectified gray value"),
-                Field("DEBUG_LINE", 3, doc="draw output row DEBUG_ROW white on both cameras"),
-                Field("APPLY", 4, access=Access.SC,
-                      doc="latch the shadow parameters at the next frame start"),
-            ),
-        ),
-        Register(
-            "STATUS", 0x024, Access.RO, 0,
-            fields=(
-                Field("BUSY", 0, doc="a frame is in flight"),
-                Field("APPLY_PENDING", 1, doc="shadow parameters wait for the next frame start"),
-            ),
-        ),
-        Register(
-            "FLAGS", 0x028, Access.W1C, 0,
-            fields=(
-                Field("LB_OVERFLOW", 0, doc="an output pixel needed a row outside the line buffer"),
-                Field("SIZE_ERROR", 1, doc="an input frame did not match WIDTH x HEIGHT"),
-                Field("CONFIG_ERROR", 2,
-                      doc="APPLY refused: a parameter out of range or WIDTH/HEIGHT/LB_DELAY invalid"),
-            ),
-        ),
-        Register("FRAME_COUNT", 0x02C, Access.RO, 0, doc="output frames completed, wraps at 2**32"),
-        Register("WIDTH", 0x030, Access.RW, DEFAULT_WIDTH, fields=(Field("VALUE", 0, 16),)),
-        Register("HEIGHT", 0x034, Access.RW, DEFAULT_HEIGHT, fields=(Field("VALUE", 0, 16),)),
+        control_register(0, (
+            Field("BYPASS", 1, doc="output = input, no rectification"),
+            Field("GRAY", 2, doc="R, G, B outputs carry the rectified gray value"),
+            Field("DEBUG_LINE", 3, doc="draw output row DEBUG_ROW white on both cameras"),
+        )),
+        flags_register((
+            Field("LB_OVERFLOW", 0, doc="an output pixel needed a row outside the line buffer"),
+            Field("SIZE_ERROR", 1, doc="an input frame did not match WIDTH x HEIGHT"),
+            Field("CONFIG_ERROR", 2,
+                  doc="APPLY refused: a parameter out of range or WIDTH/HEIGHT/LB_DELAY invalid"),
+        )),
+        *progress_registers(),
+        *size_registers(DEFAULT_WIDTH, DEFAULT_HEIGHT),
         Register("LB_DELAY", 0x038, Access.RW, 0, fields=(Field("VALUE", 0, 16),),
                  doc="input rows received ahead of the output row (shadowed)"),
         Register("DEBUG_ROW", 0x03C, Access.RW, 0, fields=(Field("VALUE", 0, 16),)),
