@@ -139,3 +139,17 @@ def test_rectified_and_calibration_exclude_each_other(capsys) -> None:
         main(["disparity", "-o", "x", "a.png", "b.png"])
     assert exc.value.code == 2
     assert "one of the arguments --calibration --rectified is required" in capsys.readouterr().err
+
+
+def test_a_calibration_that_says_its_unit_needs_no_units_option(tmp_path, cal_arg) -> None:
+    yaml = tmp_path / "cal.yaml"
+    assert main(["calibration", "import", *cal_arg.split(","), "--size", "640x480", "-o", str(yaml)]) == 0
+    text = yaml.read_text()
+    assert 'units: "unknown"' in text
+    yaml.write_text(text.replace('units: "unknown"', 'units: "m"'))  # units are not hashed: still valid
+    left, right = map(str, pair_paths(4))
+    assert main(["disparity", "--calibration", str(yaml), "-o", str(tmp_path / "m"), left, right]) == 0
+    argv = ["disparity", "--calibration", cal_arg, "--units", "mm", "-o", str(tmp_path / "mm"), left, right]
+    assert main(argv) == 0
+    in_m, in_mm = (trimesh.load(tmp_path / d / "cloud.ply").vertices for d in ("m", "mm"))
+    np.testing.assert_allclose(in_m, in_mm * 1000, rtol=1e-6)
