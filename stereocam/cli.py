@@ -218,8 +218,7 @@ def _output_file(path: str) -> Path:
 
 def cmd_rectify(args: argparse.Namespace) -> int:
     from .calibration.file import load_calibration
-    from .overlays.model.fast import RectifyModel
-    from .overlays.model.result import CoreOptions
+    from .calibration.pair_depth import rectify_with_model
     from .overlays.spec import pixel
 
     left, right = _read_image(Path(args.left)), _read_image(Path(args.right))
@@ -240,12 +239,11 @@ def cmd_rectify(args: argparse.Namespace) -> int:
         h, w = left.shape[:2]
     gray = left.ndim == 2 and right.ndim == 2
     fit = cal.fit
-    options = CoreOptions(lb_rows=args.lb_rows, lb_delay=fit.delay, gray=gray)
-    frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
     if args.core == "rtl":
+        frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
         out = _rectify_rtl(cal, frame, lb_rows=args.lb_rows, gray=gray)
     else:
-        out = RectifyModel(cal.left, cal.right, w, h, options).process(frame).frame
+        out = rectify_with_model(cal, left, right, args.lb_rows)
     outdir = Path(args.output)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
@@ -320,6 +318,76 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
         raise UserError(f"--core rtl: the RTL core returned {'no frame' if out is None else out.shape} "
                         f"for a {w}x{h} frame; see STATUS and FLAGS (a bug in the RTL)")
     return out
+
+
+def cmd_disparity(args: argparse.Namespace) -> int:
+    from .calibration import pair_depth
+    from .calibration.file import load_calibration
+    from .overlays.spec.stereo import DEFAULT_PARAMS
+
+    given = {name: getattr(args, name) for name in _stereo_param_names() if getattr(args, name) is not None}
+    params = DEFAULT_PARAMS.with_values(**given)
+    problems = params.problems()
+    if problems:
+        raise UserError("; ".join(problems))
+    left_path, right_path = Path(args.left), Path(args.right)
+    left, right = _read_image(left_path), _read_image(right_path)
+    if left.shape[:2] != right.shape[:2]:
+        raise UserError(
+            f"left is {left.shape[1]}x{left.shape[0]} but right is {right.shape[1]}x{right.shape[0]}: "
+            "the pair must have the same size"
+        )
+    outdir = Path(args.output)
+    if outdir.exists() and not outdir.is_dir():
+        raise UserError(f"{outdir} is a file: give a folder for the outputs")
+    cloud_of = None
+    try:
+        if args.calibration is not None:
+            h, w = left.shape[:2]
+            cal = load_calibration(args.calibration, image_size=(w, h), lb_rows=args.lb_rows)
+            unit_m = pair_depth.metres_per_unit(args.units or cal.units)
+            comment = f"stereocam disparity of {left_path.name} and {right_path.name}, calibration {cal.id}"
+            cloud_of = (cal.rect.Q, unit_m, comment)
+            stereo = pair_depth.from_calibration(cal, left, right, args.lb_rows)
+        else:
+            stereo = pair_depth.from_rectified(left, right)
+        result = pair_depth.run(stereo, params)
+        files = pair_depth.depth_files(result, params.num_disp, cloud_of, stereo.colour)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        pair_depth.write_all(outdir, files)
+    except OSError as exc:
+        raise UserError(f"cannot write into {outdir}: {exc.strerror or exc}") from None
+    valid = int(np.count_nonzero(result.valid))
+    h, w = result.disp.shape
+    print(f"wrote {', '.join(str(outdir / n) for n in files)} ({w}x{h}, {valid} of {w * h} pixels with a "
+          f"disparity, the stereo core's model{'' if cloud_of is None else ', points in metres'})")
+    return 0
+
+
+def _stereo_param_names() -> "list[str]":
+    import dataclasses
+
+    from .overlays.spec.stereo import StereoParams
+
+    return [f.name for f in dataclasses.fields(StereoParams)]
+
+
+def _add_stereo_params(parser: argparse.ArgumentParser) -> None:
+    """``--num-disp N`` ... ``--[no-]median``: the stereo core's registers, each defaulting to the core's."""
+    from .overlays.spec.stereo import DEFAULT_PARAMS
+
+    for name in _stereo_param_names():
+        default = getattr(DEFAULT_PARAMS, name)
+        flag = "--" + name.replace("_", "-")
+        if isinstance(default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None,
+                                help=f"the core's {name.upper()} switch "
+                                     f"(default {'on' if default else 'off'})")
+        else:
+            parser.add_argument(flag, type=int, default=None, metavar="N",
+                                help=f"the core's {name.upper()} register (default {default})")
 
 
 class _ProgressDisplay:
@@ -592,6 +660,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("left")
     p.add_argument("right")
     p.set_defaults(func=cmd_rectify)
+
+    d = sub.add_parser("disparity", help="run the stereo core (its model) on an image pair",
+                       description="Compute the stereo core's disparity of LEFT and RIGHT with its bit-exact "
+                                   "model: OUTDIR/disparity.png (16-bit, disparity x 16, 65535 where "
+                                   "invalid), "
+                                   "disparity_colour.png, confidence.png and, with --calibration, cloud.ply "
+                                   "(binary PLY, metres, coloured by the rectified left image).")
+    given = d.add_mutually_exclusive_group(required=True)
+    given.add_argument("--calibration", metavar="CAL",
+                       help="rectify the pair first as the rectify core does (any format rectify takes)")
+    given.add_argument("--rectified", action="store_true",
+                       help="the pair is already rectified (up to the stereo core's width)")
+    d.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="the folder to write into")
+    from .calibration.pair_depth import CORES as STEREO_CORES
+
+    d.add_argument("--core", choices=STEREO_CORES, default=STEREO_CORES[0],
+                   help="model (default): the stereo core's bit-exact model")
+    d.add_argument("--units", metavar="UNIT",
+                   help="the unit of the calibration's T where its file does not say it (m, cm, mm, in)")
+    _add_lb_rows(d, "rectify with")
+    _add_stereo_params(d)
+    d.add_argument("left")
+    d.add_argument("right")
+    d.set_defaults(func=cmd_disparity)
 
     c = sub.add_parser(
         "calibrate", help="calibrate the stereo rig from checkerboard pairs",

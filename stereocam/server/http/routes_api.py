@@ -33,6 +33,7 @@ from .bodies import json_response, read_json
 from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
+from .routes_cloud import setup_routes as setup_cloud_routes
 from .routes_tools import setup_routes as setup_tools_routes
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
@@ -455,6 +456,7 @@ def setup_routes(app: web.Application) -> None:
     r.add_get(r"/api/captures/{id:[^/]+}.zip", capture_zip)
     setup_tools_routes(app)  # /api/alignment, /api/histogram
     setup_viewer_routes(app)  # thumb.jpg, restore, /api/point: before the {file} route below
+    setup_cloud_routes(app)  # cloud.ply: before the {file} route below
     r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)
     r.add_get(r"/api/captures/{id:[^/]+}", get_capture)
     r.add_delete(r"/api/captures/{id:[^/]+}", delete_capture)
