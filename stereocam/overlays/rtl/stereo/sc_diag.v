@@ -54,25 +54,20 @@ localparam [SW-1:0] BIG = {SW{1'b1}};
 reg [SW-1:0] val [0:MAX_DISP-1];
 reg [6:0]    dd  [0:MAX_DISP-1];
 reg [10:0]   x_now;          // the column of the pixel in the array's place 0
-reg [1:0]    bank_now;       // its row mod 3
+reg [AW-1:0] base_now;       // its row's bank
 
-function [1:0] mod3;
-    input [10:0] y;
-    begin
-        mod3 = y % 3;
-    end
-endfunction
+`include "sc_bank.vh"
 
 // the flush buffer: a finished row's winners, written out one a clock
 reg [6:0]    fl_d [0:MAX_DISP-1];
 reg [10:0]   fl_left = 11'd0;   // entries still to write (cell index fl_left - 1 next)
 reg [10:0]   fl_x0;             // the column of cell 0 when copied
-reg [1:0]    fl_bank;
+reg [AW-1:0] fl_base;
 
 // the cell leaving the array at a shift
 reg          ex_en = 1'b0;
 reg [10:0]   ex_xr;
-reg [1:0]    ex_bank;
+reg [AW-1:0] ex_base;
 reg [6:0]    ex_d;
 
 integer k1;
@@ -84,7 +79,7 @@ always @(posedge clk) begin
             // leaving: the last place's cell, column x - MAX_DISP of the same row
             ex_en <= s_x != 0 && s_x >= MAX_DISP;
             ex_xr <= s_x - MAX_DISP;
-            ex_bank <= bank_now;
+            ex_base <= base_now;
             ex_d <= dd[MAX_DISP-1];
             for (k1 = MAX_DISP - 1; k1 >= 0; k1 = k1 - 1) begin
                 if (k1 < PARALLEL) begin
@@ -110,7 +105,7 @@ always @(posedge clk) begin
                 end
             end
             x_now <= s_x;
-            bank_now <= mod3(s_y);
+            base_now <= bank_base(s_y);
         end else begin
             for (k1 = 0; k1 < MAX_DISP; k1 = k1 + 1) begin
                 if (k1 / PARALLEL == s_group && k1 <= x_now && k1 < num_disp
@@ -140,15 +135,15 @@ always @(posedge clk) begin
         for (k3 = 0; k3 < MAX_DISP; k3 = k3 + 1) fl_d[k3] <= dd[k3];
         fl_left <= (x_now + 1 < MAX_DISP) ? x_now + 11'd1 : MAX_DISP;
         fl_x0 <= x_now;
-        fl_bank <= bank_now;
+        fl_base <= base_now;
     end
     if (!rst && ex_en) begin
         w_en <= 1'b1;
-        w_addr <= ex_bank * MAX_WIDTH + ex_xr;
+        w_addr <= ex_base + ex_xr;
         w_d <= ex_d;
     end else if (!rst && !last_in && fl_left != 0) begin
         w_en <= 1'b1;
-        w_addr <= fl_bank * MAX_WIDTH + (fl_x0 - (fl_left - 11'd1));
+        w_addr <= fl_base + (fl_x0 - (fl_left - 11'd1));
         w_d <= fl_d[fl_left - 1];
         fl_left <= fl_left - 11'd1;
     end

@@ -49,28 +49,23 @@ module sc_lr #
     output reg  [26:0]        code_wdata   // {reason[2:0], conf[7:0], code[15:0]}
 );
 
-function [1:0] mod3;
-    input [10:0] y;
-    begin
-        mod3 = y % 3;
-    end
-endfunction
+`include "sc_bank.vh"
 
 wire real_now = row >= 0 && row < $signed({1'b0, height}) && col >= 0 && col < $signed({1'b0, width});
 
 // phase 0: the record
 reg          a_real = 1'b0;
 reg [10:0]   a_x;
-reg [1:0]    a_bank;
+reg [AW-1:0] a_base;
 assign rec_re = run && phase == 2'd0 && real_now;
-assign rec_raddr = mod3(row[10:0]) * MAX_WIDTH + col[10:0];
+assign rec_raddr = bank_base(row[10:0]) + col[10:0];
 always @(posedge clk) begin
     if (rst) begin
         a_real <= 1'b0;
     end else if (run && phase == 2'd0) begin
         a_real <= real_now;
         a_x <= col[10:0];
-        a_bank <= mod3(row[10:0]);
+        a_base <= bank_base(row[10:0]);
     end
 end
 
@@ -82,20 +77,20 @@ wire         rec_unique = rec_rdata[26];
 wire         rec_border = rec_rdata[27];
 reg          b_real = 1'b0;
 reg [10:0]   b_x;
-reg [1:0]    b_bank;
+reg [AW-1:0] b_base;
 reg [6:0]    b_d1;
 reg [10:0]   b_code;
 reg [7:0]    b_conf;
 reg          b_unique, b_border;
 assign dr_re = run && phase == 2'd2 && a_real && !rec_border;
-assign dr_raddr = a_bank * MAX_WIDTH + (a_x - rec_d1);
+assign dr_raddr = a_base + (a_x - rec_d1);
 always @(posedge clk) begin
     if (rst) begin
         b_real <= 1'b0;
     end else if (run && phase == 2'd2) begin
         b_real <= a_real;
         b_x <= a_x;
-        b_bank <= a_bank;
+        b_base <= a_base;
         b_d1 <= rec_d1;
         b_code <= rec_code;
         b_conf <= rec_conf;
@@ -117,7 +112,7 @@ always @(posedge clk) begin
     code_we <= 1'b0;
     if (!rst && run && phase == 2'd0 && b_real) begin
         code_we <= 1'b1;
-        code_waddr <= b_bank * MAX_WIDTH + b_x;
+        code_waddr <= b_base + b_x;
         code_wdata <= (reason == `SC_REASON_VALID) ? {reason, b_conf, 5'b0, b_code}
                                                    : {reason, 8'd0, 16'd`SC_INVALID};
     end

@@ -51,12 +51,7 @@ module sc_median #
 
 localparam CW = 27;
 
-function [1:0] mod3;
-    input [10:0] y;
-    begin
-        mod3 = y % 3;
-    end
-endfunction
+`include "sc_bank.vh"
 
 // ---- reads: column x + 1 of rows row - 1 + phase (phases 0..2)
 wire signed [11:0] rrow = row - 12'sd1 + $signed({10'b0, phase});
@@ -64,7 +59,7 @@ wire signed [11:0] rcol = x + 12'sd1;
 wire        row_in = rrow >= 0 && rrow < $signed({1'b0, height});
 wire        col_in = rcol >= 0 && rcol < $signed({1'b0, width});
 assign code_re = run && phase != 2'd3 && row_in && col_in;
-assign code_raddr = mod3(rrow[10:0]) * MAX_WIDTH + rcol[10:0];
+assign code_raddr = bank_base(rrow[10:0]) + rcol[10:0];
 
 // what each read brings, 2 run clocks later: phases 2, 3 and the next slot's 0
 reg [1:0] q_in;       // [0]: read 1 run clock ago, [1]: 2 run clocks ago

@@ -78,12 +78,7 @@ localparam LAG = 4;
 reg rst = 1'b1;
 always @(posedge aclk) rst <= !aresetn;
 
-function [1:0] mod3;
-    input [10:0] y;
-    begin
-        mod3 = y % 3;
-    end
-endfunction
+`include "sc_bank.vh"
 
 // ---- registers
 wire        enable, apply_pending, idle, busy, frame_done, size_error;
@@ -167,7 +162,7 @@ wire          rec_re;
 wire [AW-1:0] rec_raddr;
 wire [27:0]   rec_rdata;
 rc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW)) rec_ram (
-    .clk(aclk), .we(r_valid), .waddr(mod3(r_y) * MAX_WIDTH + r_x),
+    .clk(aclk), .we(r_valid), .waddr(bank_base(r_y) + r_x),
     .wdata({r_border, r_unique, r_conf, r_code, r_d1}),
     .re(rec_re), .raddr(rec_raddr), .rdata(rec_rdata)
 );
