@@ -13,9 +13,10 @@ from stereocam.cli import command_of
 
 REPO = Path(__file__).resolve().parents[2]
 # What the serve path leaves for later: the benchmarks and the HDL tools (other commands), the HTTP client
-# (a library for scripts), SciPy (nothing of the daemon needs it) and numba (the stereo tools' fast path).
+# (a library for scripts), SciPy (nothing of the daemon needs it), numba (the stereo tools' fast path) and
+# Pillow (the uploads' reader, imported at the first upload).
 DEFERRED = ("stereocam.bench", "stereocam.overlays.rtl.synth", "stereocam.overlays.rtl.timing",
-            "stereocam.client", "scipy", "numba")
+            "stereocam.client", "scipy", "numba", "PIL")
 # What `import stereocam.cli` leaves for later: everything heavy, so that `serve`'s start-up notifier
 # (systemd.loading) runs before it.
 HEAVY = ("numpy", "cv2", "aiohttp", "PIL", "yaml", "stereocam.server.http.app", "stereocam.overlays")
