@@ -1,6 +1,7 @@
 """The emulated fabric through the real drivers: bit-exact to the model, live and virtual."""
 from __future__ import annotations
 
+import logging
 import os
 
 import numpy as np
@@ -157,6 +158,30 @@ def test_backend_choice_says_why(tmp_path, monkeypatch) -> None:
     ov = open_overlay("auto", bitstream=tmp_path / "missing.bit", clock="stepped")
     try:
         assert ov.backend == "emulated" and ov.choice.reason == auto.reason
+    finally:
+        ov.close()
+
+
+def test_a_board_without_its_bitstream_is_said_loudly(tmp_path, monkeypatch, caplog) -> None:
+    """pynq importable (a package on disk, on sys.path) and no bitstream: the emulated fabric, with a warning
+    naming the missing file and what to do, and ``board`` (the daemon keeps to the board's budget)."""
+    site = tmp_path / "board-site"
+    (site / "pynq").mkdir(parents=True)
+    (site / "pynq" / "__init__.py").write_text("# stands for PYNQ's package: importable, never imported\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
+    missing = tmp_path / "stereocam.bit"
+    auto = choose("auto", bitstream=missing)
+    assert auto.backend == "emulated" and auto.board and auto.warning is not None
+    assert f"stereocam.bit is not at {missing}" in auto.warning and "--backend emulated" in auto.warning
+    asked = choose("emulated", bitstream=missing)
+    assert asked.warning is None and not asked.board, "--backend emulated silences it"
+    with caplog.at_level(logging.WARNING, logger="stereocam.overlays.backend"):
+        ov = open_overlay("auto", bitstream=missing, clock="stepped")
+    try:
+        assert ov.choice == auto
+        warned = [r for r in caplog.records if r.levelno == logging.WARNING]
+        assert [r.getMessage() for r in warned] == [auto.warning]
     finally:
         ov.close()
 
