@@ -41,6 +41,19 @@ SCENES = ("synthetic", "checkerboard")  # the emulated cameras' built-in scenes;
 CORES = ("model", "rtl")  # what computes the emulated fabric's rectify core
 RTL_TIMEOUT_S = 30.0  # driver waits with the RTL core: a frame of simulation takes a large part of a second
 DEFAULT_BITSTREAM_DIRS = (Path(__file__).parent, Path("/usr/local/share/stereocam"))
+#: What the machine is, as Linux lists it: a Zynq-7000 names ZYNQ_COMPATIBLE there. pynq alone does not
+#: make a board (it installs on a PC too); STEREOCAM_DEVICE_TREE names another file (the tests' stand-in).
+DEVICE_TREE_COMPATIBLE = Path("/proc/device-tree/compatible")
+ZYNQ_COMPATIBLE = b"xlnx,zynq-7000"
+
+
+def on_zynq() -> bool:
+    """Whether this machine is a Zynq-7000 (its device tree says so)."""
+    path = Path(os.environ.get("STEREOCAM_DEVICE_TREE") or DEVICE_TREE_COMPATIBLE)
+    try:
+        return ZYNQ_COMPATIBLE in path.read_bytes()
+    except OSError:
+        return False
 
 
 class SourceError(ValueError):
@@ -74,6 +87,9 @@ def choose(backend: str = "auto", *, bitstream: Optional[Path] = None) -> Choice
         return Choice("pynq", "--backend pynq was asked for", bit)
     if not has_pynq:
         return Choice("emulated", "pynq is not installed, so this is not a board")
+    if bit is None and not on_zynq():
+        return Choice("emulated", f"pynq is installed but no bitstream was found at {where}, and this is "
+                                  f"not a Zynq ({DEVICE_TREE_COMPATIBLE} does not name it)")
     if bit is None:
         return Choice("emulated", f"pynq is installed but no bitstream was found at {where}", board=True,
                       warning=no_bitstream_warning(where))
@@ -82,7 +98,7 @@ def choose(backend: str = "auto", *, bitstream: Optional[Path] = None) -> Choice
 
 def no_bitstream_warning(where: str) -> str:
     """What ``auto`` on a board without the overlay's bitstream says: what runs instead, and what to do."""
-    return (f"no bitstream: this is a board (pynq is installed) but {BITSTREAM} is not at {where}, so the "
+    return (f"no bitstream: this is a board (a Zynq with pynq) but {BITSTREAM} is not at {where}, so the "
             "daemon runs the EMULATED fabric (synthetic cameras, not the board's) within the board's CPU "
             f"budget. Build {BITSTREAM} and {BITSTREAM.replace('.bit', '.hwh')} with Vivado "
             "(stereocam/overlays/vivado/README.md) and put them there (or give --bitstream FILE), or "

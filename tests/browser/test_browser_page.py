@@ -33,6 +33,7 @@ from playwright.sync_api import Page, WebSocket, expect
 
 from stereocam.bench.serve import running_daemon
 
+from ..overlays.test_fabric import zynq_device_tree
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     TIMEOUT_MS,
@@ -438,6 +439,7 @@ def test_a_board_without_its_bitstream_is_shown_in_red(tmp_path: Path, artifacts
     (site / "pynq" / "__init__.py").write_text("# stands for PYNQ's package: importable, never imported\n")
     path = [str(site), os.environ.get("PYTHONPATH", "")]
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in path if p))
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(zynq_device_tree(tmp_path)))
     missing = tmp_path / "overlay" / "stereocam.bit"
     with daemon_and_page(tmp_path, artifacts_dir, fps=5.0, viewport=(1400, 1000),
                          settings={"backend": "auto", "bitstream": str(missing)}) as (base, _context, page):

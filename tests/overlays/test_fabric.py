@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,6 +163,13 @@ def test_backend_choice_says_why(tmp_path, monkeypatch) -> None:
         ov.close()
 
 
+def zynq_device_tree(folder: Path) -> Path:
+    """A stand-in for /proc/device-tree/compatible on a PYNQ-Z1 (NUL-separated, as Linux writes it)."""
+    path = folder / "compatible"
+    path.write_bytes(b"digilent,zynq-pynqz1\0xlnx,zynq-7000\0")
+    return path
+
+
 def test_a_board_without_its_bitstream_is_said_loudly(tmp_path, monkeypatch, caplog) -> None:
     """pynq importable (a package on disk, on sys.path) and no bitstream: the emulated fabric, with a warning
     naming the missing file and what to do, and ``board`` (the daemon keeps to the board's budget)."""
@@ -171,6 +179,11 @@ def test_a_board_without_its_bitstream_is_said_loudly(tmp_path, monkeypatch, cap
     monkeypatch.syspath_prepend(str(site))
     monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
     missing = tmp_path / "stereocam.bit"
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(tmp_path / "no-such-file"))
+    pc = choose("auto", bitstream=missing)
+    assert pc.backend == "emulated" and not pc.board and pc.warning is None, "pynq on a PC is not a board"
+    assert "not a Zynq" in pc.reason
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(zynq_device_tree(tmp_path)))
     auto = choose("auto", bitstream=missing)
     assert auto.backend == "emulated" and auto.board and auto.warning is not None
     assert f"stereocam.bit is not at {missing}" in auto.warning and "--backend emulated" in auto.warning

@@ -23,6 +23,7 @@ from stereocam.drivers.i2c import LinuxI2CBus
 from stereocam.server.frames.cpu_budget import BOARD_CORES
 from stereocam.server.http import routes_cameras, systemd
 
+from ..overlays.test_fabric import zynq_device_tree
 from .test_server_service import datagram_socket, free_port, received, wait_until
 
 WAIT_S = 120.0  # last-resort bound of a wait for something that does happen
@@ -152,6 +153,7 @@ def test_a_board_without_its_bitstream_says_so_loudly_within_the_boards_budget(t
     missing = tmp_path / "overlay" / "stereocam.bit"
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(board_site(tmp_path)), env.get("PYTHONPATH")) if p)
+    env["STEREOCAM_DEVICE_TREE"] = str(zynq_device_tree(tmp_path))
     env.pop("STEREOCAM_BITSTREAM", None)
     log = tmp_path / "serve.log"
     with open(log, "w") as err, subprocess.Popen(
