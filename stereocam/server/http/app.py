@@ -333,7 +333,7 @@ def open_configured_overlay(config: Settings) -> Overlay:
     try:
         return open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
                             clock="realtime", build=config.core_build, core=config.core,
-                            rtl_dir=config.rtl_dir)
+                            rtl_dir=config.rtl_dir, stereo=config.stereo_core)
     except BackendError as exc:
         raise ServeError(str(exc)) from None
 
