@@ -34,14 +34,17 @@ log = logging.getLogger(__name__)
 SOURCES = {"live": LIVE, "virtual": VIRTUAL}
 
 
+DepthTake = Callable[[], np.ndarray]
+
+
 class DepthStores(Protocol):
-    """Where the stereo core's output lands: ``output(store)`` is the ``(H, W)`` uint32 beats, in place."""
+    """Where the stereo core's output lands: ``take(store)``, :meth:`.interface.Overlay.take_depth`."""
 
     def start(self, width: int, height: int) -> None: ...
 
     def stop(self) -> None: ...
 
-    def output(self, store: int) -> Optional[np.ndarray]: ...
+    def take(self, store: int) -> Optional[DepthTake]: ...
 
     def close(self) -> None: ...
 
@@ -62,12 +65,15 @@ class VdmaDepthStores:
         if self.vdma.s2mm.config is not None:
             self.vdma.s2mm.stop()
 
-    def output(self, store: int) -> Optional[np.ndarray]:
+    def take(self, store: int) -> Optional[DepthTake]:
+        """A copy of ``store`` now (the channel overwrites it frames later), as ``(H, W)`` uint32 beats."""
         buffers = self.vdma.s2mm.buffers
         if not buffers:
             return None
         buf = np.asarray(buffers[store % len(buffers)])
-        return buf.view(np.uint32).reshape(buf.shape[0], -1)
+        beats = buf.view(np.uint32).reshape(buf.shape[0], -1).copy()
+        beats.flags.writeable = False
+        return lambda: beats
 
     def close(self) -> None:
         self.vdma.close()
@@ -208,9 +214,9 @@ class StereoFabric:
                                                  colour=rectify.colour)
         return config, options
 
-    def depth_store(self, store: int) -> Optional[np.ndarray]:
-        """The stereo core's output for processed store ``store``, in place; None without a core."""
-        return None if self.depth is None else self.depth.output(store % self.proc_vdma.s2mm.num_fstores)
+    def take_depth(self, store: int) -> Optional[DepthTake]:
+        """The stereo core's output for processed store ``store`` (:meth:`.interface.Overlay.take_depth`)."""
+        return None if self.depth is None else self.depth.take(store % self.proc_vdma.s2mm.num_fstores)
 
     def stereo_status(self) -> Optional[Dict[str, Any]]:
         """The stereo core for ``/api/status``: build, parameters, progress; None without one."""
@@ -418,8 +424,8 @@ class FabricOverlay:
     def stereo(self) -> Optional[StereoCore]:
         return self.fabric.stereo
 
-    def depth_store(self, store: int) -> Optional[np.ndarray]:
-        return self.fabric.depth_store(store)
+    def take_depth(self, store: int) -> Optional[DepthTake]:
+        return self.fabric.take_depth(store)
 
     def channel_status(self, channel: Channel) -> ChannelStatus:
         return self.fabric.channel_status(channel)

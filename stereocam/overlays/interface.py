@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import (
     TYPE_CHECKING,
     Any,
+    Callable,
     Dict,
     Literal,
     Mapping,
@@ -257,12 +258,13 @@ class Overlay(Protocol):
     def stereo(self) -> Optional[StereoControl]:
         """The stereo core's control; None where the bitstream has no stereo core."""
 
-    def depth_store(self, store: int) -> Optional[np.ndarray]:
-        """The stereo core's ``(H, W)`` uint32 output beats for the processed frame in ``store``, in place.
+    def take_depth(self, store: int) -> Optional[Callable[[], np.ndarray]]:
+        """The stereo core's output for the processed frame in ``store``, taken now; None without one.
 
-        Valid as :class:`StoredFrame` is (copy it before the processed channel comes round to
-        ``store`` again, never write it); None without a stereo core or when the core emitted
-        nothing for that frame. Blocks (the emulated core computes a store when first read).
+        Call it right after reading that processed store. Taking is cheap (the board copies the
+        core's frame store; the emulated core notes the frame); the call it returns gives the
+        ``(H, W)`` uint32 output beats, owned by the caller and read-only, and blocks while the
+        emulated core computes them (once, on the first call).
         """
 
     # -- health ---------------------------------------------------------------------------

@@ -131,8 +131,8 @@ def test_output_is_the_model_on_the_gray_pair_computed_only_when_read(emulated) 
     rng = np.random.default_rng(3)
     frames = [pair_frame(rng) for _ in range(4)]
     for store, frame in enumerate(frames[:3]):
-        assert hw.take(frame, store)
-    assert hw.take(frames[3], 0)  # store 0 comes round again
+        assert hw.accept(frame, store)
+    assert hw.accept(frames[3], 0)  # store 0 comes round again
     assert hw.computed_frames == 0  # nobody read a store yet
     beats = hw.output(0)
     assert beats is not None and beats.dtype == np.uint32 and beats.shape == (H, W)
@@ -153,13 +153,13 @@ def test_apply_waits_for_the_next_frame_and_a_refused_set_keeps_the_old(emulated
     core.timeout = 0.05
     with pytest.raises(RegisterTimeout, match="CONTROL never cleared APPLY"):
         core.check_applied(timeout=0.05)
-    hw.take(pair_frame(np.random.default_rng(0)), 0)
+    hw.accept(pair_frame(np.random.default_rng(0)), 0)
     core.check_applied()
     assert hw.active == new and core.params() == new
     # Written around the driver's check: the core refuses it at the frame start and keeps ``new``.
     hw.write(STEREO_MAP.offset("NUM_DISP"), 40)
     hw.write(STEREO_MAP.offset("CONTROL"), hw.read(STEREO_MAP.offset("CONTROL")) | CONTROL.bit("APPLY"))
-    hw.take(pair_frame(np.random.default_rng(0)), 1)
+    hw.accept(pair_frame(np.random.default_rng(0)), 1)
     with pytest.raises(StereoConfigRefused):
         core.check_applied()
     assert hw.active == new and core.status().flags["CONFIG_ERROR"]
@@ -169,7 +169,7 @@ def test_a_frame_of_another_size_sets_size_error_and_gives_no_output(emulated) -
     hw, core = emulated
     core.program(SMALL, size=(W, H))
     core.enable()
-    assert not hw.take(np.zeros((H + 1, W, 8), np.uint8), 0)
+    assert not hw.accept(np.zeros((H + 1, W, 8), np.uint8), 0)
     assert core.status().flags["SIZE_ERROR"] and hw.output(0) is None and core.frame_count() == 0
     core.clear_flags("SIZE_ERROR")
     assert not core.status().flags["SIZE_ERROR"]
@@ -177,6 +177,6 @@ def test_a_frame_of_another_size_sets_size_error_and_gives_no_output(emulated) -
 
 def test_disabled_core_takes_no_frames_and_identity_is_read_only(emulated) -> None:
     hw, core = emulated
-    assert not hw.take(pair_frame(np.random.default_rng(0)), 0)
+    assert not hw.accept(pair_frame(np.random.default_rng(0)), 0)
     with pytest.raises(ReadOnlyRegister):
         hw.write(0x000, 0)

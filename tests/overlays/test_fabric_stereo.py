@@ -2,12 +2,14 @@
 read per processed frame store, and an overlay without one saying so."""
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
 from stereocam.drivers.mmio import UnsupportedIP
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
-from stereocam.overlays.emulated.stereo import LEFT_Y, RIGHT_Y
+from stereocam.overlays.emulated.stereo import LEFT_Y, RIGHT_Y, STEREO_THREAD
 from stereocam.overlays.fabric import StereoFabric, VdmaDepthStores, optional_instances
 from stereocam.overlays.interface import Overlay, StereoControl
 from stereocam.overlays.model.stereo import StereoResult, compute
@@ -56,7 +58,12 @@ def test_emulated_overlay_has_a_stereo_core_whose_output_is_the_model_of_the_pro
         assert not ov.stereo.status().apply_pending and ov.stereo.params() == small
         assert ov.emulation.stereo is not None and ov.emulation.stereo.computed_frames == 0
         stored = ov.processed_store()
-        beats = ov.depth_store(stored.store)
+        take = ov.take_depth(stored.store)
+        assert take is not None and ov.emulation.stereo.computed_frames == 0  # taken, not yet computed
+        beats = take()
+        # Computed on the emulated hardware's thread, which the daemon's CPU budget leaves out.
+        assert STEREO_THREAD in ov.emulation_threads
+        assert any(t.name == STEREO_THREAD for t in threading.enumerate())
         assert beats is not None and beats.shape == stored.pixels.shape[:2] and beats.dtype == np.uint32
         p = stored.pixels
         expected = compute(p[..., LEFT_Y].copy(), p[..., RIGHT_Y].copy(), small)
@@ -70,7 +77,7 @@ def test_emulated_overlay_without_a_stereo_core() -> None:
     with EmulatedOverlay(clock="stepped", stereo=False) as ov:
         assert ov.stereo is None and STEREO not in ov.ip_dict
         ov.step(2)
-        assert ov.depth_store(ov.processed_store().store) is None
+        assert ov.take_depth(ov.processed_store().store) is None
         assert ov.status()["stereo"] is None
 
 
@@ -85,8 +92,8 @@ def test_vdma_depth_stores_read_two_beats_per_stream_pixel() -> None:
         depth.start(8, 4)
         beats = np.arange(32, dtype=np.uint32).reshape(4, 8)
         assert hw.s2mm_accept(beats.view(np.uint8).reshape(4, 4, 8))
-        out = depth.output(0)
-        assert out is not None and np.array_equal(out, beats)
+        take = depth.take(0)
+        assert take is not None and np.array_equal(take(), beats)
         with pytest.raises(UnsupportedIP, match="7 pixels wide does not fill whole stream beats"):
             depth.start(7, 4)
         depth.stop()

@@ -262,7 +262,7 @@ def test_views_are_derived_once_per_frame(stepped) -> None:
     with pytest.raises(ViewUnavailable):
         render(frame_set(p), "raw_left")
     with pytest.raises(KeyError):
-        render(fs, "depth")
+        render(fs, "edges")
 
 
 def test_disparity_uses_the_papers_block_matcher(stepped) -> None:

@@ -171,7 +171,7 @@ class EmulatedFabric:
                 c.proc_frames += 1
                 store = self.vdma_proc.s2mm.inflight
                 if self.stereo is not None and store is not None:
-                    self.stereo.take(out, store)
+                    self.stereo.accept(out, store)
 
     def step(self, n: int = 1) -> None:
         self.clock.step(n)

@@ -13,6 +13,7 @@ from .faults import FaultInjector
 from .logic import CLOCK_THREAD, EmulatedFabric, StreamCore
 from .regblock import EmulationError, RegisterBlock
 from .sensors import EmulatedSensorPair
+from .stereo import STEREO_THREAD
 
 if TYPE_CHECKING:  # pragma: no cover
     from ...board.profile import BoardProfile
@@ -32,7 +33,7 @@ class EmulatedOverlay(FabricOverlay):
 
     backend = "emulated"
     # Threads that are the emulated hardware, not the daemon: the CPU budget does not count them.
-    emulation_threads = (CLOCK_THREAD,)
+    emulation_threads = (CLOCK_THREAD, STEREO_THREAD)
 
     def __init__(self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
                  build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0,

@@ -8,12 +8,15 @@ The board's core streams every frame into its own frame store; here a frame is o
 (the rectify core's output, by reference, with the parameters active for it), and its beats are
 computed the first time software reads that store. A frame nobody reads costs nothing, which
 keeps the emulation's CPU bounded, and what a read returns is what the core would have written.
+The model runs on a thread of the emulated hardware (:data:`STEREO_THREAD`), not the reader's:
+it is the fabric's work, which the daemon's CPU budget does not count.
 """
 from __future__ import annotations
 
+import concurrent.futures
 import threading
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
@@ -29,8 +32,9 @@ from ..spec.stereo import (
     params_from_registers,
     size_problems,
 )
-from .regblock import RegisterBlock
+from .regblock import EmulationError, RegisterBlock
 
+STEREO_THREAD = "emulated-stereo"  # where the emulated core computes its output
 LEFT_Y = pixel.LEFT.start + pixel.Y
 RIGHT_Y = pixel.RIGHT.start + pixel.Y
 
@@ -45,7 +49,7 @@ class _Noted:
 
 
 class EmulatedStereoCore(RegisterBlock):
-    """The stereo core as built (``build``); :meth:`take` on every rectified frame, :meth:`output` to read."""
+    """The stereo core as built (``build``); :meth:`accept` on every rectified frame, :meth:`take` to read."""
 
     def __init__(self, build: Build = DEFAULT_BUILD, *, name: str = "stereo") -> None:
         self.build = build
@@ -56,6 +60,8 @@ class EmulatedStereoCore(RegisterBlock):
         self._noted: Dict[int, _Noted] = {}
         self._computed: Dict[int, Tuple[int, np.ndarray]] = {}  # store -> (frame number, beats)
         self._compute_lock = threading.Lock()
+        self._worker: Optional[concurrent.futures.ThreadPoolExecutor] = None  # made at the first read
+        self._closed = False
         self.computed_frames = 0  # frames whose beats were computed: tests check reads are lazy
 
     def reset_registers(self) -> None:
@@ -90,7 +96,7 @@ class EmulatedStereoCore(RegisterBlock):
         self.set_field("STATUS", "APPLY_PENDING", 0)
 
     # -- datapath -----------------------------------------------------------------------
-    def take(self, frame: np.ndarray, store: int) -> bool:
+    def accept(self, frame: np.ndarray, store: int) -> bool:
         """A frame start: latch a pending APPLY, note the rectified ``(H, W, 8)`` frame for ``store``.
 
         Called by the fabric's frame thread with the frame the processed channel wrote to
@@ -111,19 +117,40 @@ class EmulatedStereoCore(RegisterBlock):
             self._noted[store] = _Noted(frame, self.active, number)
             return True
 
-    def output(self, store: int) -> Optional[np.ndarray]:
-        """The ``(H, W)`` uint32 beats in ``store`` (computed now if nobody read them yet); None if none.
+    def take(self, store: int) -> Optional[Callable[[], np.ndarray]]:
+        """The frame in ``store`` now (None if none): a call that gives its ``(H, W)`` uint32 beats.
 
-        Blocks while the model runs; the array is the core's store: copy it, never write it.
+        The call computes them the first time anyone reads that frame (it blocks while the model
+        runs) and hands the same read-only array to every later reader.
         """
         with self.lock:
             noted = self._noted.get(store)
         if noted is None:
             return None
+        return lambda: self._beats(store, noted)
+
+    def output(self, store: int) -> Optional[np.ndarray]:
+        """The beats of the frame in ``store`` now (None if none): :meth:`take` and read at once."""
+        take = self.take(store)
+        return None if take is None else take()
+
+    def _beats(self, store: int, noted: _Noted) -> np.ndarray:
+        """Compute on :data:`STEREO_THREAD` and wait for it (blocks the reader meanwhile)."""
+        with self.lock:
+            if self._closed:
+                raise EmulationError("the emulated stereo core was closed with its overlay: nothing to read")
+            if self._worker is None:
+                self._worker = concurrent.futures.ThreadPoolExecutor(
+                    1, initializer=lambda: setattr(threading.current_thread(), "name", STEREO_THREAD))
+            worker = self._worker
+        return worker.submit(self._compute, store, noted).result()
+
+    def _compute(self, store: int, noted: _Noted) -> np.ndarray:
         with self._compute_lock:
             done = self._computed.get(store)
             if done is not None and done[0] == noted.number:
                 return done[1]
+            # A reader late by more than the stores' round: computed again (the frame is kept with it).
             f = noted.frame
             beats = compute(np.ascontiguousarray(f[..., LEFT_Y]), np.ascontiguousarray(f[..., RIGHT_Y]),
                             noted.params).beats()
@@ -142,6 +169,10 @@ class EmulatedStereoCore(RegisterBlock):
     def close(self) -> None:
         with self.lock:
             self._noted.clear()
+            self._closed = True
+            worker, self._worker = self._worker, None
+        if worker is not None:
+            worker.shutdown(wait=True)
         with self._compute_lock:
             self._computed.clear()
 
