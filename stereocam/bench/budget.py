@@ -175,7 +175,7 @@ def text_lines(result: Dict[str, Any]) -> List[str]:
     every, one = result["all"], result["one"]
     lines = [f"budget             {result['cores']:g} cores, emulated fabric at {result['fabric_fps']:g} fps "
              f"(load average {result['loadavg_1m']})",
-             f"all seven views    daemon {every['daemon_cores']} cores over {every['seconds']} s "
+             f"all {len(VIEWS)} views      daemon {every['daemon_cores']} cores over {every['seconds']} s "
              f"(worst 10 s: {every['daemon_cores_max_10s']}); floor {result['cores'] + FLOOR_OVER_CORES:g}"]
     for view, rate in every["delivered_fps"].items():
         lines.append(f"  {view:<16} {rate:6.2f} fps delivered (planned {every['planned_fps'].get(view)})")
@@ -196,13 +196,13 @@ def run_budget(args: argparse.Namespace) -> int:
 
 def add_budget_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
     """``stereocam bench budget``, a suite of ``stereocam bench`` (``sub`` is its subparsers)."""
-    p = sub.add_parser("budget", help="the daemon within a CPU budget, seven views watched, then one",
+    p = sub.add_parser("budget", help="the daemon within a CPU budget, every view watched, then one",
                        description="`stereocam serve --cpu-budget CORES` on the emulated fabric, its CPU "
-                                   "read from /proc (the emulated fabric's thread excluded), seven views "
+                                   "read from /proc (the emulated fabric's threads excluded), every view "
                                    "watched over a WebSocket, then one (exit 1 below a floor).")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--cores", type=float, default=0.3, help="the budget (default 0.3)")
     p.add_argument("--fps", type=float, default=30.0, help="the emulated cameras' rate (default 30)")
-    p.add_argument("--seconds", type=float, default=60.0, help="seven views watched this long (default 60)")
+    p.add_argument("--seconds", type=float, default=60.0, help="every view watched this long (default 60)")
     p.add_argument("--one-seconds", type=float, default=10.0, help="one view watched this long (default 10)")
     p.set_defaults(func=run_budget)

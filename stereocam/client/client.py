@@ -314,6 +314,17 @@ class Client:
         """What the disparity view's colours mean (``colors``, ``num_disparities``, ``focal_px``, ...)."""
         return dict(self._json("GET", "/api/disparity"))
 
+    def stereo(self) -> JSON:
+        """The stereo core (``GET /api/stereo``): ``present``, ``by`` (what computes the disparity) and,
+        where there is a core, its ``params``, ``defaults``, ``limits``, ``build`` and ``status``."""
+        return dict(self._json("GET", "/api/stereo"))
+
+    def set_stereo(self, **params: Any) -> JSON:
+        """Change the stereo core's parameters (``num_disp``, ``p1``, ``p2``, ``p2_edge``, ``edge_thresh``,
+        ``uniqueness``, ``lr_tol``, ``lr_check``, ``subpixel``, ``median``); the others stay. A value
+        the core refuses is a ClientError (422) with every problem, and the previous ones stay active."""
+        return dict(self._json("PUT", "/api/stereo", dict(params)))
+
     # -- cameras and calibration -------------------------------------------------------------------
 
     def cameras(self) -> JSON:

@@ -11,11 +11,10 @@ from ..overlays.model.core_params import plan
 from ..overlays.model.core_regs import CoreControl, config_words, read_config
 from ..overlays.model.linebuffer import LineBufferFit
 from ..overlays.spec.rectify import CORE_ID, CORE_VERSION, RECTIFY_MAP, CameraParams, CameraRegs, CoreConfig
-from .mmio import DriverError, Registers, RegisterWindow, UnsupportedIP
+from .core_common import ConfigRefused, check_identity, clear_flags, wait_applied
+from .mmio import Registers, RegisterWindow
 
-
-class ConfigRefused(DriverError):
-    """The core raised CONFIG_ERROR on APPLY: it kept its previous parameters."""
+__all__ = ["ConfigRefused", "CoreStatus", "RectifyCore"]
 
 
 @dataclass(frozen=True)
@@ -38,18 +37,7 @@ class RectifyCore:
     def __init__(self, window: RegisterWindow, *, timeout: float = 1.0) -> None:
         self.regs = Registers(window, RECTIFY_MAP)
         self.timeout = timeout
-        ident = self.regs.read("ID")
-        if ident != CORE_ID:
-            raise UnsupportedIP(
-                f"rectify: ID register reads {ident:#010x}, expected {CORE_ID:#010x}: "
-                "the overlay does not contain a stereocam rectify core at this address"
-            )
-        major = self.regs.field("VERSION", "MAJOR")
-        if major != CORE_VERSION >> 16:
-            raise UnsupportedIP(
-                f"rectify: core version {major}.x is not supported by this driver ({CORE_VERSION >> 16}.x): "
-                "load a bitstream built from this version of stereocam"
-            )
+        check_identity(self.regs, CORE_ID, CORE_VERSION, "rectify")
         self.max_width = self.regs.read("MAX_WIDTH")
         self.max_height = self.regs.read("MAX_HEIGHT")
         self.lb_rows = self.regs.read("LB_ROWS")
@@ -85,11 +73,8 @@ class RectifyCore:
 
     def check_applied(self, *, timeout: float = 0.0) -> None:
         """Wait (at most ``timeout`` s) for APPLY to clear, then raise if the core refused the set."""
-        self.regs.wait("CONTROL", lambda v: not RECTIFY_MAP["CONTROL"].get(v, "APPLY"),
-                       expected="cleared APPLY (no frame start reached the core?)", timeout=timeout)
-        if self.regs.field("FLAGS", "CONFIG_ERROR"):
-            raise ConfigRefused("rectify: the core refused the parameters (CONFIG_ERROR); "
-                                "previous ones stay active")
+        wait_applied(self.regs, "rectify: the core refused the parameters (CONFIG_ERROR); "
+                     "previous ones stay active", timeout=timeout)
 
     def read_config(self) -> CoreConfig:
         """The shadow parameter set as the registers hold it."""
@@ -121,9 +106,7 @@ class RectifyCore:
 
     def clear_flags(self, *names: str) -> None:
         """Write-1-to-clear the named sticky flags (all of them if none named)."""
-        reg = RECTIFY_MAP["FLAGS"]
-        names = names or tuple(f.name for f in reg.fields)
-        self.regs.write("FLAGS", reg.encode(**{n: 1 for n in names}))
+        clear_flags(self.regs, *names)
 
     def status(self) -> CoreStatus:
         status = RECTIFY_MAP["STATUS"].decode(self.regs.read("STATUS"))

@@ -108,13 +108,14 @@ def no_bitstream_warning(where: str) -> str:
 def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, source: Optional[str] = None,
                  fps: float = 60.0, clock: str = "realtime", build: Union[str, Build] = DEFAULT_BUILD,
                  lb_rows: Optional[int] = None, core: str = "model",
-                 rtl_dir: Optional[str] = None) -> Overlay:
+                 rtl_dir: Optional[str] = None, stereo: bool = True) -> Overlay:
     """The overlay for these settings (``stereocam serve``'s), not started; raises :class:`BackendError`.
 
     ``source`` (the emulated cameras, :func:`camera_source`), ``fps``, ``clock``, ``build`` (a
     :data:`~.spec.rectify.BUILDS` name or a build), ``lb_rows`` and ``core`` (``model`` or
     ``rtl``: the core's RTL under Verilator, from ``rtl_dir`` or the packaged copy) apply to
     the emulated fabric only; ``core="rtl"`` always takes it, and refuses ``backend="pynq"``.
+    ``stereo`` False gives the emulated fabric no stereo core (the board's bitstream says for itself).
     """
     if core not in CORES:
         raise BackendError(f"--core must be one of {', '.join(CORES)}, not {core!r}")
@@ -145,7 +146,7 @@ def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, sou
             from .emulated.overlay import EmulatedOverlay
 
             overlay = EmulatedOverlay(source=cameras, fps=fps, clock=clock, build=the_build,
-                                      lb_rows=lb_rows, core=rtl, core_kind=core,
+                                      lb_rows=lb_rows, core=rtl, core_kind=core, stereo=stereo,
                                       timeout=RTL_TIMEOUT_S if rtl is not None else 1.0)
     except BaseException:
         if cameras is not None:

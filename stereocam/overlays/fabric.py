@@ -14,23 +14,69 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Mapping, Optional, Protocol, Tuple, Union
 
 import numpy as np
 
 from ..drivers.mmio import Allocator, RegisterWindow, UnsupportedIP
 from ..drivers.rectify import RectifyCore
+from ..drivers.stereo import StereoCore
 from ..drivers.switch import AxisSwitch
 from ..drivers.vdma import VDMA, MM2SChannel, S2MMChannel
 from .interface import COMMIT_TIMEOUT_S, Channel, ChannelStatus, Choice, StoredFrame
 from .model.result import CoreOptions
 from .spec.axis_switch import INPUT_NAMES, LIVE, VIRTUAL
-from .spec.overlay import INSTANCES
+from .spec.overlay import DEPTH_PIXELS_PER_BEAT, DEPTH_VDMA, INSTANCES, OPTIONAL_INSTANCES, STEREO
 from .spec.rectify import CoreConfig
 
 log = logging.getLogger(__name__)
 
 SOURCES = {"live": LIVE, "virtual": VIRTUAL}
+
+
+DepthTake = Callable[[], np.ndarray]
+
+
+class DepthStores(Protocol):
+    """Where the stereo core's output lands: ``take(store)``, :meth:`.interface.Overlay.take_depth`."""
+
+    def start(self, width: int, height: int) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def take(self, store: int) -> Optional[DepthTake]: ...
+
+    def close(self) -> None: ...
+
+
+class VdmaDepthStores:
+    """The stereo core's output through ``vdma_depth``'s S2MM (``spec/overlay.py``: two beats per pixel)."""
+
+    def __init__(self, vdma: VDMA) -> None:
+        self.vdma = vdma
+
+    def start(self, width: int, height: int) -> None:
+        if width % DEPTH_PIXELS_PER_BEAT:
+            raise UnsupportedIP(f"{DEPTH_VDMA}: a frame {width} pixels wide does not fill whole stream beats "
+                                f"({DEPTH_PIXELS_PER_BEAT} output beats each); use an even width")
+        self.vdma.s2mm.start(width // DEPTH_PIXELS_PER_BEAT, height)
+
+    def stop(self) -> None:
+        if self.vdma.s2mm.config is not None:
+            self.vdma.s2mm.stop()
+
+    def take(self, store: int) -> Optional[DepthTake]:
+        """A copy of ``store`` now (the channel overwrites it frames later), as ``(H, W)`` uint32 beats."""
+        buffers = self.vdma.s2mm.buffers
+        if not buffers:
+            return None
+        buf = np.asarray(buffers[store % len(buffers)])
+        beats = buf.view(np.uint32).reshape(buf.shape[0], -1).copy()
+        beats.flags.writeable = False
+        return lambda: beats
+
+    def close(self) -> None:
+        self.vdma.close()
 
 
 class StereoFabric:
@@ -41,7 +87,14 @@ class StereoFabric:
     """
 
     def __init__(self, *, raw_vdma: VDMA, proc_vdma: VDMA, mux: AxisSwitch, rectify: RectifyCore,
-                 allocate: Allocator, backend: str, frame_size: Tuple[int, int]) -> None:
+                 allocate: Allocator, backend: str, frame_size: Tuple[int, int],
+                 stereo: Optional[StereoCore] = None, depth: Optional[DepthStores] = None) -> None:
+        """``stereo`` and ``depth``: the optional stereo core and where its output lands (both or neither)."""
+        if (stereo is None) != (depth is None):
+            raise UnsupportedIP("a stereo core needs its output channel and the channel its core "
+                                f"({STEREO!r} and {DEPTH_VDMA!r}): the overlay has only one of them")
+        self.stereo = stereo
+        self.depth = depth
         self.raw_vdma = raw_vdma
         self.proc_vdma = proc_vdma
         self.mux = mux
@@ -63,6 +116,13 @@ class StereoFabric:
             self.proc_vdma.s2mm.start(w, h)
             self.proc_vdma.mm2s.start(w, h, circular=False)
             self.mux.select(LIVE)
+            if self.stereo is not None and self.depth is not None:
+                self.depth.start(w, h)
+                try:
+                    self.stereo.program(self.stereo.params(), size=(w, h), wait=False)
+                except ValueError as exc:  # a replayed frame wider than the core: it flags SIZE_ERROR
+                    log.warning("the stereo core cannot take %dx%d frames: %s", w, h, exc)
+                self.stereo.enable()
             self.rectify.enable()
             self.streaming = True
 
@@ -75,6 +135,9 @@ class StereoFabric:
             try:
                 self.mux.select(LIVE)
                 self.rectify.disable()
+                if self.stereo is not None and self.depth is not None:
+                    self.stereo.disable()
+                    self.depth.stop()
             finally:
                 for ch in (self.raw_vdma.s2mm, self.proc_vdma.s2mm, self.proc_vdma.mm2s):
                     if ch.config is not None:
@@ -85,6 +148,8 @@ class StereoFabric:
             self.stop_streams()
             self.raw_vdma.close()
             self.proc_vdma.close()
+            if self.depth is not None:
+                self.depth.close()
 
     # -- the mux ------------------------------------------------------------------------
     @property
@@ -149,6 +214,19 @@ class StereoFabric:
                                                  colour=rectify.colour)
         return config, options
 
+    def take_depth(self, store: int) -> Optional[DepthTake]:
+        """The stereo core's output for processed store ``store`` (:meth:`.interface.Overlay.take_depth`)."""
+        return None if self.depth is None else self.depth.take(store % self.proc_vdma.s2mm.num_fstores)
+
+    def stereo_status(self) -> Optional[Dict[str, Any]]:
+        """The stereo core for ``/api/status``: build, parameters, progress; None without one."""
+        if self.stereo is None:
+            return None
+        build = self.stereo.build
+        return {"build": {"max_width": build.max_width, "max_height": build.max_height,
+                          "max_disp": build.max_disp, "parallel": build.parallel},
+                "params": self.stereo.params().as_json(), **self.stereo.status().as_json()}
+
     # -- health -------------------------------------------------------------------------
     def channel(self, name: Channel) -> Union[S2MMChannel, MM2SChannel]:
         """The driver of one DMA channel, by its :data:`~.interface.Channel` name."""
@@ -179,6 +257,7 @@ class StereoFabric:
             "core": {"frame_count": core.frame_count, "flags": core.flags, "control": core.control,
                      "lb_rows": self.rectify.lb_rows, "max_width": self.rectify.max_width,
                      "colour": self.rectify.colour},
+            "stereo": self.stereo_status(),
             "vdma": {
                 "raw_s2mm": list(self.raw_vdma.s2mm.errors()),
                 "proc_s2mm": list(self.proc_vdma.s2mm.errors()),
@@ -189,13 +268,25 @@ class StereoFabric:
 
 def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, int], RegisterWindow],
          allocate: Allocator, *, backend: str, frame_size: Tuple[int, int],
-         timeout: float = 1.0) -> StereoFabric:
+         timeout: float = 1.0, depth: Optional[DepthStores] = None) -> StereoFabric:
     """Drivers for the overlay described by ``ip_dict``.
 
     ``ip_dict`` is pynq's format: name -> phys_addr, addr_range, type, parameters.
-    Refuses an overlay that lacks an instance or has the wrong IP under a name.
+    Refuses an overlay that lacks an instance or has the wrong IP under a name. The stereo
+    core is bound where ``ip_dict`` has one; its output is read from ``vdma_depth``, or from
+    ``depth`` where given (the emulated fabric's core hands its stores over directly).
     """
     require_instances(ip_dict)
+    optional = optional_instances(ip_dict)
+    stereo = None
+    if STEREO in optional:
+        desc = ip_dict[STEREO]
+        stereo = StereoCore(open_window(int(desc["phys_addr"]), int(desc["addr_range"])), timeout=timeout)
+        if depth is None and DEPTH_VDMA in optional:
+            desc = ip_dict[DEPTH_VDMA]
+            depth = VdmaDepthStores(VDMA(open_window(int(desc["phys_addr"]), int(desc["addr_range"])),
+                                         allocate, num_fstores=int(desc.get("parameters", {}).get(
+                                             "C_NUM_FSTORES", 3)), name=DEPTH_VDMA, timeout=timeout))
     windows = {name: open_window(int(ip_dict[name]["phys_addr"]), int(ip_dict[name]["addr_range"]))
                for name in INSTANCES}
 
@@ -215,6 +306,8 @@ def bind(ip_dict: Mapping[str, Mapping[str, Any]], open_window: Callable[[int, i
         allocate=allocate,
         backend=backend,
         frame_size=frame_size,
+        stereo=stereo,
+        depth=depth if stereo is not None else None,
     )
 
 
@@ -234,6 +327,19 @@ def require_instances(ip_dict: Mapping[str, Mapping[str, Any]]) -> None:
             raise UnsupportedIP(f"IP {name!r} is {desc.get('type')!r}, expected {' or '.join(vlnvs)}")
 
 
+def optional_instances(ip_dict: Mapping[str, Mapping[str, Any]]) -> Tuple[str, ...]:
+    """The optional instances (:data:`OPTIONAL_INSTANCES`) the overlay has; refuses the wrong IP under one."""
+    found = []
+    for name, vlnvs in OPTIONAL_INSTANCES.items():
+        desc = ip_dict.get(name)
+        if desc is None:
+            continue
+        if desc.get("type") not in vlnvs:
+            raise UnsupportedIP(f"IP {name!r} is {desc.get('type')!r}, expected {' or '.join(vlnvs)}")
+        found.append(name)
+    return tuple(found)
+
+
 def from_drivers(drivers: Mapping[str, Any], allocate: Allocator, *, backend: str,
                  frame_size: Tuple[int, int]) -> StereoFabric:
     """A :class:`StereoFabric` over drivers already bound, by instance name (e.g. by pynq's overlay).
@@ -247,8 +353,10 @@ def from_drivers(drivers: Mapping[str, Any], allocate: Allocator, *, backend: st
             raise UnsupportedIP(f"no driver bound to {name!r}; bound: {', '.join(sorted(drivers)) or 'none'}")
         if not isinstance(driver, cls):
             raise UnsupportedIP(f"{name!r} is bound to {type(driver).__name__}, not a {cls.__name__} driver")
+    stereo, depth_vdma = drivers.get(STEREO), drivers.get(DEPTH_VDMA)
     return StereoFabric(raw_vdma=drivers["vdma_raw"], proc_vdma=drivers["vdma_proc"], mux=drivers["mux"],
-                        rectify=drivers["rectify"], allocate=allocate, backend=backend, frame_size=frame_size)
+                        rectify=drivers["rectify"], allocate=allocate, backend=backend, frame_size=frame_size,
+                        stereo=stereo, depth=None if depth_vdma is None else VdmaDepthStores(depth_vdma))
 
 
 class FabricOverlay:
@@ -311,6 +419,13 @@ class FabricOverlay:
 
     def status(self) -> Dict[str, Any]:
         return self.fabric.status()
+
+    @property
+    def stereo(self) -> Optional[StereoCore]:
+        return self.fabric.stereo
+
+    def take_depth(self, store: int) -> Optional[DepthTake]:
+        return self.fabric.take_depth(store)
 
     def channel_status(self, channel: Channel) -> ChannelStatus:
         return self.fabric.channel_status(channel)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import (
     TYPE_CHECKING,
     Any,
+    Callable,
     Dict,
     Literal,
     Mapping,
@@ -34,10 +35,13 @@ import numpy as np
 from ..drivers.i2c import I2CBus, I2CDenied, I2CError
 from ..drivers.mmio import DriverError, RegisterTimeout
 from ..drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
+from ..drivers.stereo import StereoConfigRefused, StereoStatus
 from ..drivers.vdma import ChannelFault, ChannelNotStarted, NoFrameYet, VDMAError
 from .model.linebuffer import LineBufferFit
 from .model.result import CoreOptions
 from .spec.rectify import CameraParams, CameraRegs, CoreConfig
+from .spec.stereo import Build as StereoBuild
+from .spec.stereo import StereoParams
 from .spec.vdma import FATAL_ERRORS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -47,7 +51,7 @@ __all__ = [
     "Overlay", "RectifyControl", "Choice", "ChannelStatus", "StoredFrame", "Channel", "CHANNELS", "Source",
     "COMMIT_TIMEOUT_S", "DriverError", "RegisterTimeout", "ChannelFault", "ChannelNotStarted", "NoFrameYet",
     "VDMAError", "BackendError", "I2CBus", "I2CDenied", "I2CError", "CAMERAS", "SensorUnavailable",
-    "StereoSensors",
+    "StereoSensors", "StereoControl", "StereoConfigRefused", "StereoStatus", "StereoBuild", "StereoParams",
 ]
 
 # The three DMA channels, named ``<vdma instance>.<direction>``.
@@ -131,6 +135,31 @@ class RectifyControl(Protocol):
 
     def dump(self) -> Dict[str, int]:
         """Every register by name, for a capture's metadata."""
+
+
+@runtime_checkable
+class StereoControl(Protocol):
+    """The stereo core's parameters and progress (blocking register reads and writes)."""
+
+    @property
+    def build(self) -> StereoBuild:
+        """The core's build parameters, read back from it: what :meth:`StereoParams.problems` checks."""
+
+    def params(self) -> StereoParams:
+        """The parameters the core holds (written by the last :meth:`program`)."""
+
+    def program(self, params: StereoParams, *, size: Optional[Tuple[int, int]] = None,
+                wait: bool = True) -> None:
+        """Write and APPLY ``params`` (and the frame ``size`` where given).
+
+        ValueError with the problems (nothing written) for values the core refuses.
+
+        With ``wait`` it blocks until the core latched them (the next frame start), at most the
+        driver's timeout (:class:`RegisterTimeout`); :class:`StereoConfigRefused` if the core refused.
+        """
+
+    def status(self) -> StereoStatus:
+        """Frame count, enable, busy, apply pending and the sticky flags (register reads)."""
 
 
 @runtime_checkable
@@ -227,6 +256,20 @@ class Overlay(Protocol):
 
     def status(self) -> Dict[str, Any]:
         """JSON for ``/api/status``: backend, source, streaming, frame size, core and channel state."""
+
+    # -- the stereo core (optional) --------------------------------------------------------
+    @property
+    def stereo(self) -> Optional[StereoControl]:
+        """The stereo core's control; None where the bitstream has no stereo core."""
+
+    def take_depth(self, store: int) -> Optional[Callable[[], np.ndarray]]:
+        """The stereo core's output for the processed frame in ``store``, taken now; None without one.
+
+        Call it right after reading that processed store. Taking is cheap (the board copies the
+        core's frame store; the emulated core notes the frame); the call it returns gives the
+        ``(H, W)`` uint32 output beats, owned by the caller and read-only, and blocks while the
+        emulated core computes them (once, on the first call).
+        """
 
     # -- health ---------------------------------------------------------------------------
     def channel_status(self, channel: Channel) -> ChannelStatus:

@@ -341,6 +341,19 @@ async def test_cameras_calibration_and_depth(start_daemon) -> None:
     assert await call(c.frozen) == []
 
 
+async def test_the_stereo_core_registers(start_daemon) -> None:
+    d, c = await client_on(start_daemon)
+    state = await call(c.stereo)
+    assert state["present"] is True and state["by"] == "stereo core"
+    assert state["params"] == state["defaults"] and state["limits"]["num_disp"]["multiple_of"] == 32
+    changed = await call(c.set_stereo, uniqueness=20, median=False)
+    assert changed["params"]["uniqueness"] == 20 and changed["params"]["median"] is False
+    with pytest.raises(ClientError) as err:
+        await call(c.set_stereo, num_disp=40)
+    assert err.value.status == 422 and "a multiple of 32" in err.value.message
+    assert (await call(c.stereo))["params"] == changed["params"]  # the refusal changed nothing
+
+
 async def test_the_token_is_sent(start_daemon) -> None:
     d, c = await client_on(start_daemon, access_token="s3cret+/=")
     assert (await call(c.status))["access_token"] is True

@@ -102,8 +102,9 @@ class StillSource:
 
 
 def make_overlay(*, size: Tuple[int, int] = SMALL, fps: float = TEST_FPS, clock: str = "realtime",
-                 calibrate: bool = True) -> EmulatedOverlay:
-    overlay = EmulatedOverlay(source=StillSource(size), fps=fps, clock=clock)
+                 calibrate: bool = True, stereo: bool = True) -> EmulatedOverlay:
+    """``stereo`` False: a fabric without the stereo core (today's bitstream)."""
+    overlay = EmulatedOverlay(source=StillSource(size), fps=fps, clock=clock, stereo=stereo)
     if calibrate:
         program_default_calibration(overlay, Settings())
     return overlay

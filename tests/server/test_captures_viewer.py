@@ -200,7 +200,8 @@ async def test_thumb_restore_and_path_tricks_over_http(start_daemon) -> None:
 
 @pytest.mark.slow
 async def test_point_reads_the_disparity_map_and_gives_depth_from_q(start_daemon) -> None:
-    d = await start_daemon(overlay=make_overlay(size=FULL, fps=5.0, calibrate=False))
+    # The ARM's StereoBM (a fabric without the stereo core; the core's readout: test_stereo_daemon.py).
+    d = await start_daemon(overlay=make_overlay(size=FULL, fps=5.0, calibrate=False, stereo=False))
     await wait_for_frames(d)
     rect = d.app[CALIBRATION].now.calibration.rect  # what GET /api/calibration's "rectification" shows
     rectification = {"R1": rect.R1.tolist(), "P1": rect.P1.tolist()}

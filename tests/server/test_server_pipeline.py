@@ -12,6 +12,8 @@ import pytest
 
 from stereocam.drivers.vdma import ChannelFault
 from stereocam.overlays.model.fast import RectifyModel
+from stereocam.overlays.model.stereo import compute
+from stereocam.server.frames.depth import stereo_of
 from stereocam.server.frames.encoders import EncoderKey, Encoders, encoded_for
 from stereocam.server.frames.feed import BroadcastClosed, FrameFeed, Latest
 from stereocam.server.frames.pipeline import FrameSet, NoSignal, OnceCache, Pipeline, SourceState
@@ -239,9 +241,9 @@ async def test_feed_keeps_the_newest_set_and_marks_no_signal() -> None:
 def test_views_are_derived_once_per_frame(stepped) -> None:
     stepped.step(2)
     pipeline = Pipeline(stepped, publish=lambda fs: None)
-    with pipeline.raw_wanted():
+    with pipeline.raw_wanted(), pipeline.depth_wanted():  # the disparity views need the core's output
         fs = pipeline.grab()
-    assert fs is not None and fs.raw is not None
+    assert fs is not None and fs.raw is not None and fs.depth is not None
     p, r = fs.processed, fs.raw
     np.testing.assert_array_equal(render(fs, "raw_left"), r[..., [2, 1, 0]])
     np.testing.assert_array_equal(render(fs, "raw_right", gray=True), r[..., 7])
@@ -261,19 +263,61 @@ def test_views_are_derived_once_per_frame(stepped) -> None:
         assert image.flags.c_contiguous and not image.flags.writeable
     with pytest.raises(ViewUnavailable):
         render(frame_set(p), "raw_left")
+    without_depth = frame_set(p)
+    without_depth.stereo = True  # from an overlay with a stereo core, read without its output
+    with pytest.raises(ViewUnavailable, match="read without the stereo core's output"):
+        render(without_depth, "disparity")
     with pytest.raises(KeyError):
-        render(fs, "depth")
+        render(fs, "edges")
 
 
-def test_disparity_uses_the_papers_block_matcher(stepped) -> None:
-    stepped.step(2)
-    fs = Pipeline(stepped, publish=lambda fs: None).grab()
-    assert fs is not None
+def test_disparity_uses_the_papers_block_matcher() -> None:
+    """Where the bitstream has no stereo core, the ARM computes the disparity with StereoBM."""
+    stepped = make_overlay(clock="stepped", stereo=False)
+    stepped.start()
+    try:
+        stepped.step(2)
+        fs = Pipeline(stepped, publish=lambda fs: None).grab()
+    finally:
+        stepped.close()
+    assert fs is not None and not fs.stereo
     bm = cv2.StereoBM.create(numDisparities=128, blockSize=19)
     bm.setUniquenessRatio(15)
     disp = bm.compute(np.ascontiguousarray(fs.processed[..., 3]), np.ascontiguousarray(fs.processed[..., 7]))
     image = render(fs, "disparity")
     assert (image.any(axis=2) == (disp >= 0)).mean() > 0.999  # black exactly where no disparity was found
+
+
+def test_the_cores_output_is_taken_only_while_wanted(stepped) -> None:
+    stepped.step(2)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
+    fs = pipeline.grab()
+    assert fs is not None and fs.stereo and fs.depth is None and fs.calibration is None
+    calibrations = []
+    pipeline.set_calibration(lambda count: calibrations.append(count))
+    stepped.step(1)
+    with pipeline.depth_wanted():
+        assert pipeline.wants_depth
+        fs = pipeline.grab()
+    assert not pipeline.wants_depth
+    assert fs is not None and fs.depth is not None and calibrations == [fs.fabric_count]
+    core = stereo_of(fs)
+    p = fs.processed
+    assert core is not None and core.equal(compute(p[..., 3].copy(), p[..., 7].copy()))
+    assert stereo_of(fs) is core, "read once per set"
+
+
+def test_without_a_stereo_core_nothing_is_taken() -> None:
+    overlay = make_overlay(clock="stepped", stereo=False)
+    overlay.start()
+    try:
+        overlay.step(2)
+        pipeline = Pipeline(overlay, publish=lambda fs: None)
+        with pipeline.depth_wanted():
+            fs = pipeline.grab()
+    finally:
+        overlay.close()
+    assert fs is not None and not fs.stereo and fs.depth is None and stereo_of(fs) is None
 
 
 # -- encoders -----------------------------------------------------------------------------------------

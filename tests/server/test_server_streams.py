@@ -100,7 +100,7 @@ async def test_bad_stream_parameters_are_400(start_daemon, query, status, words)
 
 async def test_unknown_view_is_404(start_daemon) -> None:
     d = await start_daemon()
-    for path in ("/stream/depth", "/snapshot/depth.jpg", "/snapshot/rect_left.gif"):
+    for path in ("/stream/edges", "/snapshot/edges.jpg", "/snapshot/rect_left.gif"):
         async with d.http.get(path) as resp:
             assert resp.status == 404
             assert "error" in await resp.json()

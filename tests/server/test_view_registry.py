@@ -20,7 +20,7 @@ from stereocam.server.frames.pipeline import FrameSet
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = ROOT / "stereocam" / "server" / "http" / "static"
-RENDERS = {"camera", "hconcat", "anaglyph", "disparity"}  # what views._render knows
+RENDERS = {"camera", "hconcat", "anaglyph", "disparity", "depth"}  # what views._render knows
 # Quoted literals with nothing but commas, whitespace and comments between them.
 _LITERAL = re.compile(r"""(["'])([A-Za-z0-9_]+)\1""")
 _BETWEEN = re.compile(r"""\s*,?\s*(?:(?://|#)[^\n]*\n\s*)*""")

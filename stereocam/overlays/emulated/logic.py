@@ -3,7 +3,8 @@
 ```
  cameras ──┬──────────────────────────► vdma_raw  S2MM ──► DDR
            └─► mux SI0 ┐
- DDR ──► vdma_proc MM2S ─► mux SI1 ┴► mux ─► rectify ─► vdma_proc S2MM ──► DDR
+ DDR ──► vdma_proc MM2S ─► mux SI1 ┴► mux ─► rectify ─┬► vdma_proc S2MM ──► DDR
+                                                      └► stereo (optional) ──► its depth store
 ```
 
 Each frame tick of the :class:`FrameClock` moves one frame along every path.
@@ -29,6 +30,7 @@ from .ddr import EmulatedDDR
 from .rectify import EmulatedRectifyCore
 from .regblock import RegisterBlock
 from .render import SyntheticRig
+from .stereo import EmulatedStereoCore
 from .switch import EmulatedAxisSwitch
 from .vdma import EmulatedVDMA
 
@@ -93,13 +95,15 @@ class EmulatedFabric:
     closes it on :meth:`close`. ``core`` replaces the model of the rectify
     core (e.g. with the RTL, ``stereocam.overlays.rtl.core.RtlCore``, built for ``build``);
     the fabric closes it too. ``sensors`` (optional, settable later) are
-    ticked around every camera frame (:class:`FrameSensors`).
+    ticked around every camera frame (:class:`FrameSensors`). ``stereo`` False builds the
+    fabric without a stereo core (a bitstream without one: the daemon falls back to the ARM).
     """
 
     def __init__(
         self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
         num_fstores: int = NUM_FSTORES, build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None,
         ddr_size: int = 256 << 20, sensors: Optional[FrameSensors] = None, core: Optional[StreamCore] = None,
+        stereo: bool = True,
     ) -> None:
         self.ddr = EmulatedDDR(size=ddr_size)
         self.vdma_raw = EmulatedVDMA(self.ddr, num_fstores, "vdma_raw")
@@ -108,6 +112,7 @@ class EmulatedFabric:
         self.core: StreamCore = core if core is not None else EmulatedRectifyCore(
             max_width=build.max_width, max_height=build.max_height,
             lb_rows=build.lb_rows if lb_rows is None else lb_rows, colour=build.colour)
+        self.stereo: Optional[EmulatedStereoCore] = EmulatedStereoCore() if stereo else None
         self.num_fstores = num_fstores
         self.source: CameraSource = source if source is not None else SyntheticRig()
         self.sensors: Optional[FrameSensors] = sensors
@@ -118,7 +123,13 @@ class EmulatedFabric:
 
     @property
     def blocks(self) -> Dict[str, "RegisterBlock | StreamCore"]:
+        """The instances every bitstream has (``spec/overlay.py`` INSTANCES, at ADDRESS_MAP)."""
         return {"vdma_raw": self.vdma_raw, "vdma_proc": self.vdma_proc, "rectify": self.core, "mux": self.mux}
+
+    @property
+    def optional_blocks(self) -> Dict[str, RegisterBlock]:
+        """The optional instances this fabric has (OPTIONAL_INSTANCES, at OPTIONAL_ADDRESS_MAP)."""
+        return {} if self.stereo is None else {"stereo": self.stereo}
 
     @property
     def frame_size(self) -> Tuple[int, int]:
@@ -158,6 +169,9 @@ class EmulatedFabric:
             c.core_frames += 1
             if self.vdma_proc.s2mm_accept(out):
                 c.proc_frames += 1
+                store = self.vdma_proc.s2mm.inflight
+                if self.stereo is not None and store is not None:
+                    self.stereo.accept(out, store)
 
     def step(self, n: int = 1) -> None:
         self.clock.step(n)

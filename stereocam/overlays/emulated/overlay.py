@@ -6,13 +6,14 @@ from typing import TYPE_CHECKING, Any, Dict, Optional
 from ...drivers.rectify import RectifyCore
 from ..fabric import FabricOverlay, StereoFabric, bind
 from ..spec.axis_switch import VLNV as SWITCH_VLNV
-from ..spec.overlay import ADDRESS_MAP, INSTANCES, WINDOW_SIZE
+from ..spec.overlay import ADDRESS_MAP, INSTANCES, OPTIONAL_ADDRESS_MAP, OPTIONAL_INSTANCES, WINDOW_SIZE
 from ..spec.rectify import DEFAULT_BUILD, Build
 from .cameras import CameraSource
 from .faults import FaultInjector
 from .logic import CLOCK_THREAD, EmulatedFabric, StreamCore
 from .regblock import EmulationError, RegisterBlock
 from .sensors import EmulatedSensorPair
+from .stereo import STEREO_THREAD
 
 if TYPE_CHECKING:  # pragma: no cover
     from ...board.profile import BoardProfile
@@ -32,12 +33,14 @@ class EmulatedOverlay(FabricOverlay):
 
     backend = "emulated"
     # Threads that are the emulated hardware, not the daemon: the CPU budget does not count them.
-    emulation_threads = (CLOCK_THREAD,)
+    emulation_threads = (CLOCK_THREAD, STEREO_THREAD)
 
     def __init__(self, *, source: Optional[CameraSource] = None, fps: float = 60.0, clock: str = "realtime",
                  build: Build = DEFAULT_BUILD, lb_rows: Optional[int] = None, timeout: float = 1.0,
-                 core: Optional[StreamCore] = None, core_kind: str = "model") -> None:
+                 core: Optional[StreamCore] = None, core_kind: str = "model", stereo: bool = True) -> None:
         """``build``: the rectify core's build parameters; ``lb_rows`` overrides its line-buffer rows.
+
+        ``stereo``: the fabric has the stereo core (a ``depth`` build); False: none, as today's bitstream.
 
         ``core``: what stands in the rectify core's place instead of the model (the RTL, built
         for ``build``); ``core_kind`` names it in the daemon's status ("model" or "rtl").
@@ -45,20 +48,22 @@ class EmulatedOverlay(FabricOverlay):
         self.core_kind = core_kind
         # The emulated hardware itself: IP blocks, DDR, cameras and the frame clock.
         self.emulation = EmulatedFabric(source=source, fps=fps, clock=clock, build=build, lb_rows=lb_rows,
-                                        core=core)
+                                        core=core, stereo=stereo)
         self.sensors: Optional[EmulatedSensorPair] = None  # set by attach_sensors
         self.fault_injection: Optional[FaultInjector] = FaultInjector(self.emulation)
-        blocks = self.emulation.blocks
+        blocks = {**self.emulation.blocks, **self.emulation.optional_blocks}
+        addresses = {**ADDRESS_MAP, **OPTIONAL_ADDRESS_MAP}
+        vlnvs = {**INSTANCES, **OPTIONAL_INSTANCES}
         self.ip_dict: Dict[str, Dict[str, Any]] = {
             name: {
-                "phys_addr": ADDRESS_MAP[name],
+                "phys_addr": addresses[name],
                 "addr_range": WINDOW_SIZE,
-                "type": SWITCH_VLNV if name == "mux" else INSTANCES[name][-1],
+                "type": SWITCH_VLNV if name == "mux" else vlnvs[name][-1],
                 "parameters": {"C_NUM_FSTORES": str(self.emulation.num_fstores), "NUM_SI": "2"},
             }
             for name in blocks
         }
-        by_address = {ADDRESS_MAP[name]: block for name, block in blocks.items()}
+        by_address = {addresses[name]: block for name, block in blocks.items()}
 
         def open_window(address: int, length: int) -> "RegisterBlock | StreamCore":
             try:
@@ -68,7 +73,7 @@ class EmulatedOverlay(FabricOverlay):
 
         self.fabric: StereoFabric = bind(self.ip_dict, open_window, self.emulation.ddr.allocate,
                                          backend=self.backend, frame_size=self.emulation.frame_size,
-                                         timeout=timeout)
+                                         timeout=timeout, depth=self.emulation.stereo)
 
     # Drivers, for convenience.
     @property

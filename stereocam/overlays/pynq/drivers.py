@@ -33,11 +33,13 @@ import numpy as np
 
 from ...drivers.mmio import Allocator, DriverError, RegisterWindow, UnsupportedIP
 from ...drivers.rectify import RectifyCore
+from ...drivers.stereo import StereoCore
 from ...drivers.switch import AxisSwitch
 from ...drivers.vdma import VDMA
 from ..spec.axis_switch import NUM_INPUTS
 from ..spec.overlay import SWITCH_VLNVS, VDMA_VLNVS
 from ..spec.rectify import VLNV as RECTIFY_VLNV
+from ..spec.stereo import VLNV as STEREO_VLNV
 from . import import_pynq
 
 __all__ = ["BusGuard", "FabricLost", "GuardedWindow", "PynqAxisSwitch", "PynqRectifyCore", "PynqVDMA",
@@ -129,6 +131,17 @@ class PynqRectifyCore(RectifyCore, DefaultIP):
             )
 
 
+class PynqStereoCore(StereoCore, DefaultIP):
+    """The stereo core bound by pynq (a ``depth`` bitstream's; see ``spec/overlay.py`` OPTIONAL_INSTANCES)."""
+
+    bindto: List[str] = [STEREO_VLNV]
+
+    def __init__(self, description: Mapping[str, Any], *, guard: Optional[BusGuard] = None,
+                 timeout: float = DEFAULT_TIMEOUT) -> None:
+        DefaultIP.__init__(self, description)
+        StereoCore.__init__(self, _window(self, guard), timeout=timeout)
+
+
 class PynqVDMA(VDMA, DefaultIP):
     """An AXI VDMA bound by pynq; frame stores and address width from the ``.hwh``.
 
@@ -179,4 +192,6 @@ DRIVERS: Dict[str, Callable[..., Any]] = {
     "vdma_proc": PynqVDMA,
     "mux": PynqAxisSwitch,
     "rectify": PynqRectifyCore,
+    "stereo": PynqStereoCore,  # optional instances: bound where the .hwh has them
+    "vdma_depth": PynqVDMA,
 }

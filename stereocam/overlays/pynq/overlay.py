@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Optional, Tuple
 
-from ..fabric import FabricOverlay, StereoFabric, bind, from_drivers, require_instances
+from ..fabric import FabricOverlay, StereoFabric, bind, from_drivers, optional_instances, require_instances
 from ..interface import BackendError, FaultInjection, SensorPair
 from ..spec.overlay import INSTANCES
 from ..spec.rectify import CORE_ID, CORE_VERSION, RECTIFY_MAP
@@ -265,8 +265,9 @@ class StereocamOverlay(FabricOverlay, pynq.Overlay):  # type: ignore[name-define
                                    f"({self._pl_state.state_file}): another process programmed the fabric "
                                    "meanwhile")
             self.guard = guard = PLGuard(self._pl_state, ours, probe_interval=probe_interval)
+            # The stereo core and its channel where the .hwh has them (a ``depth`` build), else none.
             drivers = {name: DRIVERS[name](self.ip_dict[name], guard=guard, timeout=timeout)
-                       for name in INSTANCES}
+                       for name in (*INSTANCES, *optional_instances(self.ip_dict))}
             for name, driver in drivers.items():
                 setattr(self, name, driver)  # ``ov.rectify`` is this object; pynq's __getattr__ is not asked
             guard.probe = self._identity

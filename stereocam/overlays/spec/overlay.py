@@ -3,12 +3,24 @@
 Written once: the board overlay binds drivers by these names and checks the
 VLNV of what it finds there; the emulated fabric places its blocks under the
 same names.
+
+The stereo core (``STEREO_CORE.md``) is optional: a bitstream may have it or not, and the
+daemon asks (:data:`OPTIONAL_INSTANCES`). Where it is, it sits after the rectify core on the
+rectified stream (a broadcaster feeds both the processed channel and the stereo core) and its
+32-bit output beats reach DDR through a channel of their own: a third VDMA, ``vdma_depth``,
+S2MM only, genlocked to ``vdma_proc``'s S2MM so that frame store ``k`` of one holds the
+disparity of frame store ``k`` of the other. Its stream is 64 bits wide like the others, two
+output beats per stream beat (the left pixel in the low word), so the channel is started
+``width / 2`` eight-byte pixels wide (:data:`DEPTH_PIXELS_PER_BEAT`) and a store reads back as
+``(H, W)`` uint32 beats. Today's block design (``vivado/``) has neither: its address map is
+:data:`ADDRESS_MAP`, and :data:`OPTIONAL_ADDRESS_MAP` is where a ``depth`` build places them.
 """
 from __future__ import annotations
 
 from typing import Dict, Tuple
 
 from .rectify import VLNV as RECTIFY_VLNV
+from .stereo import VLNV as STEREO_VLNV
 
 BITSTREAM = "stereocam.bit"  # with stereocam.hwh beside it
 
@@ -34,6 +46,19 @@ INSTANCES: Dict[str, Tuple[str, ...]] = {
     "mux": SWITCH_VLNVS,  # SI0 live cameras, SI1 virtual camera -> rectify core
     "rectify": (RECTIFY_VLNV,),
 }
+
+#: The optional instances: present in a ``depth`` build, absent from today's bitstream.
+STEREO = "stereo"
+DEPTH_VDMA = "vdma_depth"
+OPTIONAL_INSTANCES: Dict[str, Tuple[str, ...]] = {
+    STEREO: (STEREO_VLNV,),  # the stereo core's AXI4-Lite registers (STEREO_MAP)
+    DEPTH_VDMA: VDMA_VLNVS,  # S2MM only: the stereo core's output beats to DDR
+}
+OPTIONAL_ADDRESS_MAP: Dict[str, int] = {
+    STEREO: 0x43C2_0000,
+    DEPTH_VDMA: 0x4302_0000,
+}
+DEPTH_PIXELS_PER_BEAT = 2  # 32-bit output beats per 64-bit stream beat of vdma_depth
 
 #: The one fabric clock (the PS7's FCLK_CLK0): AXI4-Lite registers, every stream, the HP port.
 #: stereocam/overlays/vivado/settings.tcl sets it in MHz (STEREOCAM_FCLK0_MHZ); a test checks they agree.

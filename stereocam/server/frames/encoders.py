@@ -44,6 +44,7 @@ from .views import (
     RAW_VIEWS,
     DisparityWorker,
     ViewUnavailable,
+    needs_disparity,
     no_signal_detail,
     no_signal_image,
     render,
@@ -323,9 +324,10 @@ class Encoders:
         if uses_disparity_worker(key.view):
             self.disparity.acquire()
             source = self.disparity_output
-        elif key.view in RAW_VIEWS and self.pipeline is not None:
+        if self.pipeline is not None and (key.view in RAW_VIEWS or needs_disparity(key.view)):
             stack = contextlib.ExitStack()
-            stack.enter_context(self.pipeline.raw_wanted())
+            stack.enter_context(self.pipeline.raw_wanted() if key.view in RAW_VIEWS
+                                else self.pipeline.depth_wanted())
             self._raw_holds[key] = stack
         charge = self.budget.charge if self.budget is not None else None
         encoder = Encoder(key, source, self.executor, observe=self.observe, charge=charge,

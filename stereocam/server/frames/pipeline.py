@@ -47,6 +47,7 @@ from ...overlays.interface import (
     RegisterTimeout,
     VDMAError,
 )
+from ..stores.frame_calibration import FrameCalibration
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +120,14 @@ class FrameSet:
     # raw channel may complete the next frame before the core finishes this one, so two sets in a row
     # can carry the same raw frame: the same store within fewer frames than there are stores.
     raw_store: Optional[int] = field(default=None, repr=False)
+    # The overlay has a stereo core (``Overlay.stereo``): its output, not the ARM, is this frame's disparity.
+    stereo: bool = field(default=False, repr=False)
+    # The core's output for ``processed``, taken while a consumer held :meth:`Pipeline.depth_wanted`
+    # (None: not taken, or no core): a call that returns the (H, W) uint32 beats, owned by the caller
+    # (``depth.py`` calls it once per set; the emulated core computes them then).
+    depth: Optional[Callable[[], np.ndarray]] = field(default=None, repr=False)
+    # The calibration this frame ran with, stamped with the depth (``Pipeline.set_calibration``).
+    calibration: Optional[FrameCalibration] = field(default=None, repr=False)
     signal = True
 
     @property
@@ -218,6 +227,9 @@ class Pipeline:
         self._thread: Optional[threading.Thread] = None
         self._raw_wanted = 0
         self._pairs_wanted = 0
+        self._depth_wanted = 0
+        self.has_stereo = overlay.stereo is not None  # fixed by the bitstream
+        self._calibration_for: Optional[Callable[[int], Optional[FrameCalibration]]] = None
         self._sinks: Tuple[Callable[[FrameSet], None], ...] = ()  # every_frame consumers
         self.channel_ok = channel_ok  # FabricHealth.channel_ok: False while a channel is faulted
         self.source_state = SourceState()
@@ -295,6 +307,28 @@ class Pipeline:
         finally:
             with self._lock:
                 self._pairs_wanted -= 1
+
+    @contextlib.contextmanager
+    def depth_wanted(self) -> Iterator[None]:
+        """While inside, frame sets carry the stereo core's output (``FrameSet.depth``) where there is one.
+
+        Taking it costs a store copy on the board (the emulated core computes it only when read).
+        """
+        with self._lock:
+            self._depth_wanted += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._depth_wanted -= 1
+
+    @property
+    def wants_depth(self) -> bool:
+        return self._depth_wanted > 0
+
+    def set_calibration(self, calibration_for: Callable[[int], Optional[FrameCalibration]]) -> None:
+        """Stamp frame sets taken with depth with the calibration their FRAME_COUNT ran with."""
+        self._calibration_for = calibration_for
 
     @contextlib.contextmanager
     def every_frame(self, sink: Callable[[FrameSet], None]) -> Iterator[None]:
@@ -476,6 +510,7 @@ class Pipeline:
             started = time.thread_time()
             processed = np.empty(buf.shape, dtype=np.uint8)
             np.copyto(processed, buf)
+            depth = overlay.take_depth(store) if self._depth_wanted and self.has_stereo else None
             if self._charge is not None:
                 self._charge("copy", time.thread_time() - started)
             state = self.source_state
@@ -518,7 +553,10 @@ class Pipeline:
         self._seq += 1
         frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
                              monotonic=now, source=state.source, processed=processed, raw=raw,
-                             raw_previous=raw_previous, raw_store=raw_store)
+                             raw_previous=raw_previous, raw_store=raw_store, stereo=self.has_stereo,
+                             depth=depth)
+        if self._depth_wanted and self._calibration_for is not None:
+            frame_set.calibration = self._calibration_for(count)
         self.frames += 1
         self.meter.mark(now)
         return frame_set

@@ -27,10 +27,11 @@ from typing import Any, Dict, List, Optional, Tuple
 import cv2
 import numpy as np
 
+from ...overlays.model.stereo_result import StereoResult
 from ...overlays.spec import pixel
 from ..errors import ApiError
 
-__all__ = ["VerifyError", "VerifyReport", "ChannelStats", "compare", "difference_image"]
+__all__ = ["VerifyError", "VerifyReport", "ChannelStats", "compare", "difference_image", "compare_stereo"]
 
 _CAMERAS = (("left", pixel.LEFT), ("right", pixel.RIGHT))
 EXAMPLES = 10  # differing pixels a report lists
@@ -227,3 +228,31 @@ def difference_image(expected: np.ndarray, actual: np.ndarray) -> np.ndarray:
     out[mask] = colours[mask]
     return out
 
+
+
+def compare_stereo(model: StereoResult, core: StereoResult) -> Dict[str, Any]:
+    """The stereo core's output against its model's on the same rectified pair, beat for beat.
+
+    ``differing`` counts pixels where the disparity, the confidence or the reason differs (each
+    also on its own); ``examples`` the first :data:`EXAMPLES` of them in raster order, with both
+    sides' values. Raises :class:`VerifyError` for outputs of different sizes.
+    """
+    if model.disp.shape != core.disp.shape:
+        raise VerifyError(f"cannot compare the stereo outputs: the model's is {model.disp.shape[::-1]}, "
+                          f"the core's {core.disp.shape[::-1]}")
+    parts = {"disparity": model.disp != core.disp, "confidence": model.conf != core.conf,
+             "reason": model.reason != core.reason}
+    any_diff = parts["disparity"] | parts["confidence"] | parts["reason"]
+    h, w = model.disp.shape
+    examples = []
+    for index in np.flatnonzero(any_diff.ravel())[:EXAMPLES]:
+        y, x = divmod(int(index), w)
+        examples.append({"x": x, "y": y,
+                         "model": {"disp": int(model.disp[y, x]), "conf": int(model.conf[y, x]),
+                                   "reason": int(model.reason[y, x])},
+                         "core": {"disp": int(core.disp[y, x]), "conf": int(core.conf[y, x]),
+                                  "reason": int(core.reason[y, x])}})
+    differing = int(np.count_nonzero(any_diff))
+    return {"compared": True, "identical": differing == 0, "width": w, "height": h, "differing": differing,
+            **{f"{name}_differing": int(np.count_nonzero(m)) for name, m in parts.items()},
+            "examples": examples}

@@ -3,11 +3,15 @@
 ``raw_left``/``raw_right`` (the cameras, or the virtual-camera input while
 the source is virtual), ``rect_left``/``rect_right`` (the rectify core's
 output), ``sbs`` (rectified left | right), ``anaglyph`` (red = rectified
-left gray, green and blue = rectified right gray) and ``disparity``
-(OpenCV StereoBM on the rectified gray pair with the paper's parameters:
-disparities 0 to 128, block 19, uniqueness 15; JET colour map, black
-where no disparity was found). ``gray`` selects the gray (Y) channel of the
-raw, rect and sbs views; the other views are always colour.
+left gray, green and blue = rectified right gray), ``disparity`` (the
+fabric's stereo core, ``depth.py``; where the bitstream has none, OpenCV
+StereoBM on the ARM with the paper's parameters: disparities 0 to 128,
+block 19, uniqueness 15; JET colour map of 0 to 128 px, black where no
+disparity was found) and ``depth`` (that disparity in metres through the
+calibration's Q, Z = f B / d: a fixed JET scale, red at
+:data:`DEPTH_NEAR_M` to blue at :data:`DEPTH_FAR_M` and beyond, black where
+there is no disparity or no calibration gives depth). ``gray`` selects the
+gray (Y) channel of the raw, rect and sbs views; the other views are always colour.
 
 :func:`render` returns an image ready for ``cv2.imencode``: a contiguous
 ``(H, W, 3)`` BGR or ``(H, W)`` gray uint8 array, computed once per frame
@@ -31,6 +35,9 @@ import cv2
 import numpy as np
 
 from ...overlays.spec import pixel
+from ...overlays.spec.stereo import SUBPIX_ONE
+from ..stores.frame_calibration import DepthScale
+from .depth import DepthNotTaken, needs_depth, stereo_of
 from .pipeline import FrameSet, RateMeter
 
 log = logging.getLogger(__name__)
@@ -38,7 +45,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "View", "REGISTRY", "VIEWS", "DISPARITY_WORKER", "uses_disparity_worker", "GRAY_VIEWS", "RAW_VIEWS",
     "ViewUnavailable", "render", "view_size", "disparity_map", "disparity_raw", "no_signal_image",
-    "DisparityWorker", "STEREO_BM",
+    "DisparityWorker", "STEREO_BM", "DEPTH_NEAR_M", "DEPTH_FAR_M", "needs_disparity",
 ]
 
 
@@ -80,6 +87,7 @@ REGISTRY: Tuple[View, ...] = (
          readout=True),
     View("anaglyph", "anaglyph", "anaglyph", "anaglyph"),
     View("disparity", "disparity", "disparity", "disparity", worker=DISPARITY_WORKER, readout=True),
+    View("depth", "depth (m)", "depth in metres", "depth", worker=DISPARITY_WORKER, readout=True),
 )
 VIEWS = tuple(v.name for v in REGISTRY)
 GRAY_VIEWS = frozenset(v.name for v in REGISTRY if v.gray)
@@ -91,6 +99,12 @@ def uses_disparity_worker(view: str) -> bool:
     """Whether ``view`` is computed by the :class:`DisparityWorker` (its registry entry says so)."""
     return _BY_NAME[view].worker == DISPARITY_WORKER
 
+
+def needs_disparity(view: str) -> bool:
+    """Whether ``view`` shows the disparity: its frames must carry the stereo core's output, where there
+    is a core (hold ``Pipeline.depth_wanted`` while it is watched)."""
+    return _BY_NAME[view].renders in ("disparity", "depth")
+
 # The paper's block-matching parameters.
 STEREO_BM = {"min_disparity": 0, "num_disparities": 128, "block_size": 19, "uniqueness_ratio": 15}
 
@@ -100,7 +114,7 @@ _Y = {side: o + pixel.Y for side, o in _FIRST.items()}
 
 
 class ViewUnavailable(LookupError):
-    """The frame set lacks what the view needs (the raw pair was not copied for it)."""
+    """The frame set lacks what the view needs (the raw pair or the stereo core's output was not read)."""
 
 
 def view_size(view: str, frame_size: Tuple[int, int], scale: float = 1.0) -> Tuple[int, int]:
@@ -127,7 +141,10 @@ def render(fs: FrameSet, view: str, gray: bool = False, scale: float = 1.0) -> n
             return out
 
         return fs.cache.get(("view", view, gray, scale), scaled)
-    return fs.cache.get(("view", view, gray), lambda: _render(fs, view, gray))
+    try:
+        return fs.cache.get(("view", view, gray), lambda: _render(fs, view, gray))
+    except DepthNotTaken as exc:
+        raise ViewUnavailable(str(exc)) from None
 
 
 def _camera(frame: np.ndarray, side: str, gray: bool) -> np.ndarray:
@@ -160,6 +177,8 @@ def _render(fs: FrameSet, view: str, gray: bool) -> np.ndarray:
         out[..., 2] = p[..., _Y["left"]]
     elif renders == "disparity":
         out = disparity_view(fs)
+    elif renders == "depth":
+        out = depth_view(fs)
     else:  # a registry entry whose kind has no branch here
         raise KeyError(f"view {view!r} renders as {renders!r}, which _render does not know")
     out.flags.writeable = False
@@ -213,15 +232,64 @@ def disparity_view(fs: FrameSet, charge: Optional[Callable[[str, float], None]] 
 
 
 def disparity_raw(fs: FrameSet) -> np.ndarray:
-    """The StereoBM disparities of ``fs`` (int16, 1/16 px; read-only; cached in the set, so the
-    depth readout reads the very map the disparity view shows). Blocks for tens of milliseconds."""
+    """The disparities of ``fs`` (int16, 1/16 px, negative where none; read-only; cached in the set, so
+    the readout and the ruler read the very map the disparity view shows): the stereo core's output,
+    or StereoBM's on the ARM where the overlay has no core. Blocks for tens of milliseconds;
+    :class:`~.depth.DepthNotTaken` for a set read without the core's output."""
     def compute() -> np.ndarray:
-        p = fs.processed
-        out = disparity_map(p[..., _Y["left"]], p[..., _Y["right"]])
+        core = stereo_of(fs)
+        if core is not None:
+            out = core.disp.astype(np.int16)  # codes up to 16 x 128: they fit
+            out[~core.valid] = -SUBPIX_ONE
+        else:
+            p = fs.processed
+            out = disparity_map(p[..., _Y["left"]], p[..., _Y["right"]])
         out.flags.writeable = False
         return out
 
     return fs.cache.get(("disparity16",), compute)
+
+
+# -- depth in metres --------------------------------------------------------------------------
+
+DEPTH_NEAR_M = 0.3  # red
+DEPTH_FAR_M = 6.0  # blue, and everything farther
+
+
+def depth_metres(disp16: np.ndarray, scale: DepthScale) -> np.ndarray:
+    """Z in metres (float32) of 1/16-px disparities by the calibration's Q; NaN where none or not ahead."""
+    Q = scale.Q
+    unit = scale.unit_m
+    d = disp16.astype(np.float32) / SUBPIX_ONE
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.float32(Q[2][3]) / (np.float32(Q[3][2]) * d + np.float32(Q[3][3]))
+    z *= np.float32(unit if unit is not None else np.nan)
+    z[(disp16 < 0) | ~np.isfinite(z) | (z <= 0)] = np.nan
+    return z
+
+
+def colour_depth(z: np.ndarray) -> np.ndarray:
+    """JET from red at :data:`DEPTH_NEAR_M` to blue at :data:`DEPTH_FAR_M` (clipped); black where NaN."""
+    span = DEPTH_FAR_M - DEPTH_NEAR_M
+    level = np.nan_to_num(255.0 * (DEPTH_FAR_M - z) / span, nan=0.0)
+    out = cv2.applyColorMap(np.clip(level, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)
+    out[np.isnan(z)] = 0
+    return out
+
+
+def depth_view(fs: FrameSet) -> np.ndarray:
+    """The depth of ``fs`` in colour (cached in the set; blocks): black all over where the frame's
+    calibration gives no depth in metres (none, or its unit unknown)."""
+    def compute() -> np.ndarray:
+        disp16 = disparity_raw(fs)
+        cal = fs.calibration
+        scale = cal.depth if cal is not None else None
+        if scale is None or scale.unit_m is None:
+            return np.zeros(disp16.shape + (3,), dtype=np.uint8)
+        return colour_depth(depth_metres(disp16, scale))
+
+    out: np.ndarray = fs.cache.get(("depth",), compute)
+    return out
 
 
 # -- no signal --------------------------------------------------------------------------------
@@ -341,6 +409,8 @@ class DisparityWorker:
                 seq, item = self.source.current()  # the newest, not the one that woke us
                 if not item.signal:
                     continue
+            if needs_depth(item):
+                continue  # read before the worker held depth_wanted: the next one carries it
             started = loop.time()
             rate = self.fps if self.limit is None else min(self.fps, self.limit)
             next_at = started + 1.0 / max(rate, 1e-3)

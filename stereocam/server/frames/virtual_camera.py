@@ -21,6 +21,7 @@ import numpy as np
 from ...overlays.interface import Channel, ChannelFault, DriverError, Overlay
 from ...overlays.model.fast import RectifyModel
 from ..errors import ApiError, Kind
+from .depth import needs_depth
 from .feed import FrameFeed
 from .pipeline import COUNT_MOD, FrameSet, Pipeline, SourceState
 
@@ -183,13 +184,15 @@ class VirtualCamera:
             self.result = result
             return result
 
-    async def _virtual_frame(self) -> FrameSet:
+    async def _virtual_frame(self, with_depth: bool = False) -> FrameSet:
         effective = self.effective_count
 
         def from_input(fs: FrameSet) -> bool:
-            return fs.source == "virtual" and (fs.fabric_count - effective) % COUNT_MOD < COUNT_MOD // 2
+            return (fs.source == "virtual" and (fs.fabric_count - effective) % COUNT_MOD < COUNT_MOD // 2
+                    and not (with_depth and needs_depth(fs)))
 
-        return await self.feed.next_frame(timeout=self._round_trip_s(), accept=from_input)
+        with self.pipeline.depth_wanted() if with_depth else contextlib.nullcontext():
+            return await self.feed.next_frame(timeout=self._round_trip_s(), accept=from_input)
 
     def _round_trip_s(self) -> float:
         return max(self.round_trip_timeout, self._frames(ROUND_TRIP_FRAMES + 4))
@@ -251,9 +254,12 @@ class VirtualCamera:
             self.pipeline.set_source(SourceState("virtual", frame, effective))
             self.input, self.effective_count = frame, effective
 
-    async def actual_frame(self) -> FrameSet:
-        """The fabric's output for the current input: a fresh frame while virtual, else the stored result."""
+    async def actual_frame(self, with_depth: bool = False) -> FrameSet:
+        """The fabric's output for the current input: a fresh frame while virtual, else the stored result.
+
+        ``with_depth``: a fresh frame carries the stereo core's output, where there is a core.
+        """
         if self.source == "virtual" and self.input is not None:
-            return await self._virtual_frame()
+            return await self._virtual_frame(with_depth)
         assert self.result is not None
         return self.result

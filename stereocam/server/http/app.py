@@ -170,6 +170,7 @@ def create_app(
                                            round_trip_timeout=RTL_TIMEOUT_S if rtl else 2.0,
                                            mux_refused=health.mux_refused, mux_committed=health.mux_committed)
     app[CALIBRATION] = CalibrationInEffect(calibration or CalibrationState(lb_rows=overlay.rectify.lb_rows))
+    pipeline.set_calibration(app[CALIBRATION].for_frame)  # the depth view's Q, per frame
     app[EXTENSIONS] = extended = Extensions(faults=[health.faults], metrics=[health.metrics])
     app[FABRIC_HEALTH] = health
     # What POST /api/captures and the calibration panel's pairs capture with: made once, its
@@ -335,7 +336,7 @@ def open_configured_overlay(config: Settings) -> Overlay:
     try:
         return open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
                             clock="realtime", build=config.core_build, core=config.core,
-                            rtl_dir=config.rtl_dir)
+                            rtl_dir=config.rtl_dir, stereo=config.stereo_core)
     except BackendError as exc:
         raise ServeError(str(exc)) from None
 

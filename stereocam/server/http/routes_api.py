@@ -21,10 +21,11 @@ from aiohttp import BodyPartReader, web
 
 from ...overlays.spec import pixel
 from ..errors import ApiError
+from ..frames.depth import DepthNotTaken, disparity_by, model_of, stereo_of
 from ..frames.encoders import png_for
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
-from ..frames.verify import compare, difference_image
+from ..frames.verify import compare, compare_stereo, difference_image
 from ..frames.views import REGISTRY
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from ..stores.captures import CaptureError, CaptureStore
@@ -34,6 +35,7 @@ from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
 from .routes_cloud import setup_routes as setup_cloud_routes
+from .routes_stereo import setup_routes as setup_stereo_routes
 from .routes_tools import setup_routes as setup_tools_routes
 from .routes_viewer import setup_routes as setup_viewer_routes
 from .state import (
@@ -111,6 +113,8 @@ async def status_handler(request: web.Request) -> web.Response:
         "drops": pipeline.drops,
         "core": hw.get("core"),
         "core_impl": overlay.core_kind,
+        # Which computes the disparity, and the stereo core's state (null without one).
+        "disparity": {"by": disparity_by(pipeline.has_stereo), "stereo": hw.get("stereo")},
         "vdma": hw.get("vdma"),
         "calibration": {**calibration.to_json(), "changing": calibration.changing},
         "virtual_camera": app[VIRTUAL].to_json(),
@@ -338,8 +342,29 @@ def _verify_blocking(vc: VirtualCamera, frame_in: np.ndarray, actual: FrameSet) 
     diff = difference_image(expected, actual.processed)
     png = encode_image(np.ascontiguousarray(diff[..., ::-1]), ".png")
     body = report.to_json()
-    body.update({"frame": actual.frame, "source": actual.source, "input": vc.origin})
+    body.update({"frame": actual.frame, "source": actual.source, "input": vc.origin,
+                 "stereo": _verify_stereo(vc, actual)})
     return VerifyResult(body, png)
+
+
+def _verify_stereo(vc: VirtualCamera, actual: FrameSet) -> Dict[str, Any]:
+    """The stereo core's disparity of ``actual`` against its model's on the same rectified pair."""
+    control = vc.overlay.stereo
+    if control is None:
+        return {"compared": False, "by": disparity_by(False),
+                "reason": "this bitstream has no stereo core: the disparity is computed on the ARM"}
+    try:
+        core = stereo_of(actual)
+    except DepthNotTaken:
+        return {"compared": False, "by": disparity_by(True),
+                "reason": "the frame was read without the stereo core's output: verify again"}
+    assert core is not None
+    params = control.params()
+    try:
+        model = model_of(actual, params)
+    except ValueError as exc:  # a frame the core does not take
+        return {"compared": False, "by": disparity_by(True), "reason": str(exc)}
+    return {"by": disparity_by(True), "params": params.as_json(), **compare_stereo(model, core)}
 
 
 async def post_verify(request: web.Request) -> web.Response:
@@ -350,7 +375,7 @@ async def post_verify(request: web.Request) -> web.Response:
         raise ApiError(f"recording {vc.player.id} is playing through the virtual camera: Verify checks a "
                        "still input; upload a pair or replay a capture, then verify", status=409)
     try:
-        actual = await vc.actual_frame()
+        actual = await vc.actual_frame(with_depth=True)
     except asyncio.TimeoutError:
         raise ApiError("the fabric returned no processed frame of the virtual input in time",
                        status=504) from None
@@ -456,6 +481,7 @@ def setup_routes(app: web.Application) -> None:
     r.add_post("/api/captures", post_capture)
     r.add_get(r"/api/captures/{id:[^/]+}.zip", capture_zip)
     setup_tools_routes(app)  # /api/alignment, /api/histogram
+    setup_stereo_routes(app)  # /api/stereo
     setup_viewer_routes(app)  # thumb.jpg, restore, /api/point: before the {file} route below
     setup_cloud_routes(app)  # cloud.ply: before the {file} route below
     r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)

@@ -4,8 +4,9 @@
   made on first use and kept in memory (:class:`ThumbnailCache`).
 - ``POST /api/captures/{id}/restore``: undo of ``DELETE /api/captures/{id}`` (the capture
   comes back from the store's trash).
-- ``GET /api/point?x=&y=``: the rectified pixels, the disparity and the depth (metres, from the
-  calibration's Q matrix) at one pixel of the newest frame the disparity view showed.
+- ``GET /api/point?x=&y=``: the rectified pixels, the disparity (the stereo core's, or StereoBM's on
+  the ARM where the bitstream has no core) and the depth (metres, from the calibration's Q matrix) at
+  one pixel of the newest frame the disparity view showed.
 - ``GET /api/ruler?x0=&y0=&x1=&y1=[&frame=]``: the 3-D points at two rectified left pixels and the
   distance between them, in metres (the readout's maths at each point).
 - ``POST /api/freeze``, ``GET /api/freeze``, ``DELETE /api/freeze/{frame}``: hold a frame a page froze
@@ -37,6 +38,7 @@ from aiohttp import web
 
 from ...overlays.spec import pixel
 from ..errors import ApiError
+from ..frames.depth import needs_depth
 from ..frames.feed import BroadcastClosed
 from ..frames.held import PINNED_MAX, RECENT
 from ..frames.pipeline import FrameSet
@@ -46,7 +48,7 @@ from ..stores.frame_calibration import NO_DEPTH_NONE, DepthScale, FrameCalibrati
 from .bodies import json_response, read_json
 from .errors import shutting_down
 from .security import TOKEN_PARAM
-from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, SETTINGS
+from .state import CALIBRATION, CAPTURES, ENCODERS, EXECUTORS, FEED, PIPELINE, SETTINGS
 
 __all__ = ["setup_routes", "ThumbnailCache", "point_at", "depth_readout", "ruler_between", "frame_for"]
 
@@ -169,7 +171,7 @@ def _newest(app: web.Application) -> Optional[FrameSet]:
     """The frame set the disparity view showed last (else the feed's newest), if fresh."""
     now = time.time()
     for fs in _candidates(app):
-        if fs is not None and now - fs.timestamp <= FRESH_S:
+        if fs is not None and now - fs.timestamp <= FRESH_S and not needs_depth(fs):
             return fs
     return None
 
@@ -198,7 +200,8 @@ async def frame_for(app: web.Application, frame: Optional[int], or_newest: bool 
     if fs is None:
         timeout = app[SETTINGS].frame_wait_s
         try:
-            fs = await app[FEED].next_frame(timeout=timeout)
+            with app[PIPELINE].depth_wanted():  # the stereo core's output with it, where there is a core
+                fs = await app[FEED].next_frame(timeout=timeout, accept=lambda f: not needs_depth(f))
         except asyncio.TimeoutError:
             raise ApiError(f"no signal: no frame came within {timeout:g} s", status=503) from None
         except BroadcastClosed:
@@ -250,7 +253,7 @@ def ruler_between(fs: FrameSet, points: List[Tuple[int, int]], depth: DepthScale
     for i, (x, y) in enumerate(points, start=1):
         p = point_at(fs, x, y, depth)
         if p["disparity_px"] is None:
-            raise ApiError(f"point {i} (x {x}, y {y}) has no disparity in frame {fs.frame}: the block "
+            raise ApiError(f"point {i} (x {x}, y {y}) has no disparity in frame {fs.frame}: the "
                            "matcher found no match there (too little texture, or seen by one camera "
                            "only); pick a point on a textured surface", status=422)
         if p["point_m"] is None:

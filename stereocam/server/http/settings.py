@@ -41,7 +41,9 @@ class Settings:
     ``checkerboard``, that scene with a 9x6 board of 25 mm squares held in
     front in a new random pose every 1.5 s, for trying calibration; or a
     folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``core_build``
-    (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``core`` (what
+    (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``stereo_core``
+    (the emulated fabric has the stereo core, as a ``depth`` bitstream does; false: it has none,
+    as today's bitstream, and the disparity falls back to the ARM), ``core`` (what
     computes the emulated fabric's rectify core: ``model``, the numpy model, or ``rtl``, the
     core's Verilog compiled with Verilator; ``rtl_dir`` builds another copy of the RTL), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
@@ -79,6 +81,7 @@ class Settings:
     source: str = "synthetic"
     fps: float = 60.0
     core_build: str = "colour"
+    stereo_core: bool = True
     core: str = "model"
     rtl_dir: Optional[str] = None
     calibration: Optional[str] = None
@@ -306,7 +309,7 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
             raise SettingsError(f"{_where(origin)}allowed_hosts must be a list of host names "
                               f"(no ports or spaces), got {value!r}")
         return tuple(v.strip().lower() for v in value)
-    if key == "allow_fault_injection":
+    if key in ("allow_fault_injection", "stereo_core"):
         if not isinstance(value, bool):
             raise SettingsError(f"{_where(origin)}{key} must be true or false, got {value!r}")
         return value

@@ -30,10 +30,11 @@ from typing import Any, Awaitable, Callable, Dict, Iterator, Optional, Tuple
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from ..errors import ApiError, parse_json
+from ..frames.depth import needs_depth
 from ..frames.encoders import BOUNDARY, Encoded, EncoderKey, Pacer, encoded_for, png_for
 from ..frames.feed import BroadcastClosed, Latest
 from ..frames.pipeline import FrameSet
-from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS
+from ..frames.views import GRAY_VIEWS, RAW_VIEWS, VIEWS, needs_disparity
 from .errors import shutting_down
 from .settings import MAX_FPS
 from .state import ENCODERS, EXECUTORS, FEED, PIPELINE, SETTINGS
@@ -347,14 +348,17 @@ async def snapshot_handler(request: web.Request) -> web.StreamResponse:
     feed, config = app[FEED], app[SETTINGS]
     timeout = config.frame_wait_s
     need_raw = params.view in RAW_VIEWS
+    need_depth = needs_disparity(params.view)
     pipeline = app[PIPELINE]
     asked = time.time()
 
     def wanted(fs: FrameSet) -> bool:  # grabbed after the request came, with what the view needs
-        return fs.timestamp >= asked and (not need_raw or fs.raw is not None)
+        return (fs.timestamp >= asked and (not need_raw or fs.raw is not None)
+                and not (need_depth and needs_depth(fs)))
 
     try:
-        with pipeline.raw_wanted() if need_raw else contextlib.nullcontext():
+        with pipeline.raw_wanted() if need_raw else contextlib.nullcontext(), \
+                pipeline.depth_wanted() if need_depth else contextlib.nullcontext():
             frame_set = await feed.next_frame(timeout=timeout, accept=wanted)
     except asyncio.TimeoutError:
         raise ApiError(f"no signal: the fabric sent no frame within {timeout:g} s; "

@@ -1,6 +1,7 @@
 // stereocam page: plain ES modules, no framework, no build step, no outside assets (the board has
 // no internet). One module per panel; core.js holds what they share.
 import { initCameras } from "./cameras.js";
+import { initStereo } from "./stereo.js";
 import { initCalibration } from "./calibration.js";
 import { initCaptures } from "./captures.js";
 import { closeLive, connect } from "./live.js";
@@ -36,6 +37,7 @@ function init() {
   refreshStatus();
   initCaptures();
   initCameras();
+  initStereo();
   initCalibration();
   initShortcuts();
   initMessageNotice();

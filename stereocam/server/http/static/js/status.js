@@ -12,7 +12,7 @@ import { renderViewRates } from "./live.js";
 import { setSourceRadios } from "./source.js";
 
 const GROUPS = [
-  ["fabric", "Fabric"], ["cameras", "Cameras"], ["core", "Rectify core"],
+  ["fabric", "Fabric"], ["cameras", "Cameras"], ["core", "Rectify core"], ["stereo", "Disparity"],
   ["calibration", "Calibration"], ["clients", "Clients"], ["errors", "Recent errors"],
 ];
 const SIGNAL_WINDOW = 10;  // polls (seconds) over which a signal that came and went is "intermittent"
@@ -133,6 +133,19 @@ function renderStatus(st) {
         (st.core.colour === undefined ? "" : st.core.colour ? ", colour" : ", gray"));
   } else {
     add("core", "core-frame_count", "registers", "unreadable", "bad");
+  }
+
+  // disparity: the stereo core, or the ARM where the bitstream has none
+  if (st.disparity) {
+    add("stereo", "disparity-by", "computed by", fmt(st.disparity.by));
+    const sc = st.disparity.stereo;
+    if (sc) {
+      add("stereo", "stereo-frame_count", "frames", fmt(sc.frame_count) + (sc.enabled ? "" : " (disabled)"));
+      add("stereo", "stereo-flags", "flags", flagsText(sc.flags), hasFlags(sc.flags) ? "bad" : "");
+      const p = sc.params || {};
+      add("stereo", "stereo-params", "parameters", Object.keys(p).map((k) => k + " " + p[k]).join(", ") +
+          (sc.apply_pending ? " (applying)" : ""));
+    }
   }
 
   // calibration
