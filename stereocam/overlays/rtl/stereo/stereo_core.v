@@ -204,7 +204,7 @@ rc_ram #(.WIDTH(27), .DEPTH(RAM_DEPTH), .AW(AW)) code_ram (
 wire        o_valid, o_user, o_last, o_eof;
 wire [31:0] o_data;
 sc_median #(.MAX_WIDTH(MAX_WIDTH), .AW(AW)) median_inst (
-    .clk(aclk), .rst(rst), .width(width), .height(height), .median(median),
+    .clk(aclk), .rst(rst), .width(width), .height(height), .median(median), .frame_begin(frame_begin),
     .run(run), .phase(phase), .row(row - 12'sd3), .x(col - LAG),
     .code_re(code_re), .code_raddr(code_raddr), .code_rdata(code_rdata),
     .o_valid(o_valid), .o_data(o_data), .o_user(o_user), .o_last(o_last), .o_eof(o_eof)
