@@ -510,6 +510,16 @@ class RtlCore:
                            f"{'...' if len(lengths) > 8 else ''} beats (seed {self.seed})")
         return data.reshape(n // width, width, 8).copy()
 
+    def cpu_seconds(self) -> Optional[float]:
+        """CPU time the harness program has used so far (Linux's /proc; None where unreadable): the
+        simulation's cost, whatever else the machine runs meanwhile."""
+        try:
+            with open(f"/proc/{self._proc.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return None
+
     # -- lifetime -------------------------------------------------------------------------
     def close(self) -> None:
         """Stop the harness process (asks it to quit, kills it if it does not)."""
