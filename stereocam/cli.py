@@ -17,12 +17,15 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import IO, Any, Mapping, Optional, Sequence
-
-import numpy as np
+from typing import IO, TYPE_CHECKING, Any, Mapping, Optional, Sequence
 
 from . import __version__
-from .server.http.settings import LOG_LEVELS
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
+# Imports are in the functions that need them: `stereocam serve` on the board's A9 starts in seconds
+# of imports, and its start-up notifier (main) runs before any of them (tests/cli/test_cli_start.py).
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 JOURNAL_FORMAT = "%(name)s: %(message)s"  # journald stamps the time and keeps the priority itself
@@ -107,6 +110,8 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
         handler.addFilter(TokenRedactor(secret))
     numeric = logging.getLevelName(level.upper())
     if not isinstance(numeric, int):
+        from .server.http.settings import LOG_LEVELS
+
         raise UserError(f"log level {level!r} is not one of {', '.join(LOG_LEVELS)}")
     root.setLevel(numeric)
     root.addHandler(handler)
@@ -119,6 +124,7 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
 
 def _read_image(path: Path) -> np.ndarray:
     import cv2
+    import numpy as np
 
     from .calibration.image_files import ImageTooLarge, decode_image_file
 
@@ -217,6 +223,8 @@ def _output_file(path: str) -> Path:
 
 
 def cmd_rectify(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from .calibration.file import load_calibration
     from .calibration.pair_depth import rectify_with_model
     from .overlays.spec import pixel
@@ -516,6 +524,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from .overlays.backend import BackendError
     from .server.http.app import ServeError, run
     from .server.http.settings import Settings, SettingsError
+    from .server.http.systemd import LATE_DRIVER_EXIT, LateDriver
     from .server.stores.captures import CaptureError
 
     try:
@@ -532,6 +541,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     except CaptureError as exc:
         raise UserError(exc.message) from None
+    except LateDriver as exc:  # not the user's to fix: the unit restarts on this status
+        _error_line(args, exc)
+        return LATE_DRIVER_EXIT
 
 
 def _cli_log_level(args: argparse.Namespace) -> Optional[str]:
@@ -572,7 +584,7 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     from .overlays.backend import CORES
     from .overlays.spec.rectify import BUILDS, DEFAULT_BUILD
     from .server.http import systemd
-    from .server.http.settings import BACKENDS, DEFAULT_CAPTURES
+    from .server.http.settings import BACKENDS, DEFAULT_CAPTURES, LOG_LEVELS
 
     s = sub.add_parser(
         "serve", help="run the daemon (web page, streams, API)",
@@ -643,8 +655,12 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     i.set_defaults(func=cmd_install_service)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
+    """The ``stereocam`` parser; with ``command`` (what :func:`command_of` found in the arguments) another
+    command's suites and actions (``bench ...``, ``hw ...``, modules that take a while to import on the
+    board's A9) are left out, since they will not be parsed: ``serve`` imports only what it serves with."""
     from .overlays.backend import CORES
+    from .server.http.settings import LOG_LEVELS
     from .server.http.uploads import FIT_MODES
 
     parser = argparse.ArgumentParser(
@@ -771,49 +787,86 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
-    from .bench.budget import add_budget_parser  # stereocam bench budget
-    from .bench.depth import add_depth_parser  # stereocam bench depth
-    from .bench.recording import add_recording_parser  # stereocam bench recording
-    from .bench.robustness import add_robustness_parser  # stereocam bench robustness
+    if command in (None, "bench"):
+        from .bench.budget import add_budget_parser  # stereocam bench budget
+        from .bench.depth import add_depth_parser  # stereocam bench depth
+        from .bench.recording import add_recording_parser  # stereocam bench recording
+        from .bench.robustness import add_robustness_parser  # stereocam bench robustness
 
-    suites = b.add_subparsers(dest="suite", metavar="SUITE")
-    add_robustness_parser(suites)
-    add_budget_parser(suites)
-    add_recording_parser(suites)
-    add_depth_parser(suites)
+        suites = b.add_subparsers(dest="suite", metavar="SUITE")
+        add_robustness_parser(suites)
+        add_budget_parser(suites)
+        add_recording_parser(suites)
+        add_depth_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
-    from .overlays.rtl.synth import add_synth_parser
-    from .overlays.rtl.timing import add_timing_parser
-
     h = sub.add_parser("hw", help="the rectify core's HDL: synthesis and a timing estimate with yosys",
                        description="Tools for the rectify core's Verilog in stereocam/overlays/rtl/.")
     hsub = h.add_subparsers(dest="action", metavar="ACTION")
     hsub.required = True
-    add_synth_parser(hsub)
-    add_timing_parser(hsub)
+    if command in (None, "hw"):
+        from .overlays.rtl.synth import add_synth_parser
+        from .overlays.rtl.timing import add_timing_parser
+
+        add_synth_parser(hsub)
+        add_timing_parser(hsub)
 
     _add_server_commands(sub)
     return parser
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def command_of(argv: Sequence[str]) -> Optional[str]:
+    """The command ``argv`` (without the program name) runs, read before any parser is built; None: unsure."""
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg == "--log-level":
+            skip = True
+        elif not arg.startswith("-"):
+            return arg
+        elif arg in ("-h", "--help", "--version"):
+            return None
+    return None
+
+
+def _user_errors() -> "tuple[type[BaseException], ...]":
+    """The exceptions that end a command with one line and exit code 2. Imported when one is raised:
+    the modules are the calibration tools', which ``serve`` does not import to start."""
     from .calibration.calibrate import CalibrationError
     from .calibration.formats import CalibrationFileError
     from .overlays.model.core_params import CoreParamsError
 
-    parser = build_parser()
-    args = parser.parse_args(list(argv) if argv is not None else None)
+    return UserError, CalibrationFileError, CalibrationError, CoreParamsError
+
+
+def _error_line(args: argparse.Namespace, exc: BaseException) -> None:
+    command = args.command if args.command != "calibration" else f"calibration {args.action}"
+    priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
+    print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    arguments = list(argv) if argv is not None else sys.argv[1:]
+    command = command_of(arguments)
+    if command == "serve":
+        # First, before the imports (seconds on the board's A9): under systemd, keep extending the
+        # unit's start timeout and say what is loading until the daemon is READY (systemd.py).
+        from .server.http import systemd
+
+        systemd.loading("Python modules")
+    parser = build_parser(command)
+    args = parser.parse_args(arguments)
     setup_logging(_cli_log_level(args) or "info")
     try:
         return int(args.func(args))
-    except (UserError, CalibrationFileError, CalibrationError, CoreParamsError) as exc:
-        command = args.command if args.command != "calibration" else f"calibration {args.action}"
-        priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
-        print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        if not isinstance(exc, _user_errors()):
+            raise
+        _error_line(args, exc)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

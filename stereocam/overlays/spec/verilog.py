@@ -84,6 +84,17 @@ def address_bits() -> int:
     return size.bit_length() - 1
 
 
+def _register_defines(out: _Lines, registers: List[Register]) -> None:
+    """Each register's offset and reset value, and each field's bit (and width when above 1)."""
+    for reg in registers:
+        out.define(f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
+        out.define(f"{reg.name}_RESET", reg.reset, "reset value")
+        for f in reg.fields:
+            out.define(f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
+            if f.width > 1:
+                out.define(f"{reg.name}_{f.name}_W", f.width)
+
+
 def header() -> str:
     """``rectify_spec.vh``: register offsets and fields, parameter order and formats, widths, limits."""
     out = _Lines("RC", "stereocam/overlays/spec/rectify.py", "Rectify core specification "
@@ -96,13 +107,7 @@ def header() -> str:
     out.section("Register window: byte address bits (AXI4-Lite)")
     out.define("ADDR_W", address_bits(), f"{spec.RECTIFY_MAP.size:#x} bytes")
     out.section("Control registers: byte offsets, and bit positions of their fields")
-    for reg in control_registers():
-        out.define(f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
-        out.define(f"{reg.name}_RESET", reg.reset, "reset value")
-        for f in reg.fields:
-            out.define(f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
-            if f.width > 1:
-                out.define(f"{reg.name}_{f.name}_W", f.width)
+    _register_defines(out, control_registers())
     out.section("Parameter blocks: 17 signed 64-bit values per camera, _LO word at block + 8 * index")
     for cam, base in spec.CAMERA_BASE.items():
         out.define(f"BLOCK_{cam}", base)
@@ -278,18 +283,14 @@ def stereo_header() -> str:
     out.section("Register window: byte address bits (AXI4-Lite)")
     out.define("ADDR_W", (stereo.STEREO_MAP.size - 1).bit_length(), f"{stereo.STEREO_MAP.size:#x} bytes")
     out.section("Registers: byte offsets, reset values, and bit positions of their fields")
-    for reg in stereo.STEREO_MAP:
-        out.define(f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
-        out.define(f"{reg.name}_RESET", reg.reset, "reset value")
-        for f in reg.fields:
-            out.define(f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
+    _register_defines(out, list(stereo.STEREO_MAP))
     out.section("What APPLY accepts (inclusive); NUM_DISP also a multiple of PARALLEL, P1 <= P2_EDGE <= P2")
-    for name, reg in stereo.PARAM_REGISTERS.items():
+    for name, reg_name in stereo.PARAM_REGISTERS.items():
         if name == "num_disp":
             continue
         lo, hi = stereo.LIMITS[name](stereo.DEFAULT_BUILD)
-        out.define(f"{reg}_MIN", lo)
-        out.define(f"{reg}_MAX", hi)
+        out.define(f"{reg_name}_MIN", lo)
+        out.define(f"{reg_name}_MAX", hi)
     out.define("MIN_WIDTH", stereo.MIN_WIDTH)
     out.define("MIN_HEIGHT", stereo.MIN_HEIGHT)
     out.section("Steps and widths")

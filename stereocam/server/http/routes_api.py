@@ -99,6 +99,7 @@ async def status_handler(request: web.Request) -> web.Response:
     body: Dict[str, Any] = {
         "backend": overlay.backend,
         "backend_reason": choice.reason if choice is not None else None,
+        "backend_warning": choice.warning if choice is not None else None,
         "source": app[VIRTUAL].source,
         "mux": hw.get("source"),
         "frame_size": list(overlay.frame_size),

@@ -12,7 +12,7 @@
  * A test double of the stereo core's sc_front (tests only): the same ports, but the sums S come
  * from a file the bench writes ($readmemh of SUMS: word ((frame * height + y) * width + x) * 4 + g
  * holds group g of pixel (x, y), lane j in bits 10 j + 9 .. 10 j), so the back end of the core
- * (sc_select onwards) can be co-simulated against the model's own sums. A pixel's group g leaves
+ * (sc_winners onwards) can be co-simulated against the model's own sums. A pixel's group g leaves
  * one clock after the run clock of phase g of its slot; the frame number counts up after each
  * frame's last pixel, wrapping at FRAMES.
  */

@@ -13,7 +13,7 @@
  * So during a slot, with `cl` and `cr` those of pixel x (x: `x`, held for the
  * slot), element k is censusR(x - k). In phase g lane j takes element
  * d = PARALLEL * g + j: cost = popcount(cl ^ element d), or 62 when x < d,
- * in two pipeline stages (chunk counts, then their sum).
+ * in two pipeline stages (full adders and 6:3 counters, then their sum).
  *
  * Latency: group g of the slot's pixel is in `cost` (lane j at [6*j +: 6])
  * during the run clock 2 after its phase g, i.e. phase g + 2 (the next slot's
@@ -37,8 +37,7 @@ module sc_cost #
 );
 
 localparam NB = 62;
-localparam NC = 21;  // chunks of 3 bits (the last has 2)
-localparam NP = 11;  // pairs of chunks (the last has 1)
+localparam NC = 21;  // full adders on 3 bits each (the last has 2)
 localparam [31:0] PAR32 = PARALLEL;
 localparam [10:0] PAR = PAR32[10:0];
 
@@ -59,49 +58,58 @@ always @(posedge clk) begin
     end
 end
 
+// the lanes' disparities this run clock are PARALLEL * phase + j: x < PARALLEL * phase + j
+// iff xs = x - PARALLEL * phase < j (one subtraction for all lanes, then compares with constants)
+wire signed [12:0] xs = $signed({2'b00, x}) - $signed({2'b00, {9'd0, phase} * PAR});
+
+// 6:3 counter: the number of ones among 6 bits
+function [2:0] count6;
+    input [5:0] v;
+    begin
+        count6 = {2'b00, v[0]} + {2'b00, v[1]} + {2'b00, v[2]} + {2'b00, v[3]} + {2'b00, v[4]}
+               + {2'b00, v[5]};
+    end
+endfunction
+
 genvar j, k;
 generate
     for (j = 0; j < PARALLEL; j = j + 1) begin : g_lane
-        // stage 1: the element of this phase, XOR, chunk counts and pair sums
+        localparam [31:0] LANE32 = j;
+        localparam [12:0] LANE = LANE32[12:0];
+        // stage 1: the element of this phase, XOR, a full adder on each 3 bits (as logic, so the
+        // XORs merge into its LUTs), then 6:3 counters on the sums (weight 1) and carries (weight 2)
         wire [NB-1:0] word = phase == 2'd0 ? elems[NB*j +: NB]
                            : phase == 2'd1 ? elems[NB*(PARALLEL + j) +: NB]
                            : phase == 2'd2 ? elems[NB*(2*PARALLEL + j) +: NB]
                            : elems[NB*(3*PARALLEL + j) +: NB];
-        wire [NB+1:0] diff = {2'b00, cl ^ word};
-        wire [2*NC-1:0] chunk;
-        wire [3*NP-1:0] pair;
-        for (k = 0; k < NC; k = k + 1) begin : g_chunk
-            assign chunk[2*k +: 2] = {1'b0, diff[3*k]} + {1'b0, diff[3*k+1]} + {1'b0, diff[3*k+2]};
+        wire [NB:0] diff = {1'b0, cl ^ word};
+        wire [NC-1:0] fa_s;
+        wire [NC-1:0] fa_c;
+        for (k = 0; k < NC; k = k + 1) begin : g_fa
+            wire d0 = diff[3*k];
+            wire d1 = diff[3*k+1];
+            wire d2 = diff[3*k+2];
+            assign fa_s[k] = d0 ^ d1 ^ d2;
+            assign fa_c[k] = (d0 & d1) | (d2 & (d0 ^ d1));
         end
-        for (k = 0; k < NP; k = k + 1) begin : g_pair
-            if (2 * k + 1 < NC) begin : g_two
-                assign pair[3*k +: 3] = {1'b0, chunk[4*k +: 2]} + {1'b0, chunk[4*k+2 +: 2]};
-            end else begin : g_one
-                assign pair[3*k +: 3] = {1'b0, chunk[4*k +: 2]};
-            end
-        end
-        // the disparity of this lane in this phase: x < d reaches left of the right image
-        localparam [31:0] LANE32 = j;
-        localparam [10:0] LANE = LANE32[10:0];
-        wire [10:0] d = {9'd0, phase} * PAR + LANE;
-        reg [3*NP-1:0] pair_reg;
+        wire [23:0] counts = {count6(fa_s[5:0]), count6(fa_s[11:6]), count6(fa_s[17:12]),
+                              count6({3'b000, fa_s[20:18]}),
+                              count6(fa_c[5:0]), count6(fa_c[11:6]), count6(fa_c[17:12]),
+                              count6({3'b000, fa_c[20:18]})};
+        reg [23:0] counts_reg;
         reg oob_reg;
         always @(posedge clk) begin
             if (run) begin
-                pair_reg <= pair;
-                oob_reg <= x < d;
+                counts_reg <= counts;
+                oob_reg <= xs < $signed(LANE);
             end
         end
-        // stage 2: the sum of the pairs
-        wire [3:0] q0 = {1'b0, pair_reg[0 +: 3]} + {1'b0, pair_reg[3 +: 3]};
-        wire [3:0] q1 = {1'b0, pair_reg[6 +: 3]} + {1'b0, pair_reg[9 +: 3]};
-        wire [3:0] q2 = {1'b0, pair_reg[12 +: 3]} + {1'b0, pair_reg[15 +: 3]};
-        wire [3:0] q3 = {1'b0, pair_reg[18 +: 3]} + {1'b0, pair_reg[21 +: 3]};
-        wire [3:0] q4 = {1'b0, pair_reg[24 +: 3]} + {1'b0, pair_reg[27 +: 3]};
-        wire [4:0] h0 = {1'b0, q0} + {1'b0, q1};
-        wire [4:0] h1 = {1'b0, q2} + {1'b0, q3};
-        wire [4:0] h2 = {1'b0, q4} + {2'b00, pair_reg[30 +: 3]};
-        wire [5:0] total = {1'b0, h0} + {1'b0, h1} + {1'b0, h2};
+        // stage 2: the weighted sum of the counts
+        wire [5:0] ones = {3'b000, counts_reg[21 +: 3]} + {3'b000, counts_reg[18 +: 3]}
+                        + {3'b000, counts_reg[15 +: 3]} + {3'b000, counts_reg[12 +: 3]};
+        wire [5:0] twos = {3'b000, counts_reg[9 +: 3]} + {3'b000, counts_reg[6 +: 3]}
+                        + {3'b000, counts_reg[3 +: 3]} + {3'b000, counts_reg[0 +: 3]};
+        wire [5:0] total = ones + {twos[4:0], 1'b0};
         always @(posedge clk) begin
             if (run) begin
                 cost[6*j +: 6] <= oob_reg ? 6'd62 : total;

@@ -28,7 +28,7 @@
  *   3       census words and gray values (sc_census);
  *   4 + g   cost group g, stage 1; 6 + g its costs (sc_cost), collected for
  *           the left path (all groups by 10);
- *   10      the left path for all MAX_DISP lanes (sc_path_left);
+ *   10, 11  the left path, lanes below MAX_DISP / 2, then the rest (sc_path_left);
  *   6 .. 13 the paths from above and the upper right (sc_path_up), group g
  *           in l_path during 11 + g;
  *   11 + g  S of group g = the three paths' L, loaded into m_*.

@@ -15,11 +15,12 @@
  * sweeps of a frame):
  *   sc_input   stream in, the line buffer's write port, rows counted
  *   sc_front   census, costs, the three paths: the sums S, one group of PARALLEL a clock
- *   sc_select  winner, runner-up, sub-pixel, uniqueness, confidence: a record per pixel
- *   sc_diag    the right image's winners (diagonal minimum)
- *   sc_lr      validity and the left-right check (phase B)
- *   sc_median  the 3x3 median and the output beat (phase C)
- * with three RAMs banked by row mod 3 (records, right winners, checked codes) and an output FIFO
+ *   sc_winners the left winners (winner, runner-up, sub-pixel, uniqueness, confidence: a record
+ *              per pixel) and the right image's (diagonal minimum)
+ *   sc_passes  validity and the left-right check (phase B), the 3x3 median and the output
+ *              beat (phase C)
+ * with three RAMs banked by row mod 3 (records, right winners, and inside sc_passes the checked
+ * codes) and an output FIFO
  * whose room the scheduler checks before each slot.
  * Build parameters (read back through MAX_WIDTH, MAX_HEIGHT, MAX_DISP, PARALLEL): the `depth`
  * build is 752 / 1024 / 128 / 32; MAX_DISP must be 4 PARALLEL.
@@ -151,11 +152,16 @@ wire [10:0] r_x, r_y, r_code;
 wire [6:0]  r_d1;
 wire [7:0]  r_conf;
 
-sc_select #(.MAX_DISP(MAX_DISP), .PARALLEL(PARALLEL)) select_inst (
-    .clk(aclk), .rst(rst), .num_disp(num_disp), .uniqueness(uniqueness), .subpixel(subpixel),
+wire          dw_en;
+wire [AW-1:0] dw_addr;
+wire [6:0]    dw_d;
+sc_winners #(.MAX_WIDTH(MAX_WIDTH), .MAX_DISP(MAX_DISP), .PARALLEL(PARALLEL), .AW(AW)) winners_inst (
+    .clk(aclk), .rst(rst), .width(width), .num_disp(num_disp), .uniqueness(uniqueness),
+    .subpixel(subpixel),
     .s_valid(f_valid), .s_group(f_group), .s_x(f_x), .s_y(f_y), .s_sum(f_sum),
     .r_valid(r_valid), .r_x(r_x), .r_y(r_y), .r_d1(r_d1), .r_code(r_code), .r_conf(r_conf),
-    .r_unique(r_unique), .r_border(r_border)
+    .r_unique(r_unique), .r_border(r_border),
+    .w_en(dw_en), .w_addr(dw_addr), .w_d(dw_d)
 );
 
 wire          rec_re;
@@ -167,15 +173,6 @@ rc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW)) rec_ram (
     .re(rec_re), .raddr(rec_raddr), .rdata(rec_rdata)
 );
 
-wire          dw_en;
-wire [AW-1:0] dw_addr;
-wire [6:0]    dw_d;
-sc_diag #(.MAX_WIDTH(MAX_WIDTH), .MAX_DISP(MAX_DISP), .PARALLEL(PARALLEL), .AW(AW)) diag_inst (
-    .clk(aclk), .rst(rst), .width(width), .num_disp(num_disp),
-    .s_valid(f_valid), .s_group(f_group), .s_x(f_x), .s_y(f_y), .s_sum(f_sum),
-    .w_en(dw_en), .w_addr(dw_addr), .w_d(dw_d)
-);
-
 wire          dr_re;
 wire [AW-1:0] dr_raddr;
 wire [6:0]    dr_rdata;
@@ -184,29 +181,14 @@ rc_ram #(.WIDTH(7), .DEPTH(RAM_DEPTH), .AW(AW)) dr_ram (
     .re(dr_re), .raddr(dr_raddr), .rdata(dr_rdata)
 );
 
-// ---- phase B: the left-right check
-wire          code_we, code_re;
-wire [AW-1:0] code_waddr, code_raddr;
-wire [26:0]   code_wdata, code_rdata;
-sc_lr #(.MAX_WIDTH(MAX_WIDTH), .AW(AW)) lr_inst (
-    .clk(aclk), .rst(rst), .width(width), .height(height), .lr_check(lr_check), .lr_tol(lr_tol),
-    .run(run), .phase(phase), .row(row - 12'sd2), .col(col),
-    .rec_re(rec_re), .rec_raddr(rec_raddr), .rec_rdata(rec_rdata),
-    .dr_re(dr_re), .dr_raddr(dr_raddr), .dr_rdata(dr_rdata),
-    .code_we(code_we), .code_waddr(code_waddr), .code_wdata(code_wdata)
-);
-rc_ram #(.WIDTH(27), .DEPTH(RAM_DEPTH), .AW(AW)) code_ram (
-    .clk(aclk), .we(code_we), .waddr(code_waddr), .wdata(code_wdata),
-    .re(code_re), .raddr(code_raddr), .rdata(code_rdata)
-);
-
-// ---- phase C: median, output
+// ---- phases B and C: validity and the left-right check, the median, the beats
 wire        o_valid, o_user, o_last, o_eof;
 wire [31:0] o_data;
-sc_median #(.MAX_WIDTH(MAX_WIDTH), .AW(AW)) median_inst (
-    .clk(aclk), .rst(rst), .width(width), .height(height), .median(median), .frame_begin(frame_begin),
-    .run(run), .phase(phase), .row(row - 12'sd3), .x(col - LAG),
-    .code_re(code_re), .code_raddr(code_raddr), .code_rdata(code_rdata),
+sc_passes #(.MAX_WIDTH(MAX_WIDTH), .AW(AW), .LAG(LAG)) passes_inst (
+    .clk(aclk), .rst(rst), .width(width), .height(height), .lr_check(lr_check), .lr_tol(lr_tol),
+    .median(median), .frame_begin(frame_begin), .run(run), .phase(phase), .row(row), .col(col),
+    .rec_re(rec_re), .rec_raddr(rec_raddr), .rec_rdata(rec_rdata),
+    .dr_re(dr_re), .dr_raddr(dr_raddr), .dr_rdata(dr_rdata),
     .o_valid(o_valid), .o_data(o_data), .o_user(o_user), .o_last(o_last), .o_eof(o_eof)
 );
 

@@ -16,7 +16,9 @@
 `define SC_REG_VERSION 4                    // ro
 `define SC_VERSION_RESET 65536              // reset value
 `define SC_VERSION_MINOR 0                  // 16 bit(s)
+`define SC_VERSION_MINOR_W 16
 `define SC_VERSION_MAJOR 16                 // 16 bit(s)
+`define SC_VERSION_MAJOR_W 16
 `define SC_REG_MAX_WIDTH 8                  // ro
 `define SC_MAX_WIDTH_RESET 752              // reset value
 `define SC_REG_MAX_HEIGHT 12                // ro
@@ -45,30 +47,39 @@
 `define SC_REG_WIDTH 48                     // rw
 `define SC_WIDTH_RESET 752                  // reset value
 `define SC_WIDTH_VALUE 0                    // 16 bit(s)
+`define SC_WIDTH_VALUE_W 16
 `define SC_REG_HEIGHT 52                    // rw
 `define SC_HEIGHT_RESET 480                 // reset value
 `define SC_HEIGHT_VALUE 0                   // 16 bit(s)
+`define SC_HEIGHT_VALUE_W 16
 `define SC_REG_NUM_DISP 56                  // rw
 `define SC_NUM_DISP_RESET 128               // reset value
 `define SC_NUM_DISP_VALUE 0                 // 8 bit(s)
+`define SC_NUM_DISP_VALUE_W 8
 `define SC_REG_P1 60                        // rw
 `define SC_P1_RESET 16                      // reset value
 `define SC_P1_VALUE 0                       // 8 bit(s)
+`define SC_P1_VALUE_W 8
 `define SC_REG_P2 64                        // rw
 `define SC_P2_RESET 100                     // reset value
 `define SC_P2_VALUE 0                       // 8 bit(s)
+`define SC_P2_VALUE_W 8
 `define SC_REG_P2_EDGE 68                   // rw
 `define SC_P2_EDGE_RESET 40                 // reset value
 `define SC_P2_EDGE_VALUE 0                  // 8 bit(s)
+`define SC_P2_EDGE_VALUE_W 8
 `define SC_REG_EDGE_THRESH 72               // rw
 `define SC_EDGE_THRESH_RESET 24             // reset value
 `define SC_EDGE_THRESH_VALUE 0              // 8 bit(s)
+`define SC_EDGE_THRESH_VALUE_W 8
 `define SC_REG_UNIQUENESS 76                // rw
 `define SC_UNIQUENESS_RESET 13              // reset value
 `define SC_UNIQUENESS_VALUE 0               // 8 bit(s)
+`define SC_UNIQUENESS_VALUE_W 8
 `define SC_REG_LR_TOL 80                    // rw
 `define SC_LR_TOL_RESET 2                   // reset value
 `define SC_LR_TOL_VALUE 0                   // 4 bit(s)
+`define SC_LR_TOL_VALUE_W 4
 
 // What APPLY accepts (inclusive); NUM_DISP also a multiple of PARALLEL, P1 <= P2_EDGE <= P2
 `define SC_P1_MIN 0

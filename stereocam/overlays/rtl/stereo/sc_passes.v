@@ -7,42 +7,52 @@
 `include "stereo_spec.vh"
 
 /*
- * sc_median: phase C of the stereo core (STEREO_CORE.md, step 8) and the output beat.
+ * sc_passes: the stereo core's two row passes behind the winners (STEREO_CORE.md, steps 7 and 8),
+ * run in lockstep with the sweeps: `run` enables a clock, a slot is 4 run clocks (`phase`), and
+ * the scheduler's sweep row and column say where each pass is.
  *
- * Lockstep: `run` enables this clock; a slot is 4 run clocks (`phase`); `row` is the scheduler's
- * sweep row - 3 and `x` = the slot's column - LAG (phase B writes the row below, one slot behind
- * its own column: a lag of 4 columns leaves 2 slots between that write and the read here).
- * Each slot reads column x + 1 of rows row - 1, row, row + 1 (phases 0, 1, 2; 2 run clocks each),
- * shifts them into a 3x3 window at phase 1 of the next slot and hands the window (centre x of
- * the previous slot) to the median network, which runs free in 5 stages (two compare levels
- * each) and writes the beat.
+ * Phase B (sweep row - 2, the slot's column): each pixel's validity in the spec's order (matched
+ * outside the right image; not unique; with LR_CHECK, the right winner at x - d1 more than LR_TOL
+ * away) and the code and confidence kept. Phase 0 reads the pixel's record, phase 2 the right
+ * winner at x - d1 (reads take 2 run clocks), phase 0 of the next slot writes the checked code.
+ * Phase C (sweep row - 3, the slot's column - LAG): the 3x3 median and the output beat. Phase B
+ * writes the row below one slot behind its own column, so a lag of 4 columns leaves 2 slots
+ * between that write and the read here. Each slot reads column x + 1 of the three rows around
+ * (phases 0, 1, 2), shifts them into a 3x3 window at phase 1 of the next slot and hands the window
+ * to the median network (5 free-running stages of two compare levels), which writes the beat.
+ * RAMs: the records and right winners (written by sc_winners) are outside; the checked
+ * codes inside; each banked by row mod 3 at MAX_WIDTH words a bank.
  * Out: `o_valid` one clock a pixel: o_data {5'b0, reason, conf, code}, o_user (first pixel of a
  * frame), o_last (end of a row), o_eof (the frame's last beat).
  * `frame_begin` (the first beat of a frame taken, while no slot runs) forgets the last slot's centre.
  * Reset: synchronous, active high.
  */
-module sc_median #
+module sc_passes #
 (
     parameter MAX_WIDTH = 752,
-    parameter AW = $clog2(3 * MAX_WIDTH)
+    parameter AW = $clog2(3 * MAX_WIDTH),
+    parameter LAG = 4
 )
 (
     input  wire               clk,
     input  wire               rst,
-
     input  wire [10:0]        width,
     input  wire [10:0]        height,
+    input  wire               lr_check,
+    input  wire [3:0]         lr_tol,
     input  wire               median,
     input  wire               frame_begin,  // a frame's first beat is taken (between frames)
-
     input  wire               run,
     input  wire [1:0]         phase,
     input  wire signed [11:0] row,
-    input  wire signed [11:0] x,
+    input  wire signed [11:0] col,
 
-    output wire               code_re,
-    output wire [AW-1:0]      code_raddr,
-    input  wire [26:0]        code_rdata,
+    output wire               rec_re,
+    output wire [AW-1:0]      rec_raddr,
+    input  wire [27:0]        rec_rdata,   // {border, unique, conf[7:0], code[10:0], d1[6:0]}
+    output wire               dr_re,
+    output wire [AW-1:0]      dr_raddr,
+    input  wire [6:0]         dr_rdata,
 
     output reg                o_valid = 1'b0,
     output reg  [31:0]        o_data,
@@ -51,13 +61,99 @@ module sc_median #
     output reg                o_eof
 );
 
-localparam CW = 27;
-
 `include "sc_bank.vh"
 
-// ---- reads: column x + 1 of rows row - 1 + phase (phases 0..2)
-wire signed [11:0] rrow = row - 12'sd1 + $signed({10'b0, phase});
-wire signed [11:0] rcol = x + 12'sd1;
+wire signed [11:0] row_b = row - 12'sd2;
+wire signed [11:0] row_c = row - 12'sd3;
+wire signed [11:0] x_c = col - LAG;
+
+// the checked codes: phase B writes, phase C reads
+reg           code_we = 1'b0;
+reg  [AW-1:0] code_waddr;
+reg  [26:0]   code_wdata;   // {reason[2:0], conf[7:0], code[15:0]}
+wire          code_re;
+wire [AW-1:0] code_raddr;
+wire [26:0]   code_rdata;
+rc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW)) code_ram (
+    .clk(clk), .we(code_we), .waddr(code_waddr), .wdata(code_wdata),
+    .re(code_re), .raddr(code_raddr), .rdata(code_rdata)
+);
+
+// ---------------------------------------------------------------- phase B: validity
+wire real_now = row_b >= 0 && row_b < $signed({1'b0, height}) && col >= 0 && col < $signed({1'b0, width});
+
+// phase 0: the record
+reg          a_real = 1'b0;
+reg [10:0]   a_x;
+reg [AW-1:0] a_base;
+assign rec_re = run && phase == 2'd0 && real_now;
+assign rec_raddr = bank_base(row_b[10:0]) + col[10:0];
+always @(posedge clk) begin
+    if (rst) begin
+        a_real <= 1'b0;
+    end else if (run && phase == 2'd0) begin
+        a_real <= real_now;
+        a_x <= col[10:0];
+        a_base <= bank_base(row_b[10:0]);
+    end
+end
+
+// phase 2: the record arrives; the right winner's read
+wire [6:0]   rec_d1 = rec_rdata[6:0];
+wire [10:0]  rec_code = rec_rdata[17:7];
+wire [7:0]   rec_conf = rec_rdata[25:18];
+wire         rec_unique = rec_rdata[26];
+wire         rec_border = rec_rdata[27];
+reg          b_real = 1'b0;
+reg [10:0]   b_x;
+reg [AW-1:0] b_base;
+reg [6:0]    b_d1;
+reg [10:0]   b_code;
+reg [7:0]    b_conf;
+reg          b_unique, b_border;
+assign dr_re = run && phase == 2'd2 && a_real && !rec_border;
+assign dr_raddr = a_base + (a_x - rec_d1);
+always @(posedge clk) begin
+    if (rst) begin
+        b_real <= 1'b0;
+    end else if (run && phase == 2'd2) begin
+        b_real <= a_real;
+        b_x <= a_x;
+        b_base <= a_base;
+        b_d1 <= rec_d1;
+        b_code <= rec_code;
+        b_conf <= rec_conf;
+        b_unique <= rec_unique;
+        b_border <= rec_border;
+    end
+end
+
+// phase 0 of the next slot: decide and write
+wire [7:0] gap = (b_d1 > dr_rdata) ? b_d1 - dr_rdata : dr_rdata - b_d1;
+reg  [2:0] reason;
+always @* begin
+    if (b_border) reason = `SC_REASON_BORDER;
+    else if (!b_unique) reason = `SC_REASON_UNIQUENESS;
+    else if (lr_check && gap > lr_tol) reason = `SC_REASON_LR;
+    else reason = `SC_REASON_VALID;
+end
+always @(posedge clk) begin
+    code_we <= 1'b0;
+    if (!rst && run && phase == 2'd0 && b_real) begin
+        code_we <= 1'b1;
+        code_waddr <= b_base + b_x;
+        code_wdata <= (reason == `SC_REASON_VALID) ? {reason, b_conf, 5'b0, b_code}
+                                                   : {reason, 8'd0, 16'd`SC_INVALID};
+    end
+end
+
+// ---------------------------------------------------------------- phase C: median, output
+localparam CW = 27;
+
+
+// ---- reads: column x_c + 1 of rows row_c - 1 + phase (phases 0..2)
+wire signed [11:0] rrow = row_c - 12'sd1 + $signed({10'b0, phase});
+wire signed [11:0] rcol = x_c + 12'sd1;
 wire        row_in = rrow >= 0 && rrow < $signed({1'b0, height});
 wire        col_in = rcol >= 0 && rcol < $signed({1'b0, width});
 assign code_re = run && phase != 2'd3 && row_in && col_in;
@@ -65,7 +161,7 @@ assign code_raddr = bank_base(rrow[10:0]) + rcol[10:0];
 
 // what each read brings, 2 run clocks later: phases 2, 3 and the next slot's 0
 reg [1:0] q_in;       // [0]: read 1 run clock ago, [1]: 2 run clocks ago
-reg [1:0] q_slot0, q_slot1;  // their window row (0..2)
+reg [1:0] q_slot0, q_slot1;  // their window row_c (0..2)
 reg       q_ok0, q_ok1;      // inside the image
 always @(posedge clk) begin
     if (rst) begin
@@ -89,7 +185,7 @@ end
 
 // ---- the window, shifted at phase 1 (all three of the column are in by then)
 integer ri3, ri4, ri5, ci4;
-reg [CW-1:0] win [0:2][0:2];  // [row][column]
+reg [CW-1:0] win [0:2][0:2];  // [row_c][column]
 reg          wv  [0:2][0:2];
 reg signed [11:0] prev_x = -12'sd1, cur_x = -12'sd1, prev_row = -12'sd1, cur_row = -12'sd1;
 reg          go = 1'b0;       // the window now holds a centre to filter
@@ -113,8 +209,8 @@ always @(posedge clk) begin
         cur_row <= prev_row;
     end
     if (run && phase == 2'd3) begin
-        prev_x <= x;    // this slot's column arrives by the next slot's phase 1: centre x
-        prev_row <= row;
+        prev_x <= x_c;    // this slot's column arrives by the next slot's phase 1: centre x_c
+        prev_row <= row_c;
     end
     // The frame's first slot hands on the centre of the slot before it: none. Without this it
     // was the previous frame's last (a column and row outside that frame, which a wider or
