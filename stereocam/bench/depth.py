@@ -12,6 +12,16 @@ PARALLEL for the model, of 16 for OpenCV). Over the non-occluded pixels with gro
 255): ``bad-1.0`` and ``bad-2.0``, the share whose disparity is off by more than 1 or 2 pixels or
 missing, and ``density``, the share with a disparity. The floor: the model's mean bad-2.0 at most
 StereoSGBM's in the same run, its density at least 85 %, and its speed at least 5 pairs a second.
+
+RTL (``--rtl``): the stereo core's Verilog (the ``depth`` build: 752 px, 128 disparities, 32 a
+clock) under Verilator (:class:`stereocam.overlays.rtl.stereo_core.RtlStereo`), on the same pairs
+after the speed rounds, one pair after another: pairs a second (wall time of a pair, the harness
+program doing the work; median; and ``fps_cpu`` from the program's CPU time, which a loaded machine
+changes less), the clocks a pixel the core took (first input beat to last output
+beat over the pixels; the design's own rate, whatever the simulator's), whether every output beat
+equals the model's, and the program's build time (once, then cached). Not by default: a pair takes
+seconds (4.3 s of CPU, 8 s of wall time, measured on this machine's 2 loaded cores; 4.16 clocks
+a pixel) and the first build 10-60 s.
 """
 from __future__ import annotations
 
@@ -20,7 +30,7 @@ import math
 import re
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple, Type
 
 import numpy as np
 
@@ -180,7 +190,35 @@ def speed(seconds: float, matchers: Dict[str, Matcher]) -> Dict[str, Dict[str, f
     return out
 
 
-def measure(seconds: float, pairs: Optional[Path]) -> Dict[str, Any]:
+def rtl_speed(n: int = 2) -> Dict[str, Any]:
+    """The stereo core's RTL under Verilator on ``n`` of the speed rounds' pairs (module docstring)."""
+    from ..overlays.rtl.stereo_core import RtlStereo
+
+    t0 = time.perf_counter()
+    with RtlStereo(spec.DEFAULT_BUILD, seed=0) as core:
+        build_s = time.perf_counter() - t0
+        seconds: List[float] = []
+        cpu: List[float] = []
+        cpp: List[float] = []
+        equal = True
+        for left, right in bench_pairs(n):
+            t, c = time.perf_counter(), core.cpu_seconds()
+            got = core.compute(left, right)
+            seconds.append(time.perf_counter() - t)
+            c2 = core.cpu_seconds()
+            if c is not None and c2 is not None:
+                cpu.append(c2 - c)
+            cpp.append(core.clocks_per_pixel)
+            equal = equal and got.equal(model.compute(left, right))
+    wall = float(np.median(seconds))
+    cpu_s = float(np.median(cpu)) if cpu else None
+    return {"fps": 1.0 / wall, "fps_cpu": 1.0 / cpu_s if cpu_s else None, "pairs": n,
+            "seconds_per_pair": wall, "cpu_seconds_per_pair": cpu_s,
+            "clocks_per_pixel": float(np.mean(cpp)), "equal_to_model": equal,
+            "build_seconds": build_s, "built": core.harness.built}
+
+
+def measure(seconds: float, pairs: Optional[Path], rtl: bool = False) -> Dict[str, Any]:
     if pairs is not None:
         scenes(pairs)  # a wrong folder fails now, not after the speed rounds
     paths = [model.fastest_path()] + (["numpy"] if model.fastest_path() != "numpy" else [])
@@ -190,6 +228,10 @@ def measure(seconds: float, pairs: Optional[Path]) -> Dict[str, Any]:
     result: Dict[str, Any] = {"size": [WIDTH, HEIGHT], "num_disp": 128, "speed": speed(seconds, timed)}
     fps = result["speed"][f"model_{fast}"]["fps"]
     floor = fps >= FLOOR_FPS
+    if rtl:
+        result["rtl"] = rtl_speed()
+        result["rtl"]["ratio_to_sgbm"] = result["rtl"]["fps"] / result["speed"]["opencv_sgbm"]["fps"]
+        floor = floor and result["rtl"]["equal_to_model"]
     if pairs is not None:
         acc = accuracy(pairs, {"model": (model_matcher(fast), spec.DEFAULT_BUILD.parallel),
                                "opencv_bm": (opencv_bm, 16), "opencv_sgbm": (opencv_sgbm, 16)})
@@ -205,6 +247,13 @@ def text_lines(r: Dict[str, Any]) -> List[str]:
     lines = [f"speed, {r['size'][0]}x{r['size'][1]} gray pairs, {r['num_disp']} disparities (pairs/s):"]
     for name, v in r["speed"].items():
         lines.append(f"  {name:<14} {v['fps']:7.2f}  ({v['ratio_to_sgbm']:.2f} x StereoSGBM)")
+    if "rtl" in r:
+        v = r["rtl"]
+        cpu = "" if v["fps_cpu"] is None else f"{v['fps_cpu']:.2f} a CPU second of the harness; "
+        lines.append(f"  {'rtl_verilator':<14} {v['fps']:7.2f}  ({v['ratio_to_sgbm']:.2f} x StereoSGBM; {cpu}"
+                     f"{v['clocks_per_pixel']:.2f} clocks a pixel; {v['pairs']} pairs "
+                     f"{'equal to' if v['equal_to_model'] else 'DIFFERENT from'} the model; program "
+                     f"{'built in' if v['built'] else 'cached,'} {v['build_seconds']:.1f} s)")
     if "accuracy" in r:
         lines.append("accuracy (non-occluded pixels; a missing disparity counts as bad):")
         lines.append(f"  {'scene':<14} {'matcher':<12} {'bad-1.0':>8} {'bad-2.0':>8} {'density':>8}")
@@ -214,7 +263,8 @@ def text_lines(r: Dict[str, Any]) -> List[str]:
                 lines.append(f"  {scene:<14} {name:<12} {100 * s['bad_1']:7.2f}% {100 * s['bad_2']:7.2f}% "
                              f"{100 * s['density']:7.2f}%")
     lines.append(f"floor (model >= {FLOOR_FPS:g} pairs/s; with --pairs: bad-2.0 <= StereoSGBM's, density >= "
-                 f"{100 * FLOOR_DENSITY:g} %): {'met' if r['meets_floor'] else 'NOT met'}")
+                 f"{100 * FLOOR_DENSITY:g} %; with --rtl: the RTL equals the model): "
+                 f"{'met' if r['meets_floor'] else 'NOT met'}")
     return lines
 
 
@@ -222,8 +272,13 @@ def run_depth(args: argparse.Namespace) -> int:
     pairs = Path(args.pairs) if args.pairs else None
     if not math.isfinite(args.seconds) or args.seconds <= 0:
         raise DepthBenchError(f"--seconds must be positive, not {args.seconds}")
-    return run_suite("depth", lambda: measure(args.seconds, pairs), (DepthBenchError, ValueError),
-                     args.json, text_lines)
+    errors: Tuple[Type[BaseException], ...] = (DepthBenchError, ValueError)
+    if args.rtl:
+        from ..overlays.rtl.core import RtlError
+        from ..overlays.rtl.toolchain import ToolMissing
+
+        errors += (RtlError, ToolMissing)
+    return run_suite("depth", lambda: measure(args.seconds, pairs, args.rtl), errors, args.json, text_lines)
 
 
 def add_depth_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
@@ -236,4 +291,8 @@ def add_depth_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]")
     p.add_argument("--pairs", metavar="DIR",
                    help="a folder of scene folders in Middlebury 2014's layout (im0.png, im1.png, "
                         "disp0GT.pfm, mask0nocc.png, calib.txt)")
+    p.add_argument("--rtl", action="store_true",
+                   help="also time the stereo core's RTL (the depth build) under Verilator on 2 of the "
+                        "pairs, with its clocks a pixel, checked equal to the model (seconds a pair; the "
+                        "first run builds the program, cached after)")
     p.set_defaults(func=run_depth)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Mapping, Optional, Tuple
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
@@ -22,10 +22,14 @@ from ..overlays.spec import stereo as spec
 from . import cloud, disparity_images
 from .formats import ros_scale
 
-__all__ = ["CORES", "CLOUD_FILE", "StereoInput", "rectify_with_model", "from_calibration", "from_rectified",
-           "run", "depth_files", "write_all", "metres_per_unit"]
+__all__ = ["CORES", "CLOUD_FILE", "Matcher", "StereoInput", "rectify_with_model", "from_calibration",
+           "from_rectified", "run", "depth_files", "write_all", "metres_per_unit"]
 
-CORES = ("model",)  # what computes the disparity: the stereo core's bit-exact model
+#: What computes the disparity: the stereo core's bit-exact model, or its RTL under Verilator
+#: (``stereocam.overlays.rtl.stereo_core.RtlStereo``, a layer above this one: the CLI hands its
+#: ``compute`` to :func:`run`). Both give the same integers, so the same files.
+CORES = ("model", "rtl")
+Matcher = Callable[[np.ndarray, np.ndarray, spec.StereoParams], StereoResult]
 CLOUD_FILE = "cloud.ply"
 
 
@@ -89,10 +93,11 @@ def metres_per_unit(units: str) -> float:
     return scale
 
 
-def run(stereo: StereoInput, params: spec.StereoParams) -> StereoResult:
-    """The stereo core's model on ``stereo`` (ValueError for a pair or parameters the core refuses)."""
+def run(stereo: StereoInput, params: spec.StereoParams, matcher: Optional[Matcher] = None) -> StereoResult:
+    """The stereo core on ``stereo``: its model, or ``matcher`` (e.g. the RTL's ``compute``) with the
+    model's signature. ValueError for a pair or parameters the core refuses, before either runs."""
     check_pair(stereo.left, stereo.right, params)
-    return compute(stereo.left, stereo.right, params)
+    return (matcher or compute)(stereo.left, stereo.right, params)
 
 
 def depth_files(result: StereoResult, num_disp: int,

@@ -59,8 +59,8 @@ import numpy as np
 from ..spec.rectify import DEFAULT_BUILD, RECTIFY_MAP, Build
 from . import toolchain as hdl
 
-TOP = "rectify_core"
-PREFIX = "Vrectify_core"  # the Verilated model's class, included by the harness
+TOP = "rectify_core"  # build_harness's default top; stereo_core.py builds the other
+TOP_HEADER = "harness_top.h"  # written into each build's src folder: the top harness.cpp includes
 BUILT_MARKER = "stereocam-built.json"
 # Bump when the build recipe below changes, so old cached programs are not reused.
 FLOW_VERSION = 2
@@ -165,13 +165,28 @@ def build_parameters(build: Build) -> Dict[str, int]:
             "LB_ROWS": build.lb_rows, "COLOUR": int(build.colour)}
 
 
-def build_harness(build: Build = DEFAULT_BUILD, *, sources: Optional[Sequence[Path]] = None,
-                  harness: Optional[Path] = None, root: Optional[Path] = None, jobs: int = 2) -> HarnessBuild:
-    """The harness program for ``build``, compiled now unless an identical build is cached.
+def harness_top_header(top: str, registered_outputs: bool) -> str:
+    """``harness_top.h``, written into a build's src folder: the Verilated top the harness drives."""
+    prefix = f"V{top}"
+    return (f"// Written by stereocam/overlays/rtl/core.py for this build: the top harness.cpp drives.\n"
+            f"#pragma once\n#include \"{prefix}.h\"\n#include \"{prefix}___024root.h\"\n"
+            f"using HarnessTop = {prefix};\n"
+            f"constexpr bool HARNESS_REGISTERED_OUTPUTS = {'true' if registered_outputs else 'false'};\n")
 
-    ``sources`` (default :func:`rtl_sources`) and ``harness`` (default
+
+def build_harness(build: Optional[Build] = DEFAULT_BUILD, *, top: str = TOP,
+                  parameters: Optional[Dict[str, int]] = None, sources: Optional[Sequence[Path]] = None,
+                  registered_outputs: bool = True, harness: Optional[Path] = None,
+                  root: Optional[Path] = None, jobs: int = 2) -> HarnessBuild:
+    """The harness program for ``top`` with ``parameters``, compiled now unless an identical build is cached.
+
+    The defaults build ``rectify_core`` for ``build`` (:func:`build_parameters`,
+    :func:`rtl_sources`); another top (``stereo_core``, see ``stereo_core.py``) names its
+    parameters and sources (Verilog and the headers it includes: the build folder is flat)
+    and ``registered_outputs`` False when an output depends on an input through logic only
+    (harness.cpp then settles it before sampling). ``sources`` and ``harness`` (default
     :func:`harness_source`) are read once and copied into the build folder, which is
-    keyed by their content, the parameters, the tools' versions and this recipe: RTL
+    keyed by their content, the top, the parameters, the tools' versions and this recipe: RTL
     being edited meanwhile cannot end up in a build filed under another content. A
     lock file keeps two processes from building one folder at once. Raises
     :class:`hdl.ToolMissing` (naming the package to install) when a tool is missing and
@@ -184,17 +199,22 @@ def build_harness(build: Build = DEFAULT_BUILD, *, sources: Optional[Sequence[Pa
     for path in [*files, cpp]:
         if not path.is_file():
             raise FileNotFoundError(f"{path} does not exist")
-    names = [p.name for p in [*files, *headers]]
+    names = [p.name for p in [*files, *headers]] + [TOP_HEADER]
     if len(set(names)) != len(names):
         raise ValueError(f"two sources share a file name: {names}")
     contents = {p.name: p.read_bytes() for p in [*files, *headers]}
+    contents[TOP_HEADER] = harness_top_header(top, registered_outputs).encode()
     harness_bytes = cpp.read_bytes()
-    parameters = build_parameters(build)
+    if parameters is None:
+        if build is None:
+            raise ValueError("build_harness needs a build or the top's parameters")
+        parameters = build_parameters(build)
+    prefix = f"V{top}"
     cxx, cxx_args = compiler()
     make_args = [*MAKE_ARGS, *cxx_args]
     key = {
         "flow": FLOW_VERSION,
-        "top": TOP,
+        "top": top,
         "parameters": parameters,
         "sources": {name: hashlib.sha256(data).hexdigest() for name, data in contents.items()},
         "harness": hashlib.sha256(harness_bytes).hexdigest(),
@@ -204,21 +224,21 @@ def build_harness(build: Build = DEFAULT_BUILD, *, sources: Optional[Sequence[Pa
         "make_args": make_args,
     }
     bdir = hdl.build_dir("harness", key, root=root)
-    exe = bdir / "obj" / PREFIX
+    exe = bdir / "obj" / prefix
     start = time.monotonic()
     with open(bdir.parent / f"{bdir.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             if (bdir / BUILT_MARKER).is_file() and exe.is_file():
                 return HarnessBuild(exe, bdir, False, time.monotonic() - start)
-            _compile(bdir, contents, cpp.name, harness_bytes, parameters, verilator, jobs, make_args)
+            _compile(bdir, contents, cpp.name, harness_bytes, top, parameters, verilator, jobs, make_args)
             (bdir / BUILT_MARKER).write_text(json.dumps(key, indent=1) + "\n")
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     return HarnessBuild(exe, bdir, True, time.monotonic() - start)
 
 
-def _compile(bdir: Path, contents: Dict[str, bytes], harness_name: str, harness_bytes: bytes,
+def _compile(bdir: Path, contents: Dict[str, bytes], harness_name: str, harness_bytes: bytes, top: str,
              parameters: Dict[str, int], verilator: Path, jobs: int, make_args: Sequence[str]) -> None:
     """Verilate the snapshot of the sources in ``bdir/src`` and build it with make into ``bdir/obj``."""
     src, obj = bdir / "src", bdir / "obj"
@@ -230,12 +250,13 @@ def _compile(bdir: Path, contents: Dict[str, bytes], harness_name: str, harness_
     (src / harness_name).write_bytes(harness_bytes)
     verilog = [str(src / n) for n in sorted(contents) if n.endswith((".v", ".sv"))]
     env = {**os.environ, "PATH": hdl.tool_path(), **MAKE_ENV}
+    prefix = f"V{top}"
     log_path = bdir / "build.log"
     steps = [
-        [str(verilator), *VERILATOR_ARGS, "--top-module", TOP, "--prefix", PREFIX, f"-I{src}",
+        [str(verilator), *VERILATOR_ARGS, "--top-module", top, "--prefix", prefix, f"-I{src}",
          *(f"-G{k}={v}" for k, v in parameters.items()), *verilog, str(src / harness_name),
          "--Mdir", str(obj)],
-        ["make", "-C", str(obj), "-f", f"{PREFIX}.mk", f"-j{max(1, jobs)}", *make_args],
+        ["make", "-C", str(obj), "-f", f"{prefix}.mk", f"-j{max(1, jobs)}", *make_args],
     ]
     with open(log_path, "w") as log:
         for cmd in steps:
@@ -307,11 +328,14 @@ class RtlCore:
     """
 
     def __init__(self, build: Build = DEFAULT_BUILD, *, seed: Optional[int] = None, gaps: bool = False,
-                 jobs: int = 2, sources: Optional[Sequence[Path]] = None) -> None:
+                 jobs: int = 2, sources: Optional[Sequence[Path]] = None,
+                 program: Optional[HarnessBuild] = None) -> None:
         self.build = build
         self.seed = seed if seed is not None else random.SystemRandom().randrange(1 << 32)
         self.gaps = gaps
-        self.harness = build_harness(build, jobs=jobs, sources=sources)
+        # program: a harness already built for another top (stereo_core.py's RtlStereo drives
+        # the stereo core through this class); build then only bounds a frame's clocks.
+        self.harness = program if program is not None else build_harness(build, jobs=jobs, sources=sources)
         self.last = FrameRun()
         self._pending: Optional[List[Tuple[np.ndarray, np.ndarray]]] = None  # an unfinished output frame
         self._lock = threading.Lock()
@@ -397,12 +421,13 @@ class RtlCore:
             return 0
         return int(sum(int(np.count_nonzero(f & TLAST)) for _, f in self._pending))
 
-    def process(self, frame: np.ndarray) -> Optional[np.ndarray]:
+    def process(self, frame: np.ndarray, *, max_clocks: Optional[int] = None) -> Optional[np.ndarray]:
         """Stream one ``(H, W, 8)`` uint8 frame (any size) through the core; its output frame or None.
 
         The output, ``(rows, WIDTH, 8)`` uint8, is assembled from the beats by TUSER
         (start of frame) and TLAST (end of line); None when the core completed no frame
-        during the call. See the class docstring for frames with too few lines.
+        during the call. See the class docstring for frames with too few lines. ``max_clocks``:
+        the frame's bound (default: generous for the rectify core's 2 clocks a beat).
         """
         frame = np.asarray(frame)
         if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 8:
@@ -412,7 +437,7 @@ class RtlCore:
             return None
         h, w = frame.shape[:2]
         # Generous: 1 clock per input beat, 2 per output beat, heavy backpressure, waits.
-        limit = 16 * (h * w + self.build.max_width * self.build.max_height) + 1_000_000
+        limit = max_clocks or 16 * (h * w + self.build.max_width * self.build.max_height) + 1_000_000
         data = np.ascontiguousarray(frame)
         with self._lock:
             beats = data.data.cast("B") if data.size else b""
@@ -484,6 +509,16 @@ class RtlCore:
             raise RtlError(f"malformed output frame: {n} beats, TLAST after {lengths[:8]}"
                            f"{'...' if len(lengths) > 8 else ''} beats (seed {self.seed})")
         return data.reshape(n // width, width, 8).copy()
+
+    def cpu_seconds(self) -> Optional[float]:
+        """CPU time the harness program has used so far (Linux's /proc; None where unreadable): the
+        simulation's cost, whatever else the machine runs meanwhile."""
+        try:
+            with open(f"/proc/{self._proc.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return None
 
     # -- lifetime -------------------------------------------------------------------------
     def close(self) -> None:

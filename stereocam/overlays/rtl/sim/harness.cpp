@@ -1,6 +1,11 @@
-// harness.cpp: the rectify core (rectify_core, compiled by Verilator) as a program that
-// Python drives with whole frames and register accesses over a pipe
-// (stereocam/overlays/rtl/core.py builds and runs it). No per-beat traffic crosses the pipe: the
+// harness.cpp: a stream core (rectify_core or stereo_core, compiled by Verilator) as a program
+// that Python drives with whole frames and register accesses over a pipe
+// (stereocam/overlays/rtl/core.py builds it and runs the rectify core, stereo_core.py the stereo
+// core). The build writes harness_top.h beside it: the Verilated top's headers, `using
+// HarnessTop = V<top>;` and whether every output of the top comes from a register
+// (HARNESS_REGISTERED_OUTPUTS, below). Both tops have the same ports (AXI4-Lite s_axil_*,
+// AXI4-Stream s_axis_* in of 64 bits, m_axis_* out of 64 or 32 bits, carried in a u64 either
+// way) and STATUS.BUSY at the same place. No per-beat traffic crosses the pipe: the
 // AXI4-Stream and AXI4-Lite handshakes are all done here, at full simulation speed.
 //
 // Protocol. Binary, little-endian, one request on stdin then one reply on stdout, in
@@ -49,13 +54,15 @@
 // sampled, then aclk rises (one evaluation of the model); the inputs for the next clock are
 // chosen from what moved. (AXI4-Lite handshakes are sampled only during a register access:
 // no VALID of the harness is high otherwise.) Sampling needs no evaluation with aclk low
-// because every output of rectify_core comes straight from a register (or is a constant):
+// when every output of the top comes straight from a register (or is a constant), as in rectify_core:
 // the outputs after a rising edge stay what they are until the next one, whatever the
 // harness drives meanwhile, and the edge's evaluation settles the new inputs before it
 // clocks the registers. The model sees the edge in that single evaluation because the
 // harness clears the clock value Verilator remembered from the previous one (see
-// forget_clock); with a Verilator that has no such member the harness evaluates the low
-// phase as well (same results, about 5 % slower).
+// forget_clock); with a Verilator that has no such member, or a top with an output that
+// depends on an input through logic only (stereo_core's s_axis_tready on s_axis_tuser;
+// HARNESS_REGISTERED_OUTPUTS false), the harness evaluates the low phase as well, which settles
+// those outputs before they are sampled (same results, about 5 % slower).
 //
 // Speed: a 752x480 frame is about 750,000 clocks; the model's evaluation is 98 % of a
 // clock's instructions and this loop about 1 %, so the harness no longer matters: the RTL's
@@ -70,9 +77,8 @@
 #include <vector>
 #include <unistd.h>
 
+#include "harness_top.h"  // written by the build: HarnessTop, HARNESS_REGISTERED_OUTPUTS
 #include "rectify_regs.h"  // generated from RECTIFY_MAP (python -m stereocam.overlays.spec.verilog)
-#include "Vrectify_core.h"
-#include "Vrectify_core___024root.h"
 #include "verilated.h"
 
 namespace {
@@ -119,14 +125,14 @@ struct Moved {
 
 class Harness {
   public:
-    Harness() : ctx_(new VerilatedContext), top_(new Vrectify_core(ctx_.get())) {
+    Harness() : ctx_(new VerilatedContext), top_(new HarnessTop(ctx_.get())) {
         top_->aclk = 0;
         top_->aresetn = 0;
         top_->s_axil_wstrb = 0xf;
         top_->m_axis_tready = 1;  // lowered only with backpressure (tick)
         top_->eval();
         top_->aclk = 1;  // stays 1 when each clock is a single evaluation (tick)
-        one_eval_ = forget_clock(top_->rootp, 0);
+        one_eval_ = HARNESS_REGISTERED_OUTPUTS && forget_clock(top_->rootp, 0);
         if (!one_eval_) top_->aclk = 0;
     }
     ~Harness() { top_->final(); }
@@ -342,7 +348,7 @@ class Harness {
     }
 
     std::unique_ptr<VerilatedContext> ctx_;
-    std::unique_ptr<Vrectify_core> top_;
+    std::unique_ptr<HarnessTop> top_;
     std::mt19937_64 rng_{0};
     uint32_t gap_ = 0, backpressure_ = 0, quiet_ = 64, stall_ = 20000;
     uint64_t clock_ = 0, start_ = 0, last_move_ = 0, beats_in_ = 0, in_waits_ = 0, out_waits_ = 0;

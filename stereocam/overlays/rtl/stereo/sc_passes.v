@@ -24,6 +24,7 @@
  * codes inside; each banked by row mod 3 at MAX_WIDTH words a bank.
  * Out: `o_valid` one clock a pixel: o_data {5'b0, reason, conf, code}, o_user (first pixel of a
  * frame), o_last (end of a row), o_eof (the frame's last beat).
+ * `frame_begin` (the first beat of a frame taken, while no slot runs) forgets the last slot's centre.
  * Reset: synchronous, active high.
  */
 module sc_passes #
@@ -40,6 +41,7 @@ module sc_passes #
     input  wire               lr_check,
     input  wire [3:0]         lr_tol,
     input  wire               median,
+    input  wire               frame_begin,  // a frame's first beat is taken (between frames)
     input  wire               run,
     input  wire [1:0]         phase,
     input  wire signed [11:0] row,
@@ -209,6 +211,13 @@ always @(posedge clk) begin
     if (run && phase == 2'd3) begin
         prev_x <= x_c;    // this slot's column arrives by the next slot's phase 1: centre x_c
         prev_row <= row_c;
+    end
+    // The frame's first slot hands on the centre of the slot before it: none. Without this it
+    // was the previous frame's last (a column and row outside that frame, which a wider or
+    // taller frame takes for one of its own: a beat before the TUSER beat).
+    if (frame_begin) begin
+        prev_x <= -12'sd1;
+        prev_row <= -12'sd1;
     end
 end
 

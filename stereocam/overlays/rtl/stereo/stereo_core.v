@@ -186,7 +186,7 @@ wire        o_valid, o_user, o_last, o_eof;
 wire [31:0] o_data;
 sc_passes #(.MAX_WIDTH(MAX_WIDTH), .AW(AW), .LAG(LAG)) passes_inst (
     .clk(aclk), .rst(rst), .width(width), .height(height), .lr_check(lr_check), .lr_tol(lr_tol),
-    .median(median), .run(run), .phase(phase), .row(row), .col(col),
+    .median(median), .frame_begin(frame_begin), .run(run), .phase(phase), .row(row), .col(col),
     .rec_re(rec_re), .rec_raddr(rec_raddr), .rec_rdata(rec_rdata),
     .dr_re(dr_re), .dr_raddr(dr_raddr), .dr_rdata(dr_rdata),
     .o_valid(o_valid), .o_data(o_data), .o_user(o_user), .o_last(o_last), .o_eof(o_eof)
