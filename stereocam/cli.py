@@ -329,7 +329,6 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
 
 
 def cmd_disparity(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from .calibration import pair_depth
     from .calibration.file import load_calibration
