@@ -17,12 +17,15 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import IO, Any, Mapping, Optional, Sequence
-
-import numpy as np
+from typing import IO, TYPE_CHECKING, Any, Mapping, Optional, Sequence
 
 from . import __version__
-from .server.http.settings import LOG_LEVELS
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
+# Imports are in the functions that need them: `stereocam serve` on the board's A9 starts in seconds
+# of imports, and its start-up notifier (main) runs before any of them (tests/cli/test_cli_start.py).
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 JOURNAL_FORMAT = "%(name)s: %(message)s"  # journald stamps the time and keeps the priority itself
@@ -107,6 +110,8 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
         handler.addFilter(TokenRedactor(secret))
     numeric = logging.getLevelName(level.upper())
     if not isinstance(numeric, int):
+        from .server.http.settings import LOG_LEVELS
+
         raise UserError(f"log level {level!r} is not one of {', '.join(LOG_LEVELS)}")
     root.setLevel(numeric)
     root.addHandler(handler)
@@ -119,6 +124,7 @@ def setup_logging(level: str = "info", *, env: Optional[Mapping[str, str]] = Non
 
 def _read_image(path: Path) -> np.ndarray:
     import cv2
+    import numpy as np
 
     from .calibration.image_files import ImageTooLarge, decode_image_file
 
@@ -217,9 +223,10 @@ def _output_file(path: str) -> Path:
 
 
 def cmd_rectify(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from .calibration.file import load_calibration
-    from .overlays.model.fast import RectifyModel
-    from .overlays.model.result import CoreOptions
+    from .calibration.pair_depth import rectify_with_model
     from .overlays.spec import pixel
 
     left, right = _read_image(Path(args.left)), _read_image(Path(args.right))
@@ -240,12 +247,11 @@ def cmd_rectify(args: argparse.Namespace) -> int:
         h, w = left.shape[:2]
     gray = left.ndim == 2 and right.ndim == 2
     fit = cal.fit
-    options = CoreOptions(lb_rows=args.lb_rows, lb_delay=fit.delay, gray=gray)
-    frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
     if args.core == "rtl":
+        frame = pixel.pack(pixel.rgby(left), pixel.rgby(right))
         out = _rectify_rtl(cal, frame, lb_rows=args.lb_rows, gray=gray)
     else:
-        out = RectifyModel(cal.left, cal.right, w, h, options).process(frame).frame
+        out = rectify_with_model(cal, left, right, args.lb_rows)
     outdir = Path(args.output)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
@@ -320,6 +326,76 @@ def _rectify_rtl(cal: "Any", frame: np.ndarray, *, lb_rows: int, gray: bool) -> 
         raise UserError(f"--core rtl: the RTL core returned {'no frame' if out is None else out.shape} "
                         f"for a {w}x{h} frame; see STATUS and FLAGS (a bug in the RTL)")
     return out
+
+
+def cmd_disparity(args: argparse.Namespace) -> int:
+    from .calibration import pair_depth
+    from .calibration.file import load_calibration
+    from .overlays.spec.stereo import DEFAULT_PARAMS
+
+    given = {name: getattr(args, name) for name in _stereo_param_names() if getattr(args, name) is not None}
+    params = DEFAULT_PARAMS.with_values(**given)
+    problems = params.problems()
+    if problems:
+        raise UserError("; ".join(problems))
+    left_path, right_path = Path(args.left), Path(args.right)
+    left, right = _read_image(left_path), _read_image(right_path)
+    if left.shape[:2] != right.shape[:2]:
+        raise UserError(
+            f"left is {left.shape[1]}x{left.shape[0]} but right is {right.shape[1]}x{right.shape[0]}: "
+            "the pair must have the same size"
+        )
+    outdir = Path(args.output)
+    if outdir.exists() and not outdir.is_dir():
+        raise UserError(f"{outdir} is a file: give a folder for the outputs")
+    cloud_of = None
+    try:
+        if args.calibration is not None:
+            h, w = left.shape[:2]
+            cal = load_calibration(args.calibration, image_size=(w, h), lb_rows=args.lb_rows)
+            unit_m = pair_depth.metres_per_unit(args.units or cal.units)
+            comment = f"stereocam disparity of {left_path.name} and {right_path.name}, calibration {cal.id}"
+            cloud_of = (cal.rect.Q, unit_m, comment)
+            stereo = pair_depth.from_calibration(cal, left, right, args.lb_rows)
+        else:
+            stereo = pair_depth.from_rectified(left, right)
+        result = pair_depth.run(stereo, params)
+        files = pair_depth.depth_files(result, params.num_disp, cloud_of, stereo.colour)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        pair_depth.write_all(outdir, files)
+    except OSError as exc:
+        raise UserError(f"cannot write into {outdir}: {exc.strerror or exc}") from None
+    valid = int(np.count_nonzero(result.valid))
+    h, w = result.disp.shape
+    print(f"wrote {', '.join(str(outdir / n) for n in files)} ({w}x{h}, {valid} of {w * h} pixels with a "
+          f"disparity, the stereo core's model{'' if cloud_of is None else ', points in metres'})")
+    return 0
+
+
+def _stereo_param_names() -> "list[str]":
+    import dataclasses
+
+    from .overlays.spec.stereo import StereoParams
+
+    return [f.name for f in dataclasses.fields(StereoParams)]
+
+
+def _add_stereo_params(parser: argparse.ArgumentParser) -> None:
+    """``--num-disp N`` ... ``--[no-]median``: the stereo core's registers, each defaulting to the core's."""
+    from .overlays.spec.stereo import DEFAULT_PARAMS
+
+    for name in _stereo_param_names():
+        default = getattr(DEFAULT_PARAMS, name)
+        flag = "--" + name.replace("_", "-")
+        if isinstance(default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None,
+                                help=f"the core's {name.upper()} switch "
+                                     f"(default {'on' if default else 'off'})")
+        else:
+            parser.add_argument(flag, type=int, default=None, metavar="N",
+                                help=f"the core's {name.upper()} register (default {default})")
 
 
 class _ProgressDisplay:
@@ -427,6 +503,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from .overlays.backend import BackendError
     from .server.http.app import ServeError, run
     from .server.http.settings import Settings, SettingsError
+    from .server.http.systemd import LATE_DRIVER_EXIT, LateDriver
     from .server.stores.captures import CaptureError
 
     try:
@@ -443,6 +520,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     except CaptureError as exc:
         raise UserError(exc.message) from None
+    except LateDriver as exc:  # not the user's to fix: the unit restarts on this status
+        _error_line(args, exc)
+        return LATE_DRIVER_EXIT
 
 
 def _cli_log_level(args: argparse.Namespace) -> Optional[str]:
@@ -483,7 +563,7 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     from .overlays.backend import CORES
     from .overlays.spec.rectify import BUILDS, DEFAULT_BUILD
     from .server.http import systemd
-    from .server.http.settings import BACKENDS, DEFAULT_CAPTURES
+    from .server.http.settings import BACKENDS, DEFAULT_CAPTURES, LOG_LEVELS
 
     s = sub.add_parser(
         "serve", help="run the daemon (web page, streams, API)",
@@ -554,8 +634,12 @@ def _add_server_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParse
     i.set_defaults(func=cmd_install_service)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
+    """The ``stereocam`` parser; with ``command`` (what :func:`command_of` found in the arguments) another
+    command's suites and actions (``bench ...``, ``hw ...``, modules that take a while to import on the
+    board's A9) are left out, since they will not be parsed: ``serve`` imports only what it serves with."""
     from .overlays.backend import CORES
+    from .server.http.settings import LOG_LEVELS
     from .server.http.uploads import FIT_MODES
 
     parser = argparse.ArgumentParser(
@@ -592,6 +676,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("left")
     p.add_argument("right")
     p.set_defaults(func=cmd_rectify)
+
+    d = sub.add_parser("disparity", help="run the stereo core (its model) on an image pair",
+                       description="Compute the stereo core's disparity of LEFT and RIGHT with its bit-exact "
+                                   "model: OUTDIR/disparity.png (16-bit, disparity x 16, 65535 where "
+                                   "invalid), "
+                                   "disparity_colour.png, confidence.png and, with --calibration, cloud.ply "
+                                   "(binary PLY, metres, coloured by the rectified left image).")
+    given = d.add_mutually_exclusive_group(required=True)
+    given.add_argument("--calibration", metavar="CAL",
+                       help="rectify the pair first as the rectify core does (any format rectify takes)")
+    given.add_argument("--rectified", action="store_true",
+                       help="the pair is already rectified (up to the stereo core's width)")
+    d.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="the folder to write into")
+    from .calibration.pair_depth import CORES as STEREO_CORES
+
+    d.add_argument("--core", choices=STEREO_CORES, default=STEREO_CORES[0],
+                   help="model (default): the stereo core's bit-exact model")
+    d.add_argument("--units", metavar="UNIT",
+                   help="the unit of the calibration's T where its file does not say it (m, cm, mm, in)")
+    _add_lb_rows(d, "rectify with")
+    _add_stereo_params(d)
+    d.add_argument("left")
+    d.add_argument("right")
+    d.set_defaults(func=cmd_disparity)
 
     c = sub.add_parser(
         "calibrate", help="calibrate the stereo rig from checkerboard pairs",
@@ -656,49 +764,86 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--serve-seconds", type=float, default=5.0, metavar="S",
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
-    from .bench.budget import add_budget_parser  # stereocam bench budget
-    from .bench.depth import add_depth_parser  # stereocam bench depth
-    from .bench.recording import add_recording_parser  # stereocam bench recording
-    from .bench.robustness import add_robustness_parser  # stereocam bench robustness
+    if command in (None, "bench"):
+        from .bench.budget import add_budget_parser  # stereocam bench budget
+        from .bench.depth import add_depth_parser  # stereocam bench depth
+        from .bench.recording import add_recording_parser  # stereocam bench recording
+        from .bench.robustness import add_robustness_parser  # stereocam bench robustness
 
-    suites = b.add_subparsers(dest="suite", metavar="SUITE")
-    add_robustness_parser(suites)
-    add_budget_parser(suites)
-    add_recording_parser(suites)
-    add_depth_parser(suites)
+        suites = b.add_subparsers(dest="suite", metavar="SUITE")
+        add_robustness_parser(suites)
+        add_budget_parser(suites)
+        add_recording_parser(suites)
+        add_depth_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
-    from .overlays.rtl.synth import add_synth_parser
-    from .overlays.rtl.timing import add_timing_parser
-
     h = sub.add_parser("hw", help="the rectify core's HDL: synthesis and a timing estimate with yosys",
                        description="Tools for the rectify core's Verilog in stereocam/overlays/rtl/.")
     hsub = h.add_subparsers(dest="action", metavar="ACTION")
     hsub.required = True
-    add_synth_parser(hsub)
-    add_timing_parser(hsub)
+    if command in (None, "hw"):
+        from .overlays.rtl.synth import add_synth_parser
+        from .overlays.rtl.timing import add_timing_parser
+
+        add_synth_parser(hsub)
+        add_timing_parser(hsub)
 
     _add_server_commands(sub)
     return parser
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def command_of(argv: Sequence[str]) -> Optional[str]:
+    """The command ``argv`` (without the program name) runs, read before any parser is built; None: unsure."""
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg == "--log-level":
+            skip = True
+        elif not arg.startswith("-"):
+            return arg
+        elif arg in ("-h", "--help", "--version"):
+            return None
+    return None
+
+
+def _user_errors() -> "tuple[type[BaseException], ...]":
+    """The exceptions that end a command with one line and exit code 2. Imported when one is raised:
+    the modules are the calibration tools', which ``serve`` does not import to start."""
     from .calibration.calibrate import CalibrationError
     from .calibration.formats import CalibrationFileError
     from .overlays.model.core_params import CoreParamsError
 
-    parser = build_parser()
-    args = parser.parse_args(list(argv) if argv is not None else None)
+    return UserError, CalibrationFileError, CalibrationError, CoreParamsError
+
+
+def _error_line(args: argparse.Namespace, exc: BaseException) -> None:
+    command = args.command if args.command != "calibration" else f"calibration {args.action}"
+    priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
+    print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    arguments = list(argv) if argv is not None else sys.argv[1:]
+    command = command_of(arguments)
+    if command == "serve":
+        # First, before the imports (seconds on the board's A9): under systemd, keep extending the
+        # unit's start timeout and say what is loading until the daemon is READY (systemd.py).
+        from .server.http import systemd
+
+        systemd.loading("Python modules")
+    parser = build_parser(command)
+    args = parser.parse_args(arguments)
     setup_logging(_cli_log_level(args) or "info")
     try:
         return int(args.func(args))
-    except (UserError, CalibrationFileError, CalibrationError, CoreParamsError) as exc:
-        command = args.command if args.command != "calibration" else f"calibration {args.action}"
-        priority = "<3>" if on_journal() else ""  # under systemd: an error for `journalctl -p err`
-        print(f"{priority}stereocam {command}: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        if not isinstance(exc, _user_errors()):
+            raise
+        _error_line(args, exc)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -376,6 +376,16 @@ class Client:
         return {f["name"][:-4]: decode_image(self.capture_file(capture_id, f["name"]))
                 for f in files if f["name"].endswith(".png")}
 
+    def capture_disparity(self, capture_id: str) -> np.ndarray:
+        """A capture's stereo-core disparity codes, (H, W) uint16: disparity x 16, 65535 where invalid."""
+        return decode_image(self.capture_file(capture_id, "disparity.png"))
+
+    def cloud(self, capture_id: Optional[str] = None) -> bytes:
+        """A point cloud as binary PLY (metres, coloured): a capture's, or without one the newest frame's."""
+        path = "/api/cloud.ply" if capture_id is None else f"/api/captures/{_quoted(capture_id)}/cloud.ply"
+        data, _ = self._request("GET", path)
+        return bytes(data)
+
     def download_capture(self, capture_id: str, dest: Union[str, Path, BinaryIO]) -> None:
         """The capture as a zip, to a file path (written whole or not at all) or an open binary file."""
         self._download(f"/api/captures/{_quoted(capture_id)}.zip", dest)

@@ -34,6 +34,7 @@ from .mmio import DriverError, RegisterRangeError
 
 __all__ = [
     "I2CBus",
+    "I2CDenied",
     "I2CError",
     "I2CNack",
     "I2CTimeout",
@@ -61,6 +62,11 @@ class I2CError(DriverError):
         self.bus = bus
         self.address = address
         self.register = register
+
+
+class I2CDenied(I2CError):
+    """The bus's device node exists but may not be opened (EPERM/EACCES): not root, or, in a service whose
+    device list was made before the i2c-dev driver loaded, not allowed (``DeviceAllow=char-i2c``)."""
 
 
 class I2CNack(I2CError):
@@ -170,9 +176,9 @@ class LinuxI2CBus:
                 f"{self.path} does not exist (buses present: {', '.join(present) or 'none'}): "
                 "check the board profile's i2c.bus, and that the i2c-dev module is loaded",
                 bus=self.path) from None
-        except PermissionError:
-            raise I2CError(f"permission denied opening {self.path}: run the daemon as root or in the "
-                           "group that owns the device (usually 'i2c')", bus=self.path) from None
+        except PermissionError:  # EPERM (a cgroup's device list) or EACCES (the node's mode)
+            raise I2CDenied(f"permission denied opening {self.path}: run the daemon as root or in the "
+                            "group that owns the device (usually 'i2c')", bus=self.path) from None
         except OSError as exc:
             raise I2CError(f"cannot open {self.path}: {exc.strerror or exc}", bus=self.path) from None
         try:

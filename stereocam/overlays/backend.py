@@ -3,7 +3,10 @@ the image sensors.
 
 ``auto`` takes pynq when it is importable *and* the bitstream is present,
 otherwise the emulated fabric, and :attr:`Choice.reason` says why (the
-daemon logs it), so nobody wonders which one they are looking at. The
+daemon logs it), so nobody wonders which one they are looking at. On a board
+(pynq importable) without the bitstream the choice carries a :attr:`Choice.warning`
+(logged as a warning, shown by ``/api/status`` and the page) and ``board``, so the
+daemon keeps to the board's CPU budget. The
 daemon holds what :func:`open_overlay` returns as an :class:`~.interface.Overlay`
 and never imports a backend itself: the emulated cameras, the RTL core, the
 sensors' bus and recorded frames all come from here.
@@ -30,13 +33,27 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 __all__ = ["BACKENDS", "SCENES", "CORES", "RTL_TIMEOUT_S", "BackendError", "SourceError", "Choice", "choose",
-           "find_bitstream", "open_overlay", "camera_source", "open_rtl_core", "sensor_bus", "open_replay"]
+           "no_bitstream_warning", "find_bitstream", "open_overlay", "camera_source", "open_rtl_core",
+           "sensor_bus", "open_replay"]
 
 BACKENDS = ("auto", "pynq", "emulated")
 SCENES = ("synthetic", "checkerboard")  # the emulated cameras' built-in scenes; anything else is a folder
 CORES = ("model", "rtl")  # what computes the emulated fabric's rectify core
 RTL_TIMEOUT_S = 30.0  # driver waits with the RTL core: a frame of simulation takes a large part of a second
 DEFAULT_BITSTREAM_DIRS = (Path(__file__).parent, Path("/usr/local/share/stereocam"))
+#: What the machine is, as Linux lists it: a Zynq-7000 names ZYNQ_COMPATIBLE there. pynq alone does not
+#: make a board (it installs on a PC too); STEREOCAM_DEVICE_TREE names another file (the tests' stand-in).
+DEVICE_TREE_COMPATIBLE = Path("/proc/device-tree/compatible")
+ZYNQ_COMPATIBLE = b"xlnx,zynq-7000"
+
+
+def on_zynq() -> bool:
+    """Whether this machine is a Zynq-7000 (its device tree says so)."""
+    path = Path(os.environ.get("STEREOCAM_DEVICE_TREE") or DEVICE_TREE_COMPATIBLE)
+    try:
+        return ZYNQ_COMPATIBLE in path.read_bytes()
+    except OSError:
+        return False
 
 
 class SourceError(ValueError):
@@ -70,9 +87,22 @@ def choose(backend: str = "auto", *, bitstream: Optional[Path] = None) -> Choice
         return Choice("pynq", "--backend pynq was asked for", bit)
     if not has_pynq:
         return Choice("emulated", "pynq is not installed, so this is not a board")
+    if bit is None and not on_zynq():
+        return Choice("emulated", f"pynq is installed but no bitstream was found at {where}, and this is "
+                                  f"not a Zynq ({DEVICE_TREE_COMPATIBLE} does not name it)")
     if bit is None:
-        return Choice("emulated", f"pynq is installed but no bitstream was found at {where}")
-    return Choice("pynq", f"pynq is installed and the bitstream is at {bit}", bit)
+        return Choice("emulated", f"pynq is installed but no bitstream was found at {where}", board=True,
+                      warning=no_bitstream_warning(where))
+    return Choice("pynq", f"pynq is installed and the bitstream is at {bit}", bit, board=True)
+
+
+def no_bitstream_warning(where: str) -> str:
+    """What ``auto`` on a board without the overlay's bitstream says: what runs instead, and what to do."""
+    return (f"no bitstream: this is a board (a Zynq with pynq) but {BITSTREAM} is not at {where}, so the "
+            "daemon runs the EMULATED fabric (synthetic cameras, not the board's) within the board's CPU "
+            f"budget. Build {BITSTREAM} and {BITSTREAM.replace('.bit', '.hwh')} with Vivado "
+            "(stereocam/overlays/vivado/README.md) and put them there (or give --bitstream FILE), or "
+            "start with --backend emulated if emulation is what you want (this warning then goes)")
 
 
 def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, source: Optional[str] = None,
@@ -111,6 +141,8 @@ def open_overlay(backend: str = "auto", *, bitstream: Optional[Path] = None, sou
         else:
             cameras = camera_source(source)  # a source that cannot be read stops the start before the log
             log.info("fabric backend: %s (%s)", choice.backend, choice.reason)
+            if choice.warning:
+                log.warning("%s", choice.warning)
             from .emulated.overlay import EmulatedOverlay
 
             overlay = EmulatedOverlay(source=cameras, fps=fps, clock=clock, build=the_build,

@@ -32,7 +32,7 @@ from typing import (
 
 import numpy as np
 
-from ..drivers.i2c import I2CBus
+from ..drivers.i2c import I2CBus, I2CDenied, I2CError
 from ..drivers.mmio import DriverError, RegisterTimeout
 from ..drivers.mt9v034 import CAMERAS, SensorUnavailable, StereoSensors
 from ..drivers.stereo import StereoConfigRefused, StereoStatus
@@ -50,8 +50,8 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "Overlay", "RectifyControl", "Choice", "ChannelStatus", "StoredFrame", "Channel", "CHANNELS", "Source",
     "COMMIT_TIMEOUT_S", "DriverError", "RegisterTimeout", "ChannelFault", "ChannelNotStarted", "NoFrameYet",
-    "VDMAError", "BackendError", "I2CBus", "CAMERAS", "SensorUnavailable", "StereoSensors",
-    "StereoControl", "StereoConfigRefused", "StereoStatus", "StereoBuild", "StereoParams",
+    "VDMAError", "BackendError", "I2CBus", "I2CDenied", "I2CError", "CAMERAS", "SensorUnavailable",
+    "StereoSensors", "StereoControl", "StereoConfigRefused", "StereoStatus", "StereoBuild", "StereoParams",
 ]
 
 # The three DMA channels, named ``<vdma instance>.<direction>``.
@@ -73,6 +73,10 @@ class Choice:
     backend: str
     reason: str
     bitstream: Optional[Path] = None
+    # True on a board (pynq importable), even when the emulated fabric was chosen: the board's CPU budget.
+    board: bool = False
+    # What the user must be told loudly (log, /api/status, the page): e.g. a board without its bitstream.
+    warning: Optional[str] = None
 
 
 @dataclass(frozen=True)

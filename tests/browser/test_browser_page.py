@@ -18,6 +18,7 @@ test in the artifacts folder (also when it fails), every wait for a condition.
 from __future__ import annotations
 
 import json
+import os
 import re
 import struct
 import time
@@ -32,10 +33,12 @@ from playwright.sync_api import Page, WebSocket, expect
 
 from stereocam.bench.serve import running_daemon
 
+from ..overlays.test_fabric import zynq_device_tree
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
     TIMEOUT_MS,
     assert_no_sideways_scroll,
+    daemon_and_page,
     daemon_config,
     daemon_serving,
     get_json,
@@ -425,3 +428,29 @@ def test_calibration_corners_on_the_frame_bars_and_legend(checkerboard: str, tmp
         rectified.click()
         expect(figure).to_have_attribute("data-zoomed", "false")
         page.wait_for_function(drawn_as, arg=fitted["width"])
+
+
+def test_a_board_without_its_bitstream_is_shown_in_red(tmp_path: Path, artifacts_dir: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 25 item 5: pynq importable (a package on disk) and no bitstream: the page says the fabric is
+    emulated, in the status panel and on the backend badge, with what to do."""
+    site = tmp_path / "board-site"
+    (site / "pynq").mkdir(parents=True)
+    (site / "pynq" / "__init__.py").write_text("# stands for PYNQ's package: importable, never imported\n")
+    path = [str(site), os.environ.get("PYTHONPATH", "")]
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in path if p))
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(zynq_device_tree(tmp_path)))
+    missing = tmp_path / "overlay" / "stereocam.bit"
+    with daemon_and_page(tmp_path, artifacts_dir, fps=5.0, viewport=(1400, 1000),
+                         settings={"backend": "auto", "bitstream": str(missing)}) as (base, _context, page):
+        try:
+            page.goto(base + "/")
+            warning = page.get_by_test_id("status-backend_warning")
+            expect(warning).to_contain_text(f"stereocam.bit is not at {missing}")
+            expect(warning).to_contain_text("--backend emulated")
+            expect(warning).to_have_class("bad")
+            badge = page.get_by_test_id("backend")
+            expect(badge).to_have_text("backend: emulated (NO BITSTREAM)")
+            expect(badge).to_have_class(re.compile(r"\bbadge-bad\b"))
+        finally:
+            page.screenshot(path=str(artifacts_dir / "board-without-bitstream.png"), full_page=True)

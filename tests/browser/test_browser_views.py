@@ -272,6 +272,10 @@ def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon: str, tmp
         assert_no_sideways_scroll(page, "capture viewer open")
         canvas = page.get_by_test_id("cv-canvas")
         expect(canvas).to_have_attribute("data-loaded", "rect_left")
+        # The capture's depth files, each a download link to the file the daemon serves.
+        files = page.get_by_test_id("cv-files").get_by_test_id("cv-file")
+        expect(files).to_have_text(["cloud.ply", "confidence.png", "disparity.png"])
+        expect(files.nth(0)).to_have_attribute("href", f"/api/captures/{cid}/cloud.ply")
         meta = get_json(daemon + f"/api/captures/{cid}")["meta"]["images"]
         for name in ("raw_left", "raw_right", "rect_left", "rect_right"):
             page.get_by_test_id(f"cv-image-{name}").click()

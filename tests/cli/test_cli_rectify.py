@@ -15,6 +15,7 @@ from stereocam.cli import main
 
 from ..sample import calibrate_sample, pair_paths, png_claiming, write_opencv_files
 from ..slowness import SLOWNESS
+from .one_line import run_error
 
 pytestmark = pytest.mark.armhf
 
@@ -26,14 +27,6 @@ def calfiles(tmp_path_factory) -> "tuple[Path, Path]":
 
 def cal_arg(files) -> str:
     return f"{files[0]},{files[1]}"
-
-
-def run_error(capsys, argv) -> str:
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("stereocam rectify: error: "), err
-    assert "Traceback" not in err
-    return err
 
 
 def test_gray_pair_is_rectified_like_opencv(tmp_path, calfiles, capsys) -> None:

@@ -227,6 +227,10 @@ async def test_captures_round_trip_bit_exact(start_daemon, tmp_path: Path) -> No
         stored = {Path(n).name: z.read(n) for n in z.namelist()}
     assert {Path(n).name for n in stored} == {f["name"] for f in listing[0]["files"]}
     assert not (tmp_path / "capture.zip.part").exists()
+    disparity = await call(c.capture_disparity, cid)  # the stereo core's codes, 16-bit, exact
+    assert disparity.dtype == np.uint16 and np.array_equal(disparity, images["disparity"])
+    assert await call(c.cloud, cid) == stored["cloud.ply"]
+    assert (await call(c.cloud)).startswith(b"ply\nformat binary_little_endian 1.0\ncomment stereocam")
     buf = io.BytesIO()
     await call(c.download_capture, cid, buf)
     assert zipfile.ZipFile(buf).namelist()

@@ -21,6 +21,7 @@ from stereocam.drivers.i2c import (
     I2C_RDWR,
     I2C_TIMEOUT,
     I2CBus,
+    I2CDenied,
     I2CError,
     I2CNack,
     I2CTimeout,
@@ -599,3 +600,19 @@ def test_linux_bus_that_does_not_exist_says_which_do(tmp_path: Path) -> None:
         bus.read16(0x48, 0)
     assert f"{tmp_path}/i2c-3 does not exist (buses present: {tmp_path}/i2c-1)" in str(err.value)
     assert "board profile's i2c.bus" in str(err.value)
+
+
+@pytest.mark.parametrize("code", [errno.EPERM, errno.EACCES])
+def test_linux_bus_refused_by_permission_is_its_own_error(tmp_path: Path, code: int) -> None:
+    """EPERM (a service's device list: DeviceAllow=) and EACCES (the node's mode) raise I2CDenied, which the
+    daemon tells apart from a missing bus (routes_cameras: under systemd, a driver loaded too late)."""
+    (tmp_path / "i2c-0").touch()
+
+    def refuse(path: str, flags: int) -> int:
+        raise PermissionError(code, os.strerror(code), path)
+
+    bus = LinuxI2CBus(0, device_dir=str(tmp_path), opener=refuse)
+    with pytest.raises(I2CDenied) as err:
+        bus.open()
+    assert isinstance(err.value, I2CError) and err.value.bus == f"{tmp_path}/i2c-0"
+    assert str(err.value).startswith(f"permission denied opening {tmp_path}/i2c-0: run the daemon as root")

@@ -1,7 +1,9 @@
 """The emulated fabric through the real drivers: bit-exact to the model, live and virtual."""
 from __future__ import annotations
 
+import logging
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,6 +159,42 @@ def test_backend_choice_says_why(tmp_path, monkeypatch) -> None:
     ov = open_overlay("auto", bitstream=tmp_path / "missing.bit", clock="stepped")
     try:
         assert ov.backend == "emulated" and ov.choice.reason == auto.reason
+    finally:
+        ov.close()
+
+
+def zynq_device_tree(folder: Path) -> Path:
+    """A stand-in for /proc/device-tree/compatible on a PYNQ-Z1 (NUL-separated, as Linux writes it)."""
+    path = folder / "compatible"
+    path.write_bytes(b"digilent,zynq-pynqz1\0xlnx,zynq-7000\0")
+    return path
+
+
+def test_a_board_without_its_bitstream_is_said_loudly(tmp_path, monkeypatch, caplog) -> None:
+    """pynq importable (a package on disk, on sys.path) and no bitstream: the emulated fabric, with a warning
+    naming the missing file and what to do, and ``board`` (the daemon keeps to the board's budget)."""
+    site = tmp_path / "board-site"
+    (site / "pynq").mkdir(parents=True)
+    (site / "pynq" / "__init__.py").write_text("# stands for PYNQ's package: importable, never imported\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.delenv("STEREOCAM_BITSTREAM", raising=False)
+    missing = tmp_path / "stereocam.bit"
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(tmp_path / "no-such-file"))
+    pc = choose("auto", bitstream=missing)
+    assert pc.backend == "emulated" and not pc.board and pc.warning is None, "pynq on a PC is not a board"
+    assert "not a Zynq" in pc.reason
+    monkeypatch.setenv("STEREOCAM_DEVICE_TREE", str(zynq_device_tree(tmp_path)))
+    auto = choose("auto", bitstream=missing)
+    assert auto.backend == "emulated" and auto.board and auto.warning is not None
+    assert f"stereocam.bit is not at {missing}" in auto.warning and "--backend emulated" in auto.warning
+    asked = choose("emulated", bitstream=missing)
+    assert asked.warning is None and not asked.board, "--backend emulated silences it"
+    with caplog.at_level(logging.WARNING, logger="stereocam.overlays.backend"):
+        ov = open_overlay("auto", bitstream=missing, clock="stepped")
+    try:
+        assert ov.choice == auto
+        warned = [r for r in caplog.records if r.levelno == logging.WARNING]
+        assert [r.getMessage() for r in warned] == [auto.warning]
     finally:
         ov.close()
 

@@ -27,7 +27,7 @@ import asyncio
 import contextlib
 import functools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, AsyncIterator, Awaitable, Callable, Iterator, List, Optional, Tuple
 
@@ -41,6 +41,7 @@ from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.server.frames.pipeline import FrameSet
 from stereocam.server.http.app import create_app, default_extensions, program_default_calibration, serve
 from stereocam.server.http.settings import Settings
+from stereocam.server.http.state import CALIBRATION
 
 from ..slowness import SLOWNESS
 
@@ -152,6 +153,16 @@ class Daemon:
 
 
 StartDaemon = Callable[..., Awaitable[Daemon]]
+
+
+async def start_uncalibrated(start_daemon: StartDaemon) -> Daemon:
+    """A daemon with frames coming that says what one whose core passes frames through says: no
+    calibration, so no depth."""
+    daemon = await start_daemon()
+    await wait_for_frames(daemon)
+    in_effect = daemon.app[CALIBRATION]
+    in_effect.swap(replace(in_effect.now, calibration=None))
+    return daemon
 
 
 def close_overlay_when_idle(overlay: EmulatedOverlay) -> None:

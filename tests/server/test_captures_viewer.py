@@ -11,7 +11,6 @@
 """
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import os
 from datetime import datetime, timedelta, timezone
@@ -32,6 +31,7 @@ from .daemon import (  # noqa: F401
     FULL,
     bad_id_status,
     make_overlay,
+    start_uncalibrated,
     wait_for_frames,
 )
 
@@ -252,10 +252,7 @@ async def test_point_reads_the_disparity_map_and_gives_depth_from_q(start_daemon
 
 
 async def test_point_without_a_calibration_says_why_there_is_no_depth(start_daemon) -> None:
-    d = await start_daemon()
-    await wait_for_frames(d)
-    in_effect = d.app[CALIBRATION]  # as a daemon whose core passes frames through says:
-    in_effect.swap(dataclasses.replace(in_effect.now, calibration=None))
+    d = await start_uncalibrated(start_daemon)
     async with d.http.get("/api/point?x=10&y=10") as resp:
         assert resp.status == 200
         p = await resp.json()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
 import re
 import struct
 import threading
@@ -22,7 +23,15 @@ import numpy as np
 import pytest
 
 from stereocam.bench.budget import daemon_cpu_seconds
-from stereocam.server.frames.cpu_budget import MIN_FPS, CpuBudget, Demand, plan_cost, plan_rates
+from stereocam.server.frames.cpu_budget import (
+    BOARD_CORES,
+    MIN_FPS,
+    CpuBudget,
+    Demand,
+    default_cores,
+    plan_cost,
+    plan_rates,
+)
 from stereocam.server.frames.pipeline import Pipeline
 from stereocam.server.http.state import BUDGET, PIPELINE
 
@@ -282,3 +291,10 @@ def test_the_budget_bench_shares_0_3_cores_among_seven_views_and_leaves_one_view
     assert one["camera_fps"] and one["delivered_fps"]["rect_left"] > 0, one
     assert one["planned_fps"]["rect_left"] >= 0.99 * one["camera_fps"], one  # the budget leaves it be
     assert one["limited_by"] == ["the fabric's rate"], one
+
+
+def test_the_default_budget_is_the_boards_on_a_board_even_emulated() -> None:
+    """Issue 25 item 5: `auto` on a board without its bitstream emulates within the board's budget."""
+    whole = float(os.cpu_count() or 1)
+    assert default_cores("pynq") == BOARD_CORES == default_cores("emulated", board=True) == 1.0
+    assert default_cores("emulated") == whole

@@ -12,6 +12,10 @@ import numpy as np
 from ..spec import stereo as spec
 from .stereo_result import StereoResult, check_pair
 
+#: The paths whose previous pixel is on the row above, by their column step; the first path is
+#: the one from the left (on the same row).
+UPPER_PATHS = tuple(dx for dx, dy in spec.PATHS if dy == -1)
+assert spec.PATHS[0] == (-1, 0) and len(UPPER_PATHS) == len(spec.PATHS) - 1
 _BYTE_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], np.uint8)
 
 
@@ -67,7 +71,7 @@ def aggregate(c: np.ndarray, left: np.ndarray, p: spec.StereoParams) -> np.ndarr
     total = c16.copy()  # path "left", column by column
     for x in range(1, w):
         total[:, x] = _step(c16[:, x], total[:, x - 1], _p2(img[:, x], img[:, x - 1], p), p.p1)
-    for dx in (-1, 0, 1):  # the paths from the row above, row by row
+    for dx in UPPER_PATHS:  # the paths from the row above, row by row
         prev = c16[0]
         total[0] += prev
         for y in range(1, h):

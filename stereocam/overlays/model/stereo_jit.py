@@ -2,8 +2,9 @@
 
 Used where numba installs (``pip install stereocam[fast]``; the serve and test envs have it);
 :func:`available` says whether it can run here. The kernels keep the spec's steps and order:
-the costs and the path from the left row by row in parallel, the three paths from the row above
-one row at a time with its columns in parallel, then each pixel's winner, runner-up, sub-pixel
+the costs and the path from the left row by row in parallel, the paths from the row above
+one row at a time (serially: a parallel region per row waits for its slowest thread, and on a busy
+machine that is most of the time), then each pixel's winner, runner-up, sub-pixel
 code and the right image's winner per column. Validity, confidence and the median are numpy's
 (:func:`.stereo_fast.finish`), shared with the other path, as they cost little.
 The first call compiles (a few seconds; numba caches the machine code beside this file when it
@@ -29,6 +30,8 @@ def _build() -> Any:
     njit: Callable[..., Any] = numba.njit
     prange = numba.prange
     oob = spec.COST_OOB
+    uppers = stereo_fast.UPPER_PATHS
+    n_up = len(uppers)
     big = np.int16(np.iinfo(np.int16).max)
 
     @njit(inline="always")
@@ -70,22 +73,21 @@ def _build() -> Any:
                 pen = p2e if abs(np.int32(img[y, x]) - np.int32(img[y, x - 1])) >= thr else p2
                 step(cost[y, x], total[y, x - 1], total[y, x], p1, pen, nd)
 
-    @njit(parallel=True, cache=True)
+    @njit(cache=True)  # serial: a parallel region per row stalls on a busy machine (one late thread)
     def upper_paths(cost: Any, img: Any, total: Any, p1: int, p2: int, p2e: int, thr: int) -> None:
         h, w, nd = cost.shape
-        prev = np.empty((3, w, nd), np.int16)
-        cur = np.empty((3, w, nd), np.int16)
+        prev = np.empty((n_up, w, nd), np.int16)
+        cur = np.empty((n_up, w, nd), np.int16)
         for x in range(w):
             for d in range(nd):
                 c = cost[0, x, d]
-                prev[0, x, d] = c
-                prev[1, x, d] = c
-                prev[2, x, d] = c
-                total[0, x, d] += 3 * c
+                for k in range(n_up):
+                    prev[k, x, d] = c
+                total[0, x, d] += n_up * c
         for y in range(1, h):
-            for x in prange(w):
-                for k in range(3):
-                    px = x + k - 1  # upper left, above, upper right
+            for x in range(w):
+                for k in range(n_up):
+                    px = x + uppers[k]
                     if px < 0 or px >= w:
                         for d in range(nd):
                             cur[k, x, d] = cost[y, x, d]
@@ -93,7 +95,10 @@ def _build() -> Any:
                         pen = p2e if abs(np.int32(img[y, x]) - np.int32(img[y - 1, px])) >= thr else p2
                         step(cost[y, x], prev[k, px], cur[k, x], p1, pen, nd)
                 for d in range(nd):
-                    total[y, x, d] += cur[0, x, d] + cur[1, x, d] + cur[2, x, d]
+                    acc = total[y, x, d]
+                    for k in range(n_up):
+                        acc += cur[k, x, d]
+                    total[y, x, d] = acc
             prev, cur = cur, prev
 
     @njit(parallel=True, cache=True)

@@ -10,9 +10,10 @@ The pipeline, per output pixel of the rectified gray pair:
 1. a 9x7 census transform of each image (62 bits: a neighbour darker than the centre is 1);
 2. the matching cost ``C(x, y, d)``: the Hamming distance of the left census at ``x`` and the
    right census at ``x - d`` (0..62; :data:`COST_OOB` where ``x - d`` is left of the image);
-3. semi-global aggregation along the four paths a raster scan can follow (from the left, the
-   upper left, above, the upper right), with penalties P1 and P2, P2 lowered to P2_EDGE where
-   the left image has an edge along the path;
+3. semi-global aggregation along three paths a raster scan can follow (from the left, from
+   above, from the upper right), with penalties P1 and P2, P2 lowered to P2_EDGE where the left
+   image has an edge along the path (a fourth path, from the upper left, would need 24 more
+   BRAM36 of path state for 0.4 points of bad-2.0 on Middlebury: see STEREO_CORE.md);
 4. the winner (lowest summed cost, the lowest disparity on ties), a uniqueness test against the
    best cost more than one disparity away, and a confidence from the same two costs;
 5. a parabola through the winner's neighbours: 4 fractional bits (1/16 px, OpenCV's unit);
@@ -50,12 +51,12 @@ COST_OOB = CENSUS_BITS  # the cost of a disparity that reaches left of the right
 
 # ---- Step 3: aggregation.
 #: The paths, as the step back to the previous pixel on the path (dx, dy): each path's previous
-#: pixel is on this row (to the left) or on the previous row, so one raster pass computes all four.
-PATHS: Tuple[Tuple[int, int], ...] = ((-1, 0), (-1, -1), (0, -1), (1, -1))
-PATH_NAMES: Tuple[str, ...] = ("left", "upper left", "above", "upper right")
+#: pixel is on this row (to the left) or on the previous row, so one raster pass computes all.
+PATHS: Tuple[Tuple[int, int], ...] = ((-1, 0), (0, -1), (1, -1))
+PATH_NAMES: Tuple[str, ...] = ("left", "above", "upper right")
 PATH_BITS = 8  # L_r <= C + P2 <= 62 + P2_MAX = 255
 P2_MAX = (1 << PATH_BITS) - 1 - COST_OOB  # 193
-SUM_BITS = 10  # S = sum of the four L_r <= 1020
+SUM_BITS = 10  # S = sum of the three L_r <= 765
 
 # ---- Step 4: winner, uniqueness and confidence.
 UNIQUENESS_ONE = 256  # UNIQUENESS counts 1/256ths: the second best must exceed the best by more

@@ -9,6 +9,8 @@ this module generates (:func:`stale`). The files:
 - ``rc_regs_decode.vh``: ``rc_regs``'s address decode and read multiplexer of the control
   registers, one line per register of ``RECTIFY_MAP``;
 - ``sim/rectify_regs.h``: the control registers' offsets and fields for the C++ harness;
+- ``stereo/stereo_spec.vh``: the stereo core's registers, limits, widths and output codes
+  (``stereocam/overlays/spec/stereo.py``);
 - ``camera/camera_in_spec.vh``: the camera input IP's codes, rounding, limits and record format
   (``stereocam/overlays/spec/camera_in.py``);
 - ``../vivado/ip_params.tcl``: each packaged IP's register window and user parameters (default,
@@ -21,6 +23,7 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
 
 from . import rectify as spec
+from . import stereo
 from .regs import Access, Register
 
 HEADER_NAME = "rectify_spec.vh"
@@ -81,6 +84,17 @@ def address_bits() -> int:
     return size.bit_length() - 1
 
 
+def _register_defines(out: _Lines, registers: List[Register]) -> None:
+    """Each register's offset and reset value, and each field's bit (and width when above 1)."""
+    for reg in registers:
+        out.define(f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
+        out.define(f"{reg.name}_RESET", reg.reset, "reset value")
+        for f in reg.fields:
+            out.define(f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
+            if f.width > 1:
+                out.define(f"{reg.name}_{f.name}_W", f.width)
+
+
 def header() -> str:
     """``rectify_spec.vh``: register offsets and fields, parameter order and formats, widths, limits."""
     out = _Lines("RC", "stereocam/overlays/spec/rectify.py", "Rectify core specification "
@@ -93,13 +107,7 @@ def header() -> str:
     out.section("Register window: byte address bits (AXI4-Lite)")
     out.define("ADDR_W", address_bits(), f"{spec.RECTIFY_MAP.size:#x} bytes")
     out.section("Control registers: byte offsets, and bit positions of their fields")
-    for reg in control_registers():
-        out.define(f"REG_{reg.name}", reg.offset, f"{reg.access.value}")
-        out.define(f"{reg.name}_RESET", reg.reset, "reset value")
-        for f in reg.fields:
-            out.define(f"{reg.name}_{f.name}", f.lsb, f"{f.width} bit(s)")
-            if f.width > 1:
-                out.define(f"{reg.name}_{f.name}_W", f.width)
+    _register_defines(out, control_registers())
     out.section("Parameter blocks: 17 signed 64-bit values per camera, _LO word at block + 8 * index")
     for cam, base in spec.CAMERA_BASE.items():
         out.define(f"BLOCK_{cam}", base)
@@ -264,8 +272,66 @@ def ip_params_tcl() -> str:
 
 
 #: Every generated file, by its path under ``stereocam/overlays/rtl``, and the function that writes its text.
+def stereo_header() -> str:
+    """``stereo/stereo_spec.vh``: the stereo core's registers, limits, widths and output codes."""
+    out = _Lines("SC", "stereocam/overlays/spec/stereo.py", "Stereo core specification "
+                 + f"{stereo.CORE_VERSION >> 16}.{stereo.CORE_VERSION & 0xFFFF} "
+                 "(see stereocam/overlays/STEREO_CORE.md).", guard="SC_SPEC_VH")
+    out.add("// Identity")
+    out.define("CORE_ID", stereo.CORE_ID, "'STER'")
+    out.define("CORE_VERSION", stereo.CORE_VERSION)
+    out.section("Register window: byte address bits (AXI4-Lite)")
+    out.define("ADDR_W", (stereo.STEREO_MAP.size - 1).bit_length(), f"{stereo.STEREO_MAP.size:#x} bytes")
+    out.section("Registers: byte offsets, reset values, and bit positions of their fields")
+    _register_defines(out, list(stereo.STEREO_MAP))
+    out.section("What APPLY accepts (inclusive); NUM_DISP also a multiple of PARALLEL, P1 <= P2_EDGE <= P2")
+    for name, reg_name in stereo.PARAM_REGISTERS.items():
+        if name == "num_disp":
+            continue
+        lo, hi = stereo.LIMITS[name](stereo.DEFAULT_BUILD)
+        out.define(f"{reg_name}_MIN", lo)
+        out.define(f"{reg_name}_MAX", hi)
+    out.define("MIN_WIDTH", stereo.MIN_WIDTH)
+    out.define("MIN_HEIGHT", stereo.MIN_HEIGHT)
+    out.section("Steps and widths")
+    out.define("CENSUS_W", stereo.CENSUS_W, "window columns")
+    out.define("CENSUS_H", stereo.CENSUS_H, "window rows")
+    out.define("CENSUS_BITS", stereo.CENSUS_BITS)
+    out.define("COST_W", stereo.COST_BITS)
+    out.define("COST_OOB", stereo.COST_OOB, "cost where x - d < 0")
+    out.define("PATH_W", stereo.PATH_BITS)
+    out.define("SUM_W", stereo.SUM_BITS)
+    out.define("UNIQUENESS_ONE", stereo.UNIQUENESS_ONE)
+    out.define("CONF_W", stereo.CONF_BITS)
+    out.define("SUBPIX_BITS", stereo.SUBPIX_BITS)
+    out.define("DISP_W", stereo.DISP_BITS)
+    out.define("INVALID", stereo.INVALID, "disparity code of a pixel without one")
+    out.section("Reasons (output bits 26:24) and the output beat")
+    for code, name in ((stereo.REASON_VALID, "VALID"), (stereo.REASON_BORDER, "BORDER"),
+                       (stereo.REASON_UNIQUENESS, "UNIQUENESS"), (stereo.REASON_LR, "LR"),
+                       (stereo.REASON_MEDIAN, "MEDIAN")):
+        out.define(f"REASON_{name}", code)
+    out.define("REASON_W", stereo.REASON_BITS)
+    out.define("OUT_DISP_LSB", stereo.OUT_DISP_LSB)
+    out.define("OUT_CONF_LSB", stereo.OUT_CONF_LSB)
+    out.define("OUT_REASON_LSB", stereo.OUT_REASON_LSB)
+    out.define("IN_LEFT_GRAY_BYTE", stereo.IN_LEFT_GRAY_BYTE)
+    out.define("IN_RIGHT_GRAY_BYTE", stereo.IN_RIGHT_GRAY_BYTE)
+    out.section("Builds (stereo_core parameters MAX_WIDTH, MAX_HEIGHT, MAX_DISP, PARALLEL)")
+    for b in stereo.BUILDS.values():
+        up = b.name.upper()
+        out.define(f"BUILD_{up}_MAX_WIDTH", b.max_width)
+        out.define(f"BUILD_{up}_MAX_HEIGHT", b.max_height)
+        out.define(f"BUILD_{up}_MAX_DISP", b.max_disp)
+        out.define(f"BUILD_{up}_PARALLEL", b.parallel)
+    return out.text()
+
+
+STEREO_HEADER_NAME = "stereo/stereo_spec.vh"
+
 GENERATED: Dict[str, Callable[[], str]] = {
     HEADER_NAME: header,
+    STEREO_HEADER_NAME: stereo_header,
     DECODE_NAME: regs_decode,
     HARNESS_HEADER_NAME: harness_header,
     CAMERA_HEADER_NAME: camera_header,

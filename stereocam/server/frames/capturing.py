@@ -25,6 +25,7 @@ from ...overlays.spec import pixel
 from ..errors import ApiError, Kind
 from ..stores.captures import CaptureInfo, CaptureStore
 from ..stores.frame_calibration import FrameCalibration
+from .cloud import depth_files
 from .feed import BroadcastClosed, FrameFeed
 from .pipeline import FrameSet, Pipeline
 from .virtual_camera import VirtualCamera
@@ -122,10 +123,13 @@ class CaptureService:
         return fs.raw, "unverified"
 
     async def store(self, store: CaptureStore, fs: FrameSet,
-                    extra: Optional[Dict[str, Any]] = None) -> CaptureInfo:
+                    extra: Optional[Dict[str, Any]] = None, *, depth: bool = True) -> CaptureInfo:
         """Save ``fs`` (raw and rectified pairs, metadata: registers, calibration, sections) in ``store``.
 
-        Raises :class:`.captures.CaptureError` (disk full, I/O) with nothing stored.
+        With ``depth`` also the stereo core's disparity and confidence and, under a calibration
+        with depth, the point cloud (:func:`.cloud.depth_files`; meta.json's ``depth`` names them
+        or says why they are missing). Raises :class:`.captures.CaptureError` (disk full, I/O)
+        with nothing stored.
         """
         overlay = self.overlay
         try:
@@ -156,6 +160,9 @@ class CaptureService:
             meta["virtual_input"] = self.virtual.origin
         meta.update(self.sections())
         meta.update(extra or {})
+        files: Dict[str, bytes] = {}
+        if depth:
+            files, meta["depth"] = await self.run(depth_files, fs, calibration, f"frame {fs.frame}")
         frames = {"raw_left": raw[..., pixel.LEFT], "raw_right": raw[..., pixel.RIGHT],
                   "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
-        return await self.run(store.save, frames, meta)
+        return await self.run(store.save, frames, meta, sorted(files.items()))

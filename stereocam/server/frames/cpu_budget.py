@@ -67,9 +67,10 @@ RAW_COPY = "raw_copy"  # ... and of a raw frame
 MATCH = "match"  # the disparity view's block matching of one frame
 
 
-def default_cores(backend: str) -> float:
-    """The budget when none is configured: :data:`BOARD_CORES` on the board, the whole machine off it."""
-    return BOARD_CORES if backend == "pynq" else float(os.cpu_count() or 1)
+def default_cores(backend: str, *, board: bool = False) -> float:
+    """The budget when none is configured: :data:`BOARD_CORES` on the board (the pynq backend, or
+    ``board``: the emulated fabric on a board without its bitstream), the whole machine off it."""
+    return BOARD_CORES if backend == "pynq" or board else float(os.cpu_count() or 1)
 
 
 class single_threaded_opencv:

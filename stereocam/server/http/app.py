@@ -71,7 +71,7 @@ from .state import (
 )
 from .streams import STREAMS, StreamClients
 from .streams import setup_routes as setup_stream_routes
-from .systemd import notify, watchdog_interval
+from .systemd import loaded, loading, notify, watchdog_interval
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,9 @@ def create_app(
                            protect=config.protect)],
         client_max_size=config.max_upload_bytes,
     )
-    cores = config.cpu_budget if config.cpu_budget is not None else default_cores(overlay.backend)
+    on_board = overlay.choice is not None and overlay.choice.board
+    cores = config.cpu_budget if config.cpu_budget is not None else default_cores(overlay.backend,
+                                                                                 board=on_board)
     emulation = tuple(overlay.emulation_threads)
     budget = CpuBudget(cores, excluded_threads=lambda: emulation)
     feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
@@ -355,7 +357,14 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
     stop = stop or asyncio.Event()
     logging.getLogger("aiohttp.server").addFilter(BAD_REQUEST_LINES)  # a set: adding twice keeps one
     runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=0.5)
-    await runner.setup()
+    try:
+        await runner.setup()  # the app's start: sensors, fabric streams, pipeline (cleanup_ctx)
+    except BaseException:
+        # A start that failed (a device refused: systemd.LateDriver) stops what had started, in reverse,
+        # and the worker threads, whose context may not have been entered.
+        await runner.cleanup()
+        app[EXECUTORS].shutdown()
+        raise
     try:
         limits = ConnectionLimits(header_timeout_s=config.header_timeout_s,
                                   keepalive_timeout_s=config.keepalive_timeout_s,
@@ -377,6 +386,7 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
                 installed.append(sig)
             except (NotImplementedError, RuntimeError):  # not the main thread
                 pass
+        loaded()  # no more start-timeout extensions (stereocam serve's, from its first line)
         notify("READY=1")
         notify(f"STATUS=serving on {url}")
         if on_ready is not None:
@@ -396,15 +406,18 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
 def run(config: Settings, *, extensions: Optional[Sequence[Setup]] = None) -> int:
     """``stereocam serve``: blocks until SIGTERM/SIGINT; returns the exit code."""
     limit_arenas()  # before the overlay's and the pipeline's threads exist
+    loading("the fabric (the overlay and its bitstream)")  # under systemd, `systemctl status` shows these
     overlay = open_configured_overlay(config)
     try:
         reason = overlay.choice.reason if overlay.choice is not None else ""
         log.info("fabric: %s (%s)", overlay.backend, reason)
         log.info("captures in %s; the page's calibration file and pairs in %s", config.captures_path,
                  config.state_path)
+        loading("the calibration")
         calibration = program_default_calibration(overlay, config)
         app = create_app(config, overlay, calibration=calibration,
                          extensions=default_extensions() if extensions is None else extensions)
+        loading("the camera sensors and the fabric's streams")
         asyncio.run(serve(app, config))
     finally:
         overlay.close()

@@ -34,6 +34,7 @@ from .bodies import json_response, read_json
 from .downloads import stream_download
 from .errors import shutting_down
 from .metrics import METRICS
+from .routes_cloud import setup_routes as setup_cloud_routes
 from .routes_stereo import setup_routes as setup_stereo_routes
 from .routes_tools import setup_routes as setup_tools_routes
 from .routes_viewer import setup_routes as setup_viewer_routes
@@ -100,6 +101,7 @@ async def status_handler(request: web.Request) -> web.Response:
     body: Dict[str, Any] = {
         "backend": overlay.backend,
         "backend_reason": choice.reason if choice is not None else None,
+        "backend_warning": choice.warning if choice is not None else None,
         "source": app[VIRTUAL].source,
         "mux": hw.get("source"),
         "frame_size": list(overlay.frame_size),
@@ -481,6 +483,7 @@ def setup_routes(app: web.Application) -> None:
     setup_tools_routes(app)  # /api/alignment, /api/histogram
     setup_stereo_routes(app)  # /api/stereo
     setup_viewer_routes(app)  # thumb.jpg, restore, /api/point: before the {file} route below
+    setup_cloud_routes(app)  # cloud.ply: before the {file} route below
     r.add_get(r"/api/captures/{id:[^/]+}/{file:[^/]+}", capture_file)
     r.add_get(r"/api/captures/{id:[^/]+}", get_capture)
     r.add_delete(r"/api/captures/{id:[^/]+}", delete_capture)

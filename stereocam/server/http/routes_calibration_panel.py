@@ -223,7 +223,7 @@ async def post_pair(request: web.Request) -> web.Response:
                  "square_mm": settings.pattern.square * 1000.0,
                  "corners": {"left": found["left"], "right": found["right"]}}
         try:
-            info = await app[CAPTURING].store(panel.store, fs, extra)
+            info = await app[CAPTURING].store(panel.store, fs, extra, depth=False)  # pairs: corners only
         except CaptureError as exc:
             app[METRICS].error(exc.message, "calibration")
             raise

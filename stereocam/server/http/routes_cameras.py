@@ -32,10 +32,20 @@ from prometheus_client.core import GaugeMetricFamily, Metric
 
 from ...board.profile import BoardProfile, load_profile
 from ...overlays.backend import sensor_bus
-from ...overlays.interface import CAMERAS, I2CBus, Overlay, SensorPair, SensorUnavailable, StereoSensors
+from ...overlays.interface import (
+    CAMERAS,
+    I2CBus,
+    I2CDenied,
+    I2CError,
+    Overlay,
+    SensorPair,
+    SensorUnavailable,
+    StereoSensors,
+)
 from ..errors import ApiError
 from .bodies import json_response, read_json
 from .state import EXECUTORS, EXTENSIONS, OVERLAY, SETTINGS
+from .systemd import LateDriver, under_systemd
 
 log = logging.getLogger(__name__)
 
@@ -178,6 +188,7 @@ def _open_sensors(service: CameraService, overlay: Overlay, profile: Optional[Bo
             profile = load_profile(board)
         log.info("board profile %s: %s", profile.name, profile.source)
         service.bus = sensor_bus(overlay, profile, **pair_options)
+        _open_bus(service.bus)
         service.pair = overlay.sensors
         service.sensors = profile.stereo_sensors(service.bus)
         service.error = None
@@ -186,10 +197,31 @@ def _open_sensors(service: CameraService, overlay: Overlay, profile: Optional[Bo
         if not health.get("ok"):
             log.error("camera sensors: not all are up (%s); the daemon keeps serving",
                       "; ".join(f"{c}: {health[c]['error']}" for c in CAMERAS if health[c].get("error")))
+    except LateDriver:
+        raise
     except Exception as exc:  # the daemon serves without sensor control rather than not at all
         log.error("camera sensors cannot be controlled: %s", exc)
         service.sensors = None
         service.error = str(exc)
+
+
+def _open_bus(bus: I2CBus) -> None:
+    """Open the board's bus now (a bus with ``open``; blocks). Under systemd a node that exists but is
+    refused raises :class:`~.systemd.LateDriver`: the unit's device list (``DeviceAllow=char-i2c``) was
+    made before i2c-dev loaded, and only a restart reads it again (``stereocam serve`` exits with
+    :data:`~.systemd.LATE_DRIVER_EXIT`, which the unit restarts on). Any other failure is left to the
+    sensors' start, which reports it per camera and serves on.
+    """
+    opener = getattr(bus, "open", None)
+    if not callable(opener):
+        return
+    try:
+        opener()
+    except I2CDenied as exc:
+        if under_systemd():
+            raise LateDriver(exc.bus or repr(bus), "permission denied") from None
+    except I2CError:
+        pass
 
 
 async def _refresh_loop(app: web.Application, service: CameraService) -> None:

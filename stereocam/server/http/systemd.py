@@ -23,6 +23,13 @@ what pynq writes when it programs the fabric (``/lib/firmware`` and its own
 record in the venv), only the devices the board needs (``/dev/mem``,
 ``/dev/uio*``, ``/dev/i2c-*``, XRT's ``/dev/dri/renderD*``), a system-call
 filter. Its log lines carry syslog priorities (see :func:`stereocam.cli.setup_logging`).
+
+Start-up (issue 25): the unit says ``TimeoutStartSec`` (:data:`START_TIMEOUT_SEC`), and from the first
+line of ``stereocam serve`` until ``READY=1`` the daemon extends it (:func:`loading`, a thread sending
+``EXTEND_TIMEOUT_USEC`` and ``STATUS=loading ...``). The unit pulls in ``modprobe@.service`` for the
+drivers whose device classes ``DeviceAllow=`` names (:data:`DRIVER_MODULES`), since systemd resolves
+them when the unit starts; a device refused anyway (:class:`LateDriver`) ends the daemon with
+:data:`LATE_DRIVER_EXIT`, which the unit restarts on (``RestartForceExitStatus=``).
 """
 from __future__ import annotations
 
@@ -30,12 +37,15 @@ import os
 import shlex
 import socket
 import subprocess
+import threading
+import time
 from pathlib import Path
 from typing import Callable, List, Optional, Sequence
 
 __all__ = [
     "notify", "watchdog_interval", "unit_text", "default_config_text", "install_service", "ServiceError",
-    "PYNQ_VENV", "UNIT_NAME", "RESERVED_PORTS", "DEVICES",
+    "PYNQ_VENV", "UNIT_NAME", "RESERVED_PORTS", "DEVICES", "loading", "loaded", "under_systemd", "LateDriver",
+    "START_TIMEOUT_SEC", "EXTEND_EVERY_S", "EXTEND_WINDOW_S", "LATE_DRIVER_EXIT", "DRIVER_MODULES",
 ]
 
 PYNQ_VENV = "/usr/local/share/pynq-venv"
@@ -49,6 +59,24 @@ WATCHDOG_SEC = 10
 # to fit below this) and its own files with room to spare. Said, not left to systemd's default.
 LIMIT_NOFILE = 2048
 RESERVED_PORTS = {80: "the PYNQ image's web server", 9090: "Jupyter on the PYNQ image"}
+# TimeoutStartSec: from the unit's start to READY=1. On QEMU's xilinx-zynq-a9 (one emulated A9, the armhf
+# rootfs on an emulated SD card) READY came after 93 s (issue 25), just over systemd's 90 s default; the
+# imports alone count 5.7-8.5 s on a 650 MHz A9. 300 s is three times the emulated start, for a slow SD card
+# and a first start that compiles .pyc files; beyond it, the daemon's own EXTEND_TIMEOUT_USEC (below) keeps
+# a start that is still loading alive, up to MAX_START_S.
+START_TIMEOUT_SEC = 300
+EXTEND_EVERY_S = 5.0  # while loading, the daemon extends the start timeout this often ...
+EXTEND_WINDOW_S = 30.0  # ... to this long from then (EXTEND_TIMEOUT_USEC, systemd >= 236)
+MAX_START_S = 900.0  # and stops extending after this long: a start hung for 15 minutes fails
+# The exit status of a daemon refused a device whose driver loaded after the unit started
+# (EX_TEMPFAIL): the unit restarts on it whatever Restart= says, and the restart re-reads DeviceAllow=.
+LATE_DRIVER_EXIT = 75
+# Kernel modules whose device nodes DeviceAllow= names (char-i2c, char-uio): loaded before the unit starts,
+# through systemd's own modprobe@.service, so their device classes exist when the unit's device list is made.
+DRIVER_MODULES = (
+    ("i2c-dev", "/dev/i2c-*, char-i2c"),
+    ("uio_pdrv_genirq", "/dev/uio*, char-uio (PYNQ's device tree binds the fabric's interrupts to it)"),
+)
 # DeviceAllow= of the unit: what pynq and our drivers open (read from pynq 3/4's sources).
 DEVICES = (
     ("/dev/mem", "the fabric's registers (pynq's MMIO maps them)"),
@@ -82,6 +110,85 @@ def notify(message: str, *, env: Optional[dict] = None) -> bool:
         return True
     except OSError:
         return False
+
+
+def under_systemd(env: Optional[dict] = None) -> bool:
+    """True when systemd runs this process as a service (it sets ``INVOCATION_ID``; ``NOTIFY_SOCKET`` too)."""
+    e = env if env is not None else os.environ
+    return bool(e.get("INVOCATION_ID") or e.get("NOTIFY_SOCKET"))
+
+
+class LateDriver(Exception):
+    """A device node exists but the service may not open it: its driver loaded after the unit started.
+
+    ``stereocam serve`` exits with :data:`LATE_DRIVER_EXIT`, which the unit restarts on.
+    """
+
+    def __init__(self, path: str, reason: str) -> None:
+        super().__init__(
+            f"{path} exists but the service may not open it ({reason}): its driver was probably loaded after "
+            f"the service started, and systemd allows only the devices present then (DeviceAllow=). "
+            f"Exiting with status {LATE_DRIVER_EXIT} so that the unit restarts and reads the device list "
+            f"again; `systemctl restart stereocam` does the same")
+        self.path = path
+
+
+class _StartTimeout:
+    """The thread behind :func:`loading`: ``EXTEND_TIMEOUT_USEC`` and ``STATUS=`` every ``every`` s."""
+
+    def __init__(self, every: float, window: float, limit: float) -> None:
+        self.every, self.window, self.limit = every, window, limit
+        self.status = ""
+        self.started = time.monotonic()
+        self.done = threading.Event()
+        self.lock = threading.Lock()
+        self.thread = threading.Thread(target=self._run, name="stereocam-start-timeout", daemon=True)
+
+    def send(self) -> None:
+        with self.lock:  # one pair at a time, in order: never a STATUS after loaded()'s
+            if self.done.is_set():
+                return
+            notify(f"EXTEND_TIMEOUT_USEC={int(self.window * 1e6)}")
+            notify(f"STATUS={self.status}")
+
+    def _run(self) -> None:
+        while not self.done.wait(self.every):
+            if time.monotonic() - self.started > self.limit:
+                notify(f"STATUS={self.status} (for {self.limit:.0f} s: no more start timeout extensions)")
+                return
+            self.send()
+
+
+_start_timeout: Optional[_StartTimeout] = None
+
+
+def loading(what: str, *, every: float = EXTEND_EVERY_S, window: float = EXTEND_WINDOW_S,
+            limit: float = MAX_START_S) -> None:
+    """Say the daemon is loading ``what``: ``STATUS=loading <what>`` (``systemctl status`` shows it) and,
+    from the first call until :func:`loaded`, ``EXTEND_TIMEOUT_USEC`` of ``window`` s every ``every`` s.
+
+    Nothing without ``NOTIFY_SOCKET`` (no thread either). Call from the thread that starts the daemon;
+    the first call starts a daemon thread, so it is as cheap as it can be before the imports.
+    """
+    global _start_timeout
+    if not os.environ.get("NOTIFY_SOCKET"):
+        return
+    if _start_timeout is None:
+        _start_timeout = _StartTimeout(every, window, limit)
+        _start_timeout.status = f"loading {what}"
+        _start_timeout.send()
+        _start_timeout.thread.start()
+        return
+    if not _start_timeout.done.is_set():
+        _start_timeout.status = f"loading {what}"
+        _start_timeout.send()
+
+
+def loaded() -> None:
+    """Loading is over (the daemon sends ``READY=1`` next): no more extensions or loading statuses."""
+    if _start_timeout is not None:
+        with _start_timeout.lock:
+            _start_timeout.done.set()
 
 
 def watchdog_interval(env: Optional[dict] = None) -> Optional[float]:
@@ -121,6 +228,8 @@ def unit_text(*, venv: str = PYNQ_VENV, config: Path = DEFAULT_CONFIG, watchdog_
                 raise ServiceError(f"a path with {bad!r} cannot go into the unit's ExecStart: {path}")
     devices = "\n".join(f"DeviceAllow={name} rw" for name, _ in DEVICES)
     device_notes = "\n".join(f"#   {name}: {why}" for name, why in DEVICES)
+    modprobe = " ".join(f"modprobe@{module}.service" for module, _ in DRIVER_MODULES)
+    module_notes = "\n".join(f"#   {module}: {what}" for module, what in DRIVER_MODULES)
     return f"""\
 # stereocam: the Zynq stereo camera daemon (live rectified video, captures, virtual camera, verify).
 # Installed by `stereocam install-service`, which rewrites this file: change settings with a drop-in
@@ -132,10 +241,22 @@ def unit_text(*, venv: str = PYNQ_VENV, config: Path = DEFAULT_CONFIG, watchdog_
 Description=stereocam stereo camera daemon
 After=network-online.target
 Wants=network-online.target
+# The drivers of the devices allowed below, loaded before the unit starts (systemd's own modprobe@.service;
+# a module that is built in or missing is not an error). systemd makes the unit's device list from the
+# drivers loaded when it starts: a device whose driver loads later is refused, the daemon then exits with
+# status {LATE_DRIVER_EXIT} and the unit restarts it (RestartForceExitStatus= below).
+{module_notes}
+Wants={modprobe}
+After={modprobe}
 
 [Service]
 Type=notify
 NotifyAccess=main
+# From start to READY=1: 93 s on QEMU's emulated Zynq A9 (imports 5.7-8.5 s on a real A9); three times
+# that for a slow SD card. While it loads, the daemon also extends it by {EXTEND_WINDOW_S:.0f} s every \
+{EXTEND_EVERY_S:.0f} s
+# (EXTEND_TIMEOUT_USEC), up to {MAX_START_S:.0f} s, and says what it loads (systemctl status).
+TimeoutStartSec={START_TIMEOUT_SEC}
 # The environment a login shell on the PYNQ image gets: /etc/environment, then every
 # /etc/profile.d/*.sh (pynq_venv.sh activates {venv}; xrt_setup.sh sets XILINX_XRT,
 # without which pynq finds no device).
@@ -148,6 +269,8 @@ SyslogIdentifier=stereocam
 WatchdogSec={watchdog_sec}
 Restart=on-failure
 RestartSec=2
+# Status {LATE_DRIVER_EXIT}: a device's driver loaded after the unit started; a restart allows it.
+RestartForceExitStatus={LATE_DRIVER_EXIT}
 # SIGTERM stops the streams and the VDMA channels and returns the mux to live within 2 s.
 KillSignal=SIGTERM
 TimeoutStopSec=5

@@ -45,16 +45,18 @@ import io
 import threading
 import warnings
 from dataclasses import dataclass
-from typing import IO, Any, Callable, Dict, List, Mapping, Optional, Tuple
+from typing import IO, TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import cv2
 import numpy as np
-from PIL import BmpImagePlugin, Image, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
 from ...calibration.image_files import MAX_IMAGE_PIXELS  # larger headers: decompression bombs
 from ...overlays.spec import pixel
 from ..errors import ApiError
 from ..stores.ids import ID_EXAMPLE, valid_id
+
+if TYPE_CHECKING:  # pragma: no cover
+    from PIL import Image
 
 __all__ = [
     "UploadError",
@@ -114,12 +116,21 @@ _OTHER_MAGIC = (
     (b"<?xml", "XML/SVG"),
     (b"qoif", "QOI"),
 )
-_OPENERS: Dict[str, Callable[[IO[bytes]], Image.Image]] = {
-    "PNG": PngImagePlugin.PngImageFile,
-    "BMP": BmpImagePlugin.BmpImageFile,
-    "JPEG": JpegImagePlugin.JpegImageFile,
-    "TIFF": TiffImagePlugin.TiffImageFile,
-}
+
+
+def _opener(fmt: str) -> Callable[[IO[bytes]], Image.Image]:
+    """Pillow's reader of ``fmt``, imported at the first upload: not at start (the board's A9 pays for it)."""
+    from PIL import BmpImagePlugin, JpegImagePlugin, PngImagePlugin, TiffImagePlugin
+
+    openers: Dict[str, Callable[[IO[bytes]], Image.Image]] = {
+        "PNG": PngImagePlugin.PngImageFile,
+        "BMP": BmpImagePlugin.BmpImageFile,
+        "JPEG": JpegImagePlugin.JpegImageFile,
+        "TIFF": TiffImagePlugin.TiffImageFile,
+    }
+    return openers[fmt]
+
+
 _HIGH_DEPTH_MODES = {"I": 32, "F": 32, "I;32": 32, "I;32B": 32, "I;32L": 32,
                      "I;16": 16, "I;16B": 16, "I;16L": 16, "I;16N": 16, "I;16S": 16}
 _HIGH_DEPTH_ADVICE = (
@@ -184,7 +195,7 @@ def _open(data: bytes, field: str, max_pixels: int, max_bytes: int) -> _Opened:
     try:
         # The plugin class directly: Image.open would add its own decompression-bomb
         # check (a warning, or an error past 2x its limit) before ours.
-        image = _OPENERS[fmt](io.BytesIO(data))
+        image = _opener(fmt)(io.BytesIO(data))
     except Exception as exc:  # untrusted bytes: a decoder fails in many ways (SyntaxError, struct.error, ...)
         raise UploadError(400, f"{field}: the {fmt} image is truncated or corrupt ({_reason(exc)})") from None
     opened = _Opened(image, fmt)
@@ -221,6 +232,8 @@ def _bit_depth(opened: _Opened, data: bytes) -> int:
     if image.mode in _HIGH_DEPTH_MODES:
         return _HIGH_DEPTH_MODES[image.mode]
     if opened.fmt == "TIFF":
+        from PIL import TiffImagePlugin
+
         bits = getattr(image, "tag_v2", {}).get(TiffImagePlugin.BITSPERSAMPLE, 8)
         values = bits if isinstance(bits, tuple) else (bits,)
         return max((int(b) for b in values), default=8)

@@ -46,9 +46,10 @@ from __future__ import annotations
 import hashlib
 import json
 import numbers
+import re
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -106,6 +107,19 @@ CaptureDamaged = Damaged
 FORMAT = "stereocam-capture/1"
 DEFAULT_MIN_FREE_BYTES = 64 * 1024 * 1024
 RESERVED_META_KEYS = ("format", "id", "created", "images", "files")
+EXTRA_NAME = re.compile(r"[a-z0-9][a-z0-9_]*\.[a-z0-9]+")
+
+
+def _checked_extra(extra: Sequence[Tuple[str, bytes]], taken: Sequence[str]) -> List[Tuple[str, bytes]]:
+    """``extra`` files as (name, bytes), each name a plain file name not ``taken`` nor meta.json."""
+    out: List[Tuple[str, bytes]] = []
+    for name, data in extra:
+        if not (isinstance(name, str) and EXTRA_NAME.fullmatch(name)) or name == META_FILE:
+            raise ValueError(f"an extra capture file needs a plain file name, not {name!r}")
+        if name in taken or name in (n for n, _ in out):
+            raise ValueError(f"the capture already has a file {name}")
+        out.append((name, bytes(data)))
+    return out
 
 
 class CaptureStore(FolderStore[CaptureInfo]):
@@ -137,7 +151,8 @@ class CaptureStore(FolderStore[CaptureInfo]):
 
     # -- save --------------------------------------------------------------
 
-    def save(self, frames: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> CaptureInfo:
+    def save(self, frames: Mapping[str, np.ndarray], meta: Mapping[str, Any],
+             extra_files: Sequence[Tuple[str, bytes]] = ()) -> CaptureInfo:
         """Store one stereo set atomically and return what :meth:`list` will show for it.
 
         ``frames`` has exactly the keys :data:`FRAME_NAMES`; each is an
@@ -148,7 +163,9 @@ class CaptureStore(FolderStore[CaptureInfo]):
         frame number (int, 0 .. 9_999_999_999); ``"source"`` and
         ``"calibration_id"`` (str or None) are shown in listings; the keys
         :data:`RESERVED_META_KEYS` are the store's. Suggested further keys:
-        ``"time"``, ``"registers"``, ``"camera"``.
+        ``"time"``, ``"registers"``, ``"camera"``. ``extra_files`` are further files stored as
+        they are (name, bytes: the stereo core's disparity, a point cloud), listed in meta.json's
+        ``files`` with the frames'; a name must be a plain file name none of the frames use.
 
         Raises :class:`CaptureDiskFull` if the space is short, before
         writing or on ENOSPC/EDQUOT while writing, and :class:`CaptureError`
@@ -157,6 +174,7 @@ class CaptureStore(FolderStore[CaptureInfo]):
         """
         user_meta, frame_no = self._check_meta(meta)
         images, files = encode_frames(frames)
+        files.extend(_checked_extra(extra_files, [n for n, _ in files]))
         now = self._clock()
         if now.tzinfo is None:
             raise ValueError("the store's clock must return an aware datetime (e.g. in timezone.utc)")

@@ -74,6 +74,8 @@ function renderStatus(st) {
 
   // fabric
   add("fabric", "backend", "backend", fmt(st.backend) + (st.backend_reason ? " (" + st.backend_reason + ")" : ""));
+  // A board without its bitstream runs the emulated fabric: said first, in red (backend.py's warning).
+  if (st.backend_warning) add("fabric", "backend_warning", "WARNING", st.backend_warning, "bad");
   add("fabric", "source", "source", fmt(st.source) + (st.mux && st.mux !== st.source ? " (mux: " + fmt(st.mux) + ")" : ""));
   if (st.signal !== undefined) {
     const [text, cls, state] = signalRow(st);
@@ -191,7 +193,10 @@ function renderStatus(st) {
   const box = $("status");
   box.replaceChildren(frag);
   box.dataset.updated = String(Date.now());
-  $("backend").textContent = st.backend ? "backend: " + st.backend : "";
+  const badge = $("backend");
+  badge.textContent = st.backend ? "backend: " + st.backend + (st.backend_warning ? " (NO BITSTREAM)" : "") : "";
+  badge.className = st.backend_warning ? "badge badge-bad" : "badge";
+  badge.title = st.backend_warning || "";
   if (st.source) setSourceRadios(st.source);
   renderViewRates(st);
 }

@@ -115,10 +115,13 @@ function build() {
   const meta = document.createElement("div");
   meta.className = "cv-meta";
   meta.setAttribute("data-testid", "cv-meta");
-  dlg.append(bar, stage, readoutBox, meta);
+  const files = document.createElement("div");  // the capture's other files: depth, point cloud
+  files.className = "cv-meta cv-files";
+  files.setAttribute("data-testid", "cv-files");
+  dlg.append(bar, stage, readoutBox, meta, files);
   document.body.append(dlg);
-  el = { ...el, title, zoomText, png, stage, canvas, readout: readoutBox, meta, choose, sides, steps, frameText,
-         replay };
+  el = { ...el, title, zoomText, png, stage, canvas, readout: readoutBox, meta, files, choose, sides, steps,
+         frameText, replay };
 
   stage.addEventListener("wheel", (ev) => {
     ev.preventDefault();
@@ -283,6 +286,8 @@ function setMode(kind) {
   el.replay.hidden = rec;
   el.sides.hidden = !rec;
   el.steps.hidden = !rec;
+  el.files.hidden = rec;
+  el.files.replaceChildren();
   el.canvas.dataset.index = "";
   el.canvas.dataset.frames = "";
 }
@@ -377,6 +382,31 @@ export async function replayCapture(id, btn) {
   });
 }
 
+// The capture's files besides the images above (the stereo core's disparity and confidence, the point
+// cloud), each a download link; and why the cloud is missing when the capture says so.
+function showFiles(id, files, meta) {
+  const shown = new Set(["meta.json"]);
+  for (const [name] of IMAGES) {
+    const info = (meta.images && meta.images[name]) || {};
+    shown.add(info.file || name + ".png");
+    if (info.y_file) shown.add(info.y_file);
+  }
+  const links = files.filter((f) => !shown.has(f.name)).map((f) => {
+    const a = document.createElement("a");
+    a.href = "/api/captures/" + encodeURIComponent(id) + "/" + encodeURIComponent(f.name);
+    a.setAttribute("download", id + "-" + f.name);
+    a.setAttribute("data-testid", "cv-file");
+    a.textContent = f.name;
+    a.title = f.bytes + " bytes";
+    return a;
+  });
+  const parts = links.length ? ["files: "] : [];
+  links.forEach((a, i) => parts.push(...(i ? [" · ", a] : [a])));
+  const why = meta.depth && (meta.depth.cloud_unavailable || meta.depth.unavailable);
+  if (why) parts.push((links.length ? " · " : "") + "no point cloud: " + why);
+  el.files.replaceChildren(...parts);
+}
+
 export async function openViewer(id, image) {
   reset(id, "capture");
   if (!dlg.open) dlg.showModal();
@@ -387,6 +417,7 @@ export async function openViewer(id, image) {
     const m = state.meta;
     el.meta.textContent = ["frame " + info.frame, info.source, m.time_utc, "calibration " + (info.calibration_id || "none"),
                            info.error ? "damaged: " + info.error : ""].filter(Boolean).join(" · ");
+    showFiles(id, info.files || [], m);
     await show(image || "rect_left");
   });
 }

@@ -1,0 +1,126 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * sc_min_tree: the minimum of N unsigned W-bit words, a binary tree of
+ * two-input minima with STAGES register levels (the stereo core's path
+ * minima: sc_path_left over MAX_DISP lanes, sc_path_up over PARALLEL).
+ *
+ * The tree has K = clog2(N) levels of minima (inputs past N count as all
+ * ones, which never lower a minimum). With OUT_REG 1, registers sit after
+ * tree level floor(K * s / STAGES) from the root, s = 0 .. STAGES - 1: the
+ * root is registered. With OUT_REG 0 they sit after level
+ * floor(K * s / (STAGES + 1)), s = 1 .. STAGES, and the root is logic after
+ * the last register (for a caller that combines it with more).
+ * Latency: STAGES enabled clocks (`en`: every register loads only when it
+ * is 1, so the tree holds while it is 0). Throughput: one word set per
+ * enabled clock. No reset (data only).
+ * Parameters are checked at elaboration: N >= 2, W >= 1, 1 <= STAGES <= K
+ * (STAGES < K with OUT_REG 0), OUT_REG 0 or 1.
+ */
+module sc_min_tree #
+(
+    parameter N = 32,
+    parameter W = 8,
+    parameter STAGES = 2,
+    parameter OUT_REG = 1
+)
+(
+    input  wire           clk,
+    input  wire           en,
+    input  wire [N*W-1:0] in,
+    output wire [W-1:0]   out
+);
+
+localparam K = $clog2(N);
+localparam P = 1 << K;  // leaves
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (N < 2) begin : g_check_n
+        sc_min_tree_parameter_N_must_be_at_least_2 n_too_small();
+    end
+    if (W < 1) begin : g_check_w
+        sc_min_tree_parameter_W_must_be_at_least_1 w_too_small();
+    end
+    if (STAGES < 1 || STAGES > K || (OUT_REG == 0 && STAGES >= K)) begin : g_check_stages
+        sc_min_tree_parameter_STAGES_must_be_1_to_clog2_N stages_out_of_range();
+    end
+    if (OUT_REG != 0 && OUT_REG != 1) begin : g_check_out_reg
+        sc_min_tree_parameter_OUT_REG_must_be_0_or_1 out_reg_invalid();
+    end
+endgenerate
+
+// tree level of heap node i (the root, node 1, is level 0)
+function integer node_level;
+    input integer i;
+    integer v;
+    begin
+        node_level = 0;
+        for (v = i; v > 1; v = v / 2) begin
+            node_level = node_level + 1;
+        end
+    end
+endfunction
+
+// 1 when the nodes of level lev are registers
+function integer level_registered;
+    input integer lev;
+    integer s;
+    begin
+        level_registered = 0;
+        for (s = 0; s < STAGES; s = s + 1) begin
+            if (OUT_REG != 0 && (K * s) / STAGES == lev) begin
+                level_registered = 1;
+            end
+            if (OUT_REG == 0 && (K * (s + 1)) / (STAGES + 1) == lev) begin
+                level_registered = 1;
+            end
+        end
+    end
+endfunction
+
+// heap-ordered nodes: node i at [i*W +: W]; the root is node 1, the leaves P .. 2P-1; node 0
+// unused. Verilator sees the tree, which reads and writes this one vector, as a combinational loop
+// (UNOPTFLAT, a note on its speed: it evaluates the vector until it settles); yosys 0.23 reads no
+// hierarchical names into generate blocks, which one wire a node would need.
+/* verilator lint_off UNOPTFLAT */
+wire [2*P*W-1:0] nodes;
+
+genvar i;
+generate
+    for (i = P; i < 2 * P; i = i + 1) begin : g_leaf
+        if (i - P < N) begin : g_in
+            assign nodes[i*W +: W] = in[(i-P)*W +: W];
+        end else begin : g_pad
+            assign nodes[i*W +: W] = {W{1'b1}};
+        end
+    end
+    for (i = 1; i < P; i = i + 1) begin : g_node
+        wire [W-1:0] a = nodes[2*i*W +: W];
+        wire [W-1:0] b = nodes[(2*i+1)*W +: W];
+        wire [W-1:0] m = (b < a) ? b : a;
+        if (level_registered(node_level(i)) != 0) begin : g_reg
+            reg [W-1:0] m_reg;
+            always @(posedge clk) begin
+                if (en) begin
+                    m_reg <= m;
+                end
+            end
+            assign nodes[i*W +: W] = m_reg;
+        end else begin : g_wire
+            assign nodes[i*W +: W] = m;
+        end
+    end
+endgenerate
+/* verilator lint_on UNOPTFLAT */
+
+assign nodes[0 +: W] = {W{1'b0}};
+assign out = nodes[W +: W];
+
+endmodule
+
+`resetall

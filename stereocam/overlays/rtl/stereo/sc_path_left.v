@@ -1,0 +1,134 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * sc_path_left: the path from the left (STEREO_CORE.md step 3, r = (-1, 0))
+ * for all MAX_DISP disparities, one pixel a slot, in two halves of H =
+ * MAX_DISP / 2 lanes through one set of H lane units.
+ *
+ * `l_path` (lane d at [8*d +: 8]) gets its low half (lanes 0 .. H - 1) at
+ * the end of phase 2 of each slot and its high half at the end of phase 3,
+ * from `cost` (all MAX_DISP costs of the pixel, lane d at [6*d +: 6]; the low
+ * half read at phase 2, the high half at phase 3), `first` (the previous
+ * pixel is outside the image: L = C), `p2` (P2' of the pixel: P2 or
+ * P2_EDGE), `p1` and `lane_ok` (lane d is below NUM_DISP; a masked lane is
+ * loaded with 255, so it never lowers a minimum and never wins a neighbour
+ * term), all held through phases 2 and 3. The lane terms min(L(d), L(d +- 1)
+ * + P1) of the previous pixel are formed two clocks ahead (low half at phase
+ * 0, high half at phase 1, through one set of H units, from copies of the
+ * halves as they were made) and its minimum by one tree over a half
+ * (sc_min_tree, a register in its middle: the low half's minimum at phase
+ * 0, the whole at phase 1).
+ *
+ * Latency: the pixel whose inputs are given at a slot's phases 2 and 3 has
+ * its low half in `l_path` from that slot's phase 3 to the next slot's phase
+ * 2, its high half from the next slot's phase 0 to its phase 3. Throughput:
+ * one pixel a slot. Every register is enabled by `run`. No reset (data only:
+ * a row starts with `first`). Parameters are checked at elaboration:
+ * MAX_DISP >= 8, even.
+ */
+module sc_path_left #
+(
+    parameter MAX_DISP = 128
+)
+(
+    input  wire                    clk,
+    input  wire                    run,
+    input  wire [1:0]              phase,
+    input  wire [MAX_DISP*6-1:0]   cost,
+    input  wire                    first,
+    input  wire [7:0]              p1,
+    input  wire [7:0]              p2,
+    input  wire [MAX_DISP-1:0]     lane_ok,
+    output reg  [MAX_DISP*8-1:0]   l_path
+);
+
+localparam H = MAX_DISP / 2;
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (MAX_DISP < 8 || MAX_DISP % 2 != 0) begin : g_check_disp
+        sc_path_left_parameter_MAX_DISP_must_be_even_and_at_least_8 disp_wrong();
+    end
+endgenerate
+
+`include "sc_lane.vh"
+
+// every half the lane units produce, one clock later: the low half at phases 3, the high half at 0
+reg [H*8-1:0] u;
+// and one clock later still: low at 0, high at 1
+reg [H*8-1:0] u2;
+
+// the minimum over the lanes of the previous pixel: a tree over the half in u (a register in its
+// middle), the low half's minimum kept at phase 0, the whole at phase 1, held through phases 2, 3
+wire [7:0] half_min;
+sc_min_tree #(
+    .N(H),
+    .W(8),
+    .STAGES(1),
+    .OUT_REG(0)
+)
+min_inst (
+    .clk(clk),
+    .en(run),
+    .in(u),
+    .out(half_min)
+);
+
+reg [7:0] lo_min;
+reg [7:0] m;
+always @(posedge clk) begin
+    if (run && phase == 2'd0) begin
+        lo_min <= half_min;
+    end
+    if (run && phase == 2'd1) begin
+        m <= half_min < lo_min ? half_min : lo_min;
+    end
+end
+
+// the half the lane terms work on, with its neighbours (lanes -1 and MAX_DISP are 255): the low
+// half at phase 0 (u2, and lane H from u), the high half at phase 1 (u2, and lane H - 1 from l_path)
+wire [7:0] below = phase[0] ? l_path[8*(H-1) +: 8] : 8'hFF;
+wire [7:0] above = phase[0] ? 8'hFF : u[7:0];
+wire [(H+2)*8-1:0] window = {above, u2, below};
+// the half the lane steps work on: low at phase 2, high at phase 3
+wire [H*6-1:0] cost_h = phase[0] ? cost[H*6 +: H*6] : cost[0 +: H*6];
+wire [H-1:0] ok_h = phase[0] ? lane_ok[H +: H] : lane_ok[0 +: H];
+wire [H*8-1:0] l_new;
+
+genvar d;
+generate
+    for (d = 0; d < H; d = d + 1) begin : g_lane
+        // the lane terms, formed at phases 0, 1 and used two clocks later
+        reg [8:0] a_reg;
+        reg [8:0] a_reg2;
+        always @(posedge clk) begin
+            if (run) begin
+                a_reg <= sc_lane_a(window[8*(d+1) +: 8], window[8*d +: 8], window[8*(d+2) +: 8], p1);
+                a_reg2 <= a_reg;
+            end
+        end
+        wire [5:0] c = cost_h[6*d +: 6];
+        assign l_new[8*d +: 8] = !ok_h[d] ? 8'hFF : first ? {2'b00, c} : sc_lane_step(c, a_reg2, m, p2);
+    end
+endgenerate
+
+always @(posedge clk) begin
+    if (run) begin
+        u <= l_new;
+        u2 <= u;
+    end
+    if (run && phase == 2'd2) begin
+        l_path[0 +: H*8] <= l_new;
+    end
+    if (run && phase == 2'd3) begin
+        l_path[H*8 +: H*8] <= l_new;
+    end
+end
+
+endmodule
+
+`resetall

@@ -1,0 +1,237 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * sc_path_up: one path from the row above (STEREO_CORE.md step 3: from above,
+ * r = (0, -1), or from the upper right, r = (1, -1); sc_front instantiates it
+ * twice), PARALLEL disparities a run clock, one pixel a slot.
+ *
+ * State: the previous row's L of every column in two rc_ram banks (even
+ * groups 0, 2 in `ram_e`, odd groups 1, 3 in `ram_o`; column x's group g at
+ * address 2 x + g / 2, PARALLEL * 8 bits a word), each column's minimum over
+ * the lanes in a third (MAX_WIDTH words of 8 bits). A bank is read at most
+ * every other run clock, so each read's data is taken exactly 2 run clocks
+ * later whatever gaps `run` has (rc_ram's output holds until the clock after
+ * the bank's next read).
+ *
+ * Timing, in run clocks from phase 0 of the slot s0 that brought pixel
+ * (x, y) into the front (slot s0 + k is run clocks 4k .. 4k + 3):
+ *   6 + g   read group g of column xq (x above, x + 1 upper right) of the
+ *           previous row (`rx1`, `ren1` of slot s0 + 1 for g = 0, 1; `rx2`,
+ *           `ren2` of slot s0 + 2 for g = 2, 3); 6: read xq's minimum;
+ *   9       take the minimum and the pixel's `first2` and `edge2` (slot s0 + 2);
+ *   9 + g   the lane terms a = min(L(d), L(d +- 1) + P1) of group g (the
+ *           group's word, the last lane of group g - 1, the first of g + 1);
+ *   10 + g  L of group g: C (`cost_g`, the group of this run clock, see
+ *           sc_front) + min(a - m, P2'), or C when `first2`; 255 in a masked
+ *           group (`group_ok`); in `l_path` during 11 + g;
+ *   11 + g  written to column `wx` (`wen`: the pixel is real; slot s0 + 2
+ *           for g = 0, s0 + 3 for g = 1..3, sc_front's output stage);
+ *   11 .. 16 the minimum of the pixel's lanes (a 2-stage tree and a running
+ *           minimum over the groups), written to column `mwx` at 17 (`mwen`,
+ *           slot s0 + 4).
+ * So `l_path` holds group g = (phase + 1) mod 4 of the pixel of slot s0 + 2
+ * at phase 3, of slot s0 + 3 at phases 0..2. A column is read before the row
+ * below overwrites it (read at 6..9, written at 11..14 and 17; the upper
+ * right path's column x + 1 is read by pixel x, written by pixel x + 1).
+ *
+ * Throughput: one pixel a slot. Every register and RAM read and write is
+ * enabled by `run`. No reset (data only; writes are gated by the caller's
+ * reset valid bits). Parameters are checked at elaboration:
+ * MAX_DISP = 4 * PARALLEL, PARALLEL >= 4, MAX_WIDTH >= 2.
+ */
+module sc_path_up #
+(
+    parameter MAX_WIDTH = 752,
+    parameter MAX_DISP = 128,
+    parameter PARALLEL = 32,
+    parameter XA = $clog2(MAX_WIDTH)
+)
+(
+    input  wire                    clk,
+    input  wire                    run,
+    input  wire [1:0]              phase,
+
+    input  wire [10:0]             rx1,
+    input  wire                    ren1,
+    input  wire [10:0]             rx2,
+    input  wire                    ren2,
+    input  wire                    first2,
+    input  wire                    edge2,
+    input  wire [PARALLEL*6-1:0]   cost_g,
+    input  wire [3:0]              group_ok,
+    input  wire [7:0]              p1,
+    input  wire [7:0]              p2,
+    input  wire [7:0]              p2_edge,
+
+    input  wire [10:0]             wx,
+    input  wire                    wen,
+    input  wire [10:0]             mwx,
+    input  wire                    mwen,
+
+    output reg  [PARALLEL*8-1:0]   l_path
+);
+
+localparam LW = PARALLEL * 8;
+
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+generate
+    if (MAX_DISP != 4 * PARALLEL || PARALLEL < 4) begin : g_check_groups
+        sc_path_up_parameter_MAX_DISP_must_be_4_times_PARALLEL_at_least_4 groups_wrong();
+    end
+    if (MAX_WIDTH < 2) begin : g_check_width
+        sc_path_up_parameter_MAX_WIDTH_must_be_at_least_2 width_too_small();
+    end
+endgenerate
+
+`include "sc_lane.vh"
+
+// ---- reads: group (phase + 2) mod 4; even groups from ram_e at phases 2, 0
+wire [10:0] rx = phase[1] ? rx1 : rx2;
+wire ren = phase[1] ? ren1 : ren2;
+wire [XA:0] raddr = {rx[XA-1:0], ~phase[1]};
+
+// ---- writes: group (phase + 1) mod 4 of l_path; even groups at phases 3, 1
+wire [XA:0] waddr = {wx[XA-1:0], phase[0] ^ phase[1]};
+
+wire [LW-1:0] rdata_e;
+wire [LW-1:0] rdata_o;
+
+rc_ram #(
+    .WIDTH(LW),
+    .DEPTH(2 * MAX_WIDTH),
+    .AW(XA + 1)
+)
+ram_e (
+    .clk(clk),
+    .we(run && wen && phase[0]),
+    .waddr(waddr),
+    .wdata(l_path),
+    .re(run && ren && !phase[0]),
+    .raddr(raddr),
+    .rdata(rdata_e)
+);
+
+rc_ram #(
+    .WIDTH(LW),
+    .DEPTH(2 * MAX_WIDTH),
+    .AW(XA + 1)
+)
+ram_o (
+    .clk(clk),
+    .we(run && wen && !phase[0]),
+    .waddr(waddr),
+    .wdata(l_path),
+    .re(run && ren && phase[0]),
+    .raddr(raddr),
+    .rdata(rdata_o)
+);
+
+// ---- each column's minimum
+reg [7:0] run_min;
+wire [7:0] rdata_m;
+
+rc_ram #(
+    .WIDTH(8),
+    .DEPTH(MAX_WIDTH),
+    .AW(XA)
+)
+ram_m (
+    .clk(clk),
+    .we(run && mwen && phase == 2'd1),
+    .waddr(mwx[XA-1:0]),
+    .wdata(run_min),
+    .re(run && ren1 && phase == 2'd2),
+    .raddr(rx1[XA-1:0]),
+    .rdata(rdata_m)
+);
+
+// ---- the word read 2 run clocks ago: group (phase + 3) mod 4 at this run clock's
+// lane terms (cur), group (phase + 4) mod 4 just arriving (nxt)
+wire [LW-1:0] nxt = phase[0] ? rdata_o : rdata_e;
+reg [LW-1:0] cur;
+reg [7:0] prev_last;
+always @(posedge clk) begin
+    if (run) begin
+        cur <= nxt;
+        prev_last <= cur[LW-8 +: 8];
+    end
+end
+
+wire [1:0] g_a = phase + 2'd3;  // the group of the lane terms
+wire lo_out = g_a == 2'd0;
+// (a masked group g + 1 needs no test: its lanes were written as 255 in the row above)
+wire hi_out = g_a == 2'd3;
+wire [LW+15:0] padded = {hi_out ? 8'hFF : nxt[7:0], cur, lo_out ? 8'hFF : prev_last};
+
+reg [PARALLEL*9-1:0] a_reg;
+genvar j;
+generate
+    for (j = 0; j < PARALLEL; j = j + 1) begin : g_terms
+        always @(posedge clk) begin
+            if (run) begin
+                a_reg[9*j +: 9] <= sc_lane_a(padded[8*(j+1) +: 8], padded[8*j +: 8], padded[8*(j+2) +: 8], p1);
+            end
+        end
+    end
+endgenerate
+
+// ---- the pixel's minimum over the previous row's lanes and its flags (phase 1)
+reg [7:0] m_prev;
+reg first_reg;
+reg [7:0] p2_reg;
+always @(posedge clk) begin
+    if (run && phase == 2'd1) begin
+        m_prev <= rdata_m;
+        first_reg <= first2;
+        p2_reg <= edge2 ? p2_edge : p2;
+    end
+end
+
+// ---- L of group (phase + 2) mod 4
+wire [1:0] g_l = phase + 2'd2;
+generate
+    for (j = 0; j < PARALLEL; j = j + 1) begin : g_lane
+        wire [5:0] c = cost_g[6*j +: 6];
+        always @(posedge clk) begin
+            if (run) begin
+                if (!group_ok[g_l]) begin
+                    l_path[8*j +: 8] <= 8'hFF;
+                end else if (first_reg) begin
+                    l_path[8*j +: 8] <= {2'b00, c};
+                end else begin
+                    l_path[8*j +: 8] <= sc_lane_step(c, a_reg[9*j +: 9], m_prev, p2_reg);
+                end
+            end
+        end
+    end
+endgenerate
+
+// ---- this pixel's minimum: group (phase + 3) mod 4 leaves the tree
+wire [7:0] t_min;
+sc_min_tree #(
+    .N(PARALLEL),
+    .W(8),
+    .STAGES(2)
+)
+min_inst (
+    .clk(clk),
+    .en(run),
+    .in(l_path),
+    .out(t_min)
+);
+
+always @(posedge clk) begin
+    if (run) begin
+        if (g_a == 2'd0 || t_min < run_min) begin
+            run_min <= t_min;
+        end
+    end
+end
+
+endmodule
+
+`resetall

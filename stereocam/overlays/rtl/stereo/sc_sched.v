@@ -1,0 +1,106 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+/*
+ * sc_sched: paces the stereo core (STEREO_CORE.md, "RTL structure") in slots of 4 clocks and
+ * sweeps of a frame.
+ *
+ * Between frames (`idle`, when the registers may make shadow parameters active) it lets sc_input
+ * take a frame's first beat (`accept_frame`, unless an APPLY is pending: `hold`) and starts on it
+ * (`frame_begin`).
+ * Then it runs sweeps `row` = 0 .. height + 2, each of columns `col` = -PRE .. ncol - 1 with
+ * ncol = max(width + 8, MAX_DISP + 32): phase A's row and column are (row, col), phase B's
+ * (row - 2, col), phase C's (row - 3, col - 4). A slot starts only when the rows phase A reads
+ * have arrived (`rows_in` > min(row + 3, height - 1)) and the output has room (`out_room`); once
+ * started, `run` stays high for its 4 clocks (`phase` 0..3). After the last slot, `frame_done`.
+ * Reset: synchronous, active high.
+ */
+module sc_sched #
+(
+    parameter MAX_DISP = 128,
+    parameter PRE = 16
+)
+(
+    input  wire               clk,
+    input  wire               rst,
+
+    input  wire               enable,
+    input  wire [10:0]        width,
+    input  wire [10:0]        height,
+    input  wire [10:0]        rows_in,
+    input  wire               frame_begin,
+    input  wire               out_room,
+    input  wire               hold,
+
+    output wire               idle,
+    output wire               accept_frame,
+    output wire               run,
+    output reg  [1:0]         phase = 2'd0,
+    output reg  signed [11:0] row = 12'sd0,
+    output reg  signed [11:0] col = 12'sd0,
+    output wire [10:0]        engine_row,
+    output wire               busy,
+    output reg                frame_done = 1'b0
+);
+
+localparam S_IDLE = 1'b0, S_RUN = 1'b1;
+reg        state = S_IDLE;
+reg signed [11:0] ncol;
+
+wire signed [11:0] h = $signed({1'b0, height});
+wire signed [11:0] need = (row + 12'sd4 < h) ? row + 12'sd4 : h;   // rows phase A needs in
+wire rows_ready = row >= h || $signed({1'b0, rows_in}) >= need;
+wire go = state == S_RUN && phase == 2'd0 && rows_ready && out_room;
+assign run = (state == S_RUN) && (phase != 2'd0 || go);
+assign accept_frame = state == S_IDLE && enable && !hold;
+assign busy = state == S_RUN;
+assign idle = state == S_IDLE;
+assign engine_row = (state == S_RUN && row < h) ? row[10:0] : height;
+
+wire signed [11:0] wide = $signed({1'b0, width}) + 12'sd8;
+wire signed [11:0] least = MAX_DISP + 32;
+
+always @(posedge clk) begin
+    frame_done <= 1'b0;
+    if (rst) begin
+        state <= S_IDLE;
+        phase <= 2'd0;
+    end else begin
+        case (state)
+            S_IDLE: begin
+                if (frame_begin) begin
+                    state <= S_RUN;
+                    row <= 12'sd0;
+                    col <= -PRE;
+                    phase <= 2'd0;
+                    ncol <= (wide > least) ? wide : least;
+                end
+            end
+            default: begin
+                if (run) begin
+                    phase <= phase + 2'd1;
+                    if (phase == 2'd3) begin
+                        if (col == ncol - 12'sd1) begin
+                            col <= -PRE;
+                            if (row == h + 12'sd2) begin
+                                state <= S_IDLE;
+                                frame_done <= 1'b1;
+                            end else begin
+                                row <= row + 12'sd1;
+                            end
+                        end else begin
+                            col <= col + 12'sd1;
+                        end
+                    end
+                end
+            end
+        endcase
+    end
+end
+
+endmodule
+
+`resetall

@@ -1,0 +1,504 @@
+// Language: Verilog 2005
+
+`resetall
+`timescale 1ns / 1ps
+`default_nettype none
+
+`include "stereo_spec.vh"
+
+/*
+ * sc_winners: steps 4 to 6 of the stereo core (STEREO_CORE.md) for each pixel: the winner d1
+ * and its sum S1, the runner-up S2 (the lowest sum more than one disparity away), the sub-pixel
+ * code, the uniqueness and border tests and the confidence.
+ *
+ * In: the front's sums, one group of PARALLEL disparities a clock (`s_valid`; groups 0 .. G-1 of
+ * a pixel in order, not necessarily in consecutive clocks, G = MAX_DISP / PARALLEL = 4). Lanes at
+ * or above `num_disp` are ignored.
+ * Out: one record a pixel (`r_valid` for one clock), in the order the pixels came.
+ * How: a first pass takes the minimum of each group as it arrives (a pipelined 32-way tree) into
+ * a running minimum; the sums are kept in one of two buffers; once d1 is known a second pass
+ * reads the buffer group by group for S2 and the sums beside d1. The next pixel but one writes a
+ * group of that buffer only after the second pass has read it (the second pass starts 4 clocks
+ * after the last group and reads one group a clock, the writer is at least 5 clocks behind).
+ * Then two restoring dividers: the sub-pixel offset (4 quotient bits) and the confidence (9).
+ * Latency: 19 clocks from a pixel's last group to its record. Free running (no enable): it only
+ * needs its input's order.
+ *
+ * And the right image's winners for step 7's left-right check (STEREO_CORE.md, step 6):
+ * dR(xr) = the d with the lowest S(xr + d, d), the lowest d on ties, over d < num_disp and
+ * xr + d < width, from the same sums as the left winners (no second pass over the images).
+ *
+ * A systolic array of MAX_DISP cells: after pixel x of a row, cell k holds the best (sum, d) so
+ * far of the right image's column x - k. A pixel's group 0 shifts the array by one (a new row
+ * starts it empty) and each group g updates cells PARALLEL*g .. PARALLEL*g + PARALLEL-1 with its
+ * lanes (cell k takes S(x, k) when x - k >= 0, k < num_disp and it is strictly lower: d grows with
+ * x, so the lowest d wins ties). The cell shifted out of the last place is final (it has seen
+ * every d); so is every cell once a row's last pixel is in (`width - 1`): those are copied to a
+ * flush buffer and written one a clock.
+ * Out: a write port for the winners' RAM: address (row mod 3) * MAX_WIDTH + xr, 7-bit d.
+ * Free running (no enable), from the front's groups in order. A row's winners are all written at
+ * most `width` + 2 clocks after its last group.
+ * Reset: synchronous, active high.
+ */
+module sc_winners #
+(
+    parameter MAX_WIDTH = 752,
+    parameter MAX_DISP = 128,
+    parameter PARALLEL = 32,
+    parameter AW = $clog2(3 * MAX_WIDTH)
+)
+(
+    input  wire                           clk,
+    input  wire                           rst,
+    input  wire [10:0]                    width,
+    input  wire [7:0]                     num_disp,
+    input  wire [7:0]                     uniqueness,
+    input  wire                           subpixel,
+
+    input  wire                           s_valid,
+    input  wire [1:0]                     s_group,
+    input  wire [10:0]                    s_x,
+    input  wire [10:0]                    s_y,
+    input  wire [PARALLEL*`SC_SUM_W-1:0]  s_sum,
+
+    // the left winners: a record a pixel
+    output reg                            r_valid = 1'b0,
+    output reg  [10:0]                    r_x,
+    output reg  [10:0]                    r_y,
+    output reg  [6:0]                     r_d1,
+    output reg  [10:0]                    r_code,
+    output reg  [7:0]                     r_conf,
+    output reg                            r_unique,
+    output reg                            r_border,
+
+    // the right winners: the write port of their RAM
+    output reg                            w_en = 1'b0,
+    output reg  [AW-1:0]                  w_addr,
+    output reg  [6:0]                     w_d
+);
+
+`include "sc_bank.vh"
+
+localparam SW = `SC_SUM_W;
+localparam LW = $clog2(PARALLEL);      // lane index bits
+localparam G = MAX_DISP / PARALLEL;
+localparam [SW-1:0] BIG = {SW{1'b1}};
+
+generate
+    if (G != 4) begin : g_check_groups
+        sc_winners_needs_MAX_DISP_equal_4_PARALLEL groups_not_4();
+    end
+endgenerate
+
+// ---- a 32-way (PARALLEL-way) minimum with its lane, lowest lane on ties, in two registered halves
+function [SW+LW-1:0] pick;  // {value, lane} of the smaller of two, the first on ties
+    input [SW+LW-1:0] a;
+    input [SW+LW-1:0] b;
+    begin
+        pick = (b[SW+LW-1:LW] < a[SW+LW-1:LW]) ? b : a;
+    end
+endfunction
+
+// ---- the sum buffers: two pixels' worth
+reg [PARALLEL*SW-1:0] buf0 [0:G-1];
+reg [PARALLEL*SW-1:0] buf1 [0:G-1];
+reg                   wbuf = 1'b0;  // the buffer the arriving pixel writes
+
+always @(posedge clk) begin
+    if (s_valid) begin
+        if (wbuf) buf1[s_group] <= s_sum; else buf0[s_group] <= s_sum;
+    end
+    if (rst) begin
+        wbuf <= 1'b0;
+    end else if (s_valid && s_group == G - 1) begin
+        wbuf <= ~wbuf;
+    end
+end
+
+// ---- first pass: mask, tree, running minimum
+reg                   a0_valid = 1'b0;
+reg [1:0]             a0_group;
+reg [10:0]            a0_x, a0_y;
+reg                   a0_buf;
+reg [PARALLEL*(SW+LW)-1:0] a0_lanes;
+
+integer i1;
+integer i2;
+integer i3;
+integer i4;
+integer i5;
+integer i7;
+integer i8;
+integer i9;
+always @(posedge clk) begin
+    a0_valid <= s_valid && !rst;
+    a0_group <= s_group;
+    a0_x <= s_x;
+    a0_y <= s_y;
+    a0_buf <= wbuf;
+    for (i2 = 0; i2 < PARALLEL; i2 = i2 + 1) begin
+        a0_lanes[i2*(SW+LW) +: SW+LW] <=
+            {((s_group * PARALLEL + i2) < num_disp) ? s_sum[i2*SW +: SW] : BIG, i2[LW-1:0]};
+    end
+end
+
+// tree levels 1-3 (32 -> 4)
+localparam Q = PARALLEL / 8;
+reg                   a1_valid = 1'b0;
+reg [1:0]             a1_group;
+reg [10:0]            a1_x, a1_y;
+reg                   a1_buf;
+reg [Q*(SW+LW)-1:0]   a1_lanes;
+reg [SW+LW-1:0] t1 [0:PARALLEL/2-1];
+reg [SW+LW-1:0] t2 [0:PARALLEL/4-1];
+always @* begin
+    for (i3 = 0; i3 < PARALLEL / 2; i3 = i3 + 1)
+        t1[i3] = pick(a0_lanes[(2*i3)*(SW+LW) +: SW+LW], a0_lanes[(2*i3+1)*(SW+LW) +: SW+LW]);
+    for (i3 = 0; i3 < PARALLEL / 4; i3 = i3 + 1)
+        t2[i3] = pick(t1[2*i3], t1[2*i3+1]);
+end
+always @(posedge clk) begin
+    a1_valid <= a0_valid && !rst;
+    a1_group <= a0_group;
+    a1_x <= a0_x;
+    a1_y <= a0_y;
+    a1_buf <= a0_buf;
+    for (i4 = 0; i4 < Q; i4 = i4 + 1)
+        a1_lanes[i4*(SW+LW) +: SW+LW] <= pick(t2[2*i4], t2[2*i4+1]);
+end
+
+// tree levels 4.. (Q -> 1) and the running minimum over the groups
+reg [SW+LW-1:0] t3;
+always @* begin
+    t3 = a1_lanes[0 +: SW+LW];
+    for (i5 = 1; i5 < Q; i5 = i5 + 1)
+        t3 = pick(t3, a1_lanes[i5*(SW+LW) +: SW+LW]);
+end
+reg [SW-1:0]          run_min;
+reg [6:0]             run_d;
+reg                   d_valid = 1'b0;  // a pixel's d1 and S1 are ready
+reg [10:0]            d_x, d_y;
+reg                   d_buf;
+always @(posedge clk) begin
+    d_valid <= 1'b0;
+    if (a1_valid && !rst) begin
+        if (a1_group == 0 || t3[SW+LW-1:LW] < run_min) begin
+            run_min <= t3[SW+LW-1:LW];
+            run_d <= a1_group * PARALLEL + t3[LW-1:0];
+        end
+        if (a1_group == G - 1) begin
+            d_valid <= 1'b1;
+            d_x <= a1_x;
+            d_y <= a1_y;
+            d_buf <= a1_buf;
+        end
+    end
+end
+
+// ---- second pass: S2 and the neighbours' sums, one group a clock
+reg [2:0]             p_step = 3'd4;   // 0..3: group read now; 4: idle
+reg [SW-1:0]          p_s1;
+reg [6:0]             p_d1;
+reg [10:0]            p_x, p_y;
+reg                   p_buf;
+wire [PARALLEL*SW-1:0] p_row = p_buf ? buf1[p_step[1:0]] : buf0[p_step[1:0]];
+
+reg                   b0_valid = 1'b0, b0_last = 1'b0;
+reg [PARALLEL*SW-1:0] b0_lanes;          // masked
+reg [SW-1:0]          b0_a, b0_b;        // S(d1 - 1), S(d1 + 1) when in this group
+reg                   b0_has_a, b0_has_b;
+integer d;
+always @(posedge clk) begin
+    b0_valid <= 1'b0;
+    b0_last <= 1'b0;
+    if (p_step != 3'd4 && !rst) begin  // this clock's group of the pixel in p_*
+        b0_valid <= 1'b1;
+        b0_last <= p_step == 3'd3;
+        b0_has_a <= 1'b0;
+        b0_has_b <= 1'b0;
+        for (i7 = 0; i7 < PARALLEL; i7 = i7 + 1) begin
+            d = p_step[1:0] * PARALLEL + i7;
+            b0_lanes[i7*SW +: SW] <= (d < num_disp && (d + 1 < p_d1 || d > p_d1 + 1)) ? p_row[i7*SW +: SW]
+                                                                                      : BIG;
+            if (d + 1 == p_d1) begin
+                b0_a <= p_row[i7*SW +: SW];
+                b0_has_a <= 1'b1;
+            end
+            if (d == p_d1 + 1) begin
+                b0_b <= p_row[i7*SW +: SW];
+                b0_has_b <= 1'b1;
+            end
+        end
+    end
+    if (rst) begin
+        p_step <= 3'd4;
+    end else if (d_valid) begin  // the next pixel may start in the clock of the last group's step
+        p_step <= 3'd0;
+        p_s1 <= run_min;
+        p_d1 <= run_d;
+        p_x <= d_x;
+        p_y <= d_y;
+        p_buf <= d_buf;
+    end else if (p_step != 3'd4) begin
+        p_step <= (p_step == 3'd3) ? 3'd4 : p_step + 3'd1;
+    end
+end
+
+reg [SW-1:0] u1 [0:PARALLEL/2-1];
+reg [SW-1:0] u2 [0:PARALLEL/4-1];
+reg [SW-1:0] u3;
+always @* begin
+    for (i8 = 0; i8 < PARALLEL / 2; i8 = i8 + 1)
+        u1[i8] = (b0_lanes[(2*i8+1)*SW +: SW] < b0_lanes[(2*i8)*SW +: SW]) ? b0_lanes[(2*i8+1)*SW +: SW]
+                                                                     : b0_lanes[(2*i8)*SW +: SW];
+    for (i8 = 0; i8 < PARALLEL / 4; i8 = i8 + 1)
+        u2[i8] = (u1[2*i8+1] < u1[2*i8]) ? u1[2*i8+1] : u1[2*i8];
+end
+reg                   b1_valid = 1'b0, b1_last = 1'b0;
+reg [Q*SW-1:0]        b1_lanes;
+reg [SW-1:0]          b1_a, b1_b;
+reg                   b1_has_a, b1_has_b;
+always @(posedge clk) begin
+    b1_valid <= b0_valid && !rst;
+    b1_last <= b0_last;
+    b1_a <= b0_a;
+    b1_b <= b0_b;
+    b1_has_a <= b0_valid && b0_has_a;
+    b1_has_b <= b0_valid && b0_has_b;
+    for (i9 = 0; i9 < Q; i9 = i9 + 1)
+        b1_lanes[i9*SW +: SW] <= (u2[2*i9+1] < u2[2*i9]) ? u2[2*i9+1] : u2[2*i9];
+end
+integer i10;
+always @* begin
+    u3 = b1_lanes[0 +: SW];
+    for (i10 = 1; i10 < Q; i10 = i10 + 1)
+        u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
+end
+reg [SW-1:0] s2_run;
+reg [SW-1:0] nb_a, nb_b;
+reg          c_valid = 1'b0;
+reg          b1_first = 1'b1;  // the next b1 group is a pixel's first
+always @(posedge clk) begin
+    c_valid <= 1'b0;
+    if (b1_valid && b1_has_a) nb_a <= b1_a;  // with the groups' minima: a pixel's last group
+    if (b1_valid && b1_has_b) nb_b <= b1_b;  // is in the clock before the next pixel's first
+    if (rst) begin
+        b1_first <= 1'b1;
+    end else if (b1_valid) begin
+        s2_run <= (b1_first || u3 < s2_run) ? u3 : s2_run;
+        b1_first <= b1_last;
+        c_valid <= b1_last;
+    end
+end
+
+// ---- arithmetic: the operands (c), then the dividers, one restoring step per clock each
+// (the sub-pixel division has 4 quotient bits, the confidence 9: both run 9 stages, the first
+// one idles through its last 5 so the results leave together)
+localparam NUMW = 16;  // |16 (a - b) + den| <= 16 * 765 + 1531
+reg          e_valid = 1'b0;
+reg [NUMW-1:0] e_num_abs;
+reg          e_num_neg;
+reg [12:0]   e_den2;    // 2 den <= 3062
+reg          e_refine;  // subpixel and 0 < d1 < num_disp - 1
+reg [17:0]   e_cnum;    // (S2 - S1) * 256
+reg [SW-1:0] e_s2;
+reg          e_unique;
+reg [6:0]    e_d1;
+reg [10:0]   e_x, e_y;
+// The pixel's d1, S1 and place, kept from its second pass's last step (p_* may take the next
+// pixel's in that clock).
+reg [SW-1:0] h_s1;
+reg [6:0]    h_d1;
+reg [10:0]   h_x, h_y;
+always @(posedge clk) begin
+    if (p_step == 3'd3) begin
+        h_s1 <= p_s1;
+        h_d1 <= p_d1;
+        h_x <= p_x;
+        h_y <= p_y;
+    end
+end
+wire [SW:0]  sum_ab = nb_a + nb_b;
+wire [SW+1:0] den_raw = sum_ab - {h_s1, 1'b0};
+wire [SW+1:0] den = (sum_ab <= {h_s1, 1'b0}) ? 1 : den_raw;
+wire signed [NUMW:0] num = $signed({1'b0, nb_a, 4'b0}) - $signed({1'b0, nb_b, 4'b0}) + $signed({1'b0, den});
+always @(posedge clk) begin
+    e_valid <= c_valid && !rst;
+    e_num_neg <= num < 0;
+    e_num_abs <= (num < 0) ? -num : num;
+    e_den2 <= {den, 1'b0};
+    e_refine <= subpixel && h_d1 > 0 && h_d1 + 1 < num_disp;
+    e_cnum <= {s2_run - h_s1, 8'b0};
+    e_s2 <= s2_run;
+    e_unique <= {s2_run, 8'b0} > h_s1 * (`SC_UNIQUENESS_ONE + uniqueness);
+    e_d1 <= h_d1;
+    e_x <= h_x;
+    e_y <= h_y;
+end
+
+localparam STAGES = 9;
+reg              v_valid [0:STAGES];
+reg [NUMW-1:0]   v_rem1  [0:STAGES];
+reg [3:0]        v_q1    [0:STAGES];
+reg [17:0]       v_rem2  [0:STAGES];
+reg [8:0]        v_q2    [0:STAGES];
+reg [12:0]       v_den2  [0:STAGES];
+reg [SW-1:0]     v_s2    [0:STAGES];
+reg              v_neg   [0:STAGES];
+reg              v_refine[0:STAGES];
+reg              v_unique[0:STAGES];
+reg [6:0]        v_d1    [0:STAGES];
+reg [10:0]       v_x     [0:STAGES];
+reg [10:0]       v_y     [0:STAGES];
+always @* begin
+    v_valid[0] = e_valid;
+    v_rem1[0] = e_num_abs;
+    v_q1[0] = 4'd0;
+    v_rem2[0] = e_cnum;
+    v_q2[0] = 9'd0;
+    v_den2[0] = e_den2;
+    v_s2[0] = e_s2;
+    v_neg[0] = e_num_neg;
+    v_refine[0] = e_refine;
+    v_unique[0] = e_unique;
+    v_d1[0] = e_d1;
+    v_x[0] = e_x;
+    v_y[0] = e_y;
+end
+genvar k;
+generate
+    for (k = 0; k < STAGES; k = k + 1) begin : g_div
+        // divider 1: quotient bit 3 - k for k < 4; divider 2: quotient bit 8 - k
+        wire [NUMW+4:0] sub1 = {5'b0, v_den2[k]} << (k < 4 ? 3 - k : 0);
+        wire [26:0]     sub2 = {9'b0, v_s2[k]} << (8 - k);
+        always @(posedge clk) begin
+            v_valid[k+1] <= v_valid[k] && !rst;
+            v_den2[k+1] <= v_den2[k];
+            v_s2[k+1] <= v_s2[k];
+            v_neg[k+1] <= v_neg[k];
+            v_refine[k+1] <= v_refine[k];
+            v_unique[k+1] <= v_unique[k];
+            v_d1[k+1] <= v_d1[k];
+            v_x[k+1] <= v_x[k];
+            v_y[k+1] <= v_y[k];
+            if (k < 4 && {5'b0, v_rem1[k]} >= sub1) begin
+                v_rem1[k+1] <= v_rem1[k] - sub1[NUMW-1:0];
+                v_q1[k+1] <= v_q1[k] | (4'd1 << (3 - k));
+            end else begin
+                v_rem1[k+1] <= v_rem1[k];
+                v_q1[k+1] <= v_q1[k];
+            end
+            if ({9'b0, v_rem2[k]} >= sub2) begin
+                v_rem2[k+1] <= v_rem2[k] - sub2[17:0];
+                v_q2[k+1] <= v_q2[k] | (9'd1 << (8 - k));
+            end else begin
+                v_rem2[k+1] <= v_rem2[k];
+                v_q2[k+1] <= v_q2[k];
+            end
+        end
+    end
+endgenerate
+
+wire [11:0] base = {v_d1[STAGES], 4'b0};
+always @(posedge clk) begin
+    r_valid <= v_valid[STAGES] && !rst;
+    r_x <= v_x[STAGES];
+    r_y <= v_y[STAGES];
+    r_d1 <= v_d1[STAGES];
+    r_code <= !v_refine[STAGES] ? base[10:0]
+            : v_neg[STAGES] ? base[10:0] - v_q1[STAGES] : base[10:0] + v_q1[STAGES];
+    r_conf <= (v_s2[STAGES] == 0) ? 8'd0 : (v_q2[STAGES] > 9'd255) ? 8'd255 : v_q2[STAGES][7:0];
+    r_unique <= v_unique[STAGES];
+    r_border <= v_x[STAGES] < v_d1[STAGES];
+end
+
+// ---------------------------------------------------------------- the right winners
+reg [SW-1:0] val [0:MAX_DISP-1];
+reg [6:0]    dd  [0:MAX_DISP-1];
+reg [10:0]   x_now;          // the column of the pixel in the array's place 0
+reg [AW-1:0] base_now;       // its row's bank
+
+
+// the flush buffer: a finished row's winners, written out one a clock
+reg [6:0]    fl_d [0:MAX_DISP-1];
+reg [10:0]   fl_left = 11'd0;   // entries still to write (cell index fl_left - 1 next)
+reg [10:0]   fl_x0;             // the column of cell 0 when copied
+reg [AW-1:0] fl_base;
+
+// the cell leaving the array at a shift
+reg          ex_en = 1'b0;
+reg [10:0]   ex_xr;
+reg [AW-1:0] ex_base;
+reg [6:0]    ex_d;
+
+integer k1;
+integer k3;
+always @(posedge clk) begin
+    ex_en <= 1'b0;
+    if (s_valid) begin
+        if (s_group == 0) begin
+            // leaving: the last place's cell, column x - MAX_DISP of the same row
+            ex_en <= s_x != 0 && s_x >= MAX_DISP;
+            ex_xr <= s_x - MAX_DISP;
+            ex_base <= base_now;
+            ex_d <= dd[MAX_DISP-1];
+            for (k1 = 0; k1 < MAX_DISP; k1 = k1 + 1) begin
+                // place k1 takes the cell shifted in (empty at place 0 and on a new row), or this
+                // pixel's lane k1 where that is lower (lanes exist for places below PARALLEL)
+                if (k1 < PARALLEL && k1 <= s_x && k1 < num_disp
+                    && s_sum[(k1 % PARALLEL)*SW +: SW] < ((k1 == 0 || s_x == 0) ? BIG : val[k1-1])) begin
+                    val[k1] <= s_sum[(k1 % PARALLEL)*SW +: SW];
+                    dd[k1] <= k1;
+                end else begin
+                    val[k1] <= (k1 == 0 || s_x == 0) ? BIG : val[k1-1];
+                    dd[k1] <= (k1 == 0 || s_x == 0) ? 7'd0 : dd[k1-1];
+                end
+            end
+            x_now <= s_x;
+            base_now <= bank_base(s_y);
+        end else begin
+            for (k1 = 0; k1 < MAX_DISP; k1 = k1 + 1) begin
+                if (k1 / PARALLEL == s_group && k1 <= x_now && k1 < num_disp
+                    && s_sum[(k1 % PARALLEL)*SW +: SW] < val[k1]) begin
+                    val[k1] <= s_sum[(k1 % PARALLEL)*SW +: SW];
+                    dd[k1] <= k1;
+                end
+            end
+        end
+    end
+    if (rst) begin
+        ex_en <= 1'b0;
+    end
+end
+
+// a row's last group: every cell of the row is final; copy them the clock after (updates done)
+reg last_in = 1'b0;
+always @(posedge clk) begin
+    last_in <= s_valid && s_group == (MAX_DISP / PARALLEL) - 1 && x_now == width - 1 && !rst;
+end
+
+always @(posedge clk) begin
+    w_en <= 1'b0;
+    if (rst) begin
+        fl_left <= 11'd0;
+    end else if (last_in) begin
+        for (k3 = 0; k3 < MAX_DISP; k3 = k3 + 1) fl_d[k3] <= dd[k3];
+        fl_left <= (x_now + 1 < MAX_DISP) ? x_now + 11'd1 : MAX_DISP;
+        fl_x0 <= x_now;
+        fl_base <= base_now;
+    end
+    if (!rst && ex_en) begin
+        w_en <= 1'b1;
+        w_addr <= ex_base + ex_xr;
+        w_d <= ex_d;
+    end else if (!rst && !last_in && fl_left != 0) begin
+        w_en <= 1'b1;
+        w_addr <= fl_base + (fl_x0 - (fl_left - 11'd1));
+        w_d <= fl_d[fl_left - 1];
+        fl_left <= fl_left - 11'd1;
+    end
+end
+
+endmodule
+
+`resetall
