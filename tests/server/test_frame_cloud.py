@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from stereocam.overlays.model.stereo import compute
 from stereocam.server.errors import ApiError, Kind
 from stereocam.server.frames.cloud import depth_files, frame_cloud
 from stereocam.server.frames.pipeline import FrameSet
@@ -26,8 +27,11 @@ def frame_set(width: int, height: int = 30, seed: int = 0) -> FrameSet:
     processed = np.zeros((height, width, 8), np.uint8)
     processed[..., 0:4] = left[:, :-8, None]
     processed[..., 4:8] = left[:, 8:, None]
+    # From a fabric with the stereo core: its output is the model's on the pair (ValueError where the
+    # core does not take the frame).
     return FrameSet(seq=0, frame=7, fabric_count=7, timestamp=0.0, monotonic=0.0, source="test",
-                    processed=processed, raw=None)
+                    processed=processed, raw=None, stereo=True,
+                    depth=lambda: compute(processed[..., 3].copy(), processed[..., 7].copy()).beats())
 
 
 def calibration(Q: np.ndarray, units: str) -> FrameCalibration:
@@ -80,3 +84,13 @@ def test_the_store_keeps_extra_files_and_refuses_clashing_names(tmp_path) -> Non
         with pytest.raises(ValueError):
             store.save(frames, {"frame": 2}, [(name, b"x")])
     assert [i.id for i in store.list()] == [info.id]
+
+
+def test_without_a_stereo_core_a_frame_has_no_depth_files() -> None:
+    fs = frame_set(64)
+    fs.stereo, fs.depth = False, None
+    files, section = depth_files(fs, calibration(Q_MM, "mm"), "frame 7")
+    assert files == {} and "this bitstream has no stereo core" in section["unavailable"]
+    with pytest.raises(ApiError) as exc:
+        frame_cloud(fs, calibration(Q_MM, "mm"), "frame 7")
+    assert exc.value.kind is Kind.CONFLICT and "load a depth build" in exc.value.message

@@ -26,6 +26,7 @@ from ..errors import ApiError, Kind
 from ..stores.captures import CaptureInfo, CaptureStore
 from ..stores.frame_calibration import FrameCalibration
 from .cloud import depth_files
+from .depth import needs_depth
 from .feed import BroadcastClosed, FrameFeed
 from .pipeline import FrameSet, Pipeline
 from .virtual_camera import VirtualCamera
@@ -82,14 +83,15 @@ class CaptureService:
         timeout = self.frame_wait_s()
         asked = time.time()
 
-        # Grabbed after the request, with its raw pair, of a known calibration.
+        # Grabbed after the request, with its raw pair (and the stereo core's output, where there is a
+        # core: the capture stores the disparity), of a known calibration.
         def wanted(f: FrameSet) -> bool:
             known = calibration.for_frame(f.fabric_count) is not None
-            return f.timestamp >= asked and f.raw is not None and known
+            return f.timestamp >= asked and f.raw is not None and known and not needs_depth(f)
 
         change_ends = time.monotonic() + CHANGE_WAIT_S
         try:
-            with pipeline.raw_wanted(), pipeline.pairs_wanted():
+            with pipeline.raw_wanted(), pipeline.pairs_wanted(), pipeline.depth_wanted():
                 while True:
                     try:
                         return await feed.next_frame(timeout=timeout, accept=wanted)

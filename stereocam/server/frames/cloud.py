@@ -10,10 +10,11 @@ from __future__ import annotations
 from typing import Any, Dict, Optional, Tuple
 
 from ...calibration import cloud, disparity_images
+from ...overlays.model.stereo import StereoResult
 from ...overlays.spec import stereo as spec
 from ..errors import ApiError, Kind
 from ..stores.frame_calibration import FrameCalibration
-from .depth import stereo_of
+from .depth import DepthNotTaken, disparity_by, stereo_of
 from .pipeline import FrameSet
 
 __all__ = ["CLOUD_FILE", "cloud_unavailable", "frame_cloud", "depth_files"]
@@ -44,11 +45,16 @@ def frame_cloud(fs: FrameSet, calibration: Optional[FrameCalibration], what: str
     return cloud.ply_bytes(pc, f"{what}, calibration {calibration.id if calibration else None}")
 
 
-def _stereo(fs: FrameSet, what: str) -> Any:
+def _stereo(fs: FrameSet, what: str) -> StereoResult:
+    """The stereo core's output for ``fs``; ApiError where there is none (no core: CONFLICT)."""
     try:
-        return stereo_of(fs)
-    except ValueError as exc:
+        result = stereo_of(fs)
+    except (ValueError, DepthNotTaken) as exc:
         raise ApiError(f"no depth of {what}: {exc}", kind=Kind.UNUSABLE) from None
+    if result is None:
+        raise ApiError(f"no depth of {what}: this bitstream has no stereo core (the disparity view is "
+                       f"computed on the {disparity_by(False)}); load a depth build", kind=Kind.CONFLICT)
+    return result
 
 
 def depth_files(fs: FrameSet, calibration: Optional[FrameCalibration], what: str
