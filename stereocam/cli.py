@@ -367,7 +367,7 @@ def cmd_disparity(args: argparse.Namespace) -> int:
         pair_depth.write_all(outdir, files)
     except OSError as exc:
         raise UserError(f"cannot write into {outdir}: {exc.strerror or exc}") from None
-    valid = int(np.count_nonzero(result.valid))
+    valid = int(result.valid.sum())
     h, w = result.disp.shape
     print(f"wrote {', '.join(str(outdir / n) for n in files)} ({w}x{h}, {valid} of {w * h} pixels with a "
           f"disparity, the stereo core's model{'' if cloud_of is None else ', points in metres'})")

@@ -20,18 +20,21 @@ from stereocam.server.stores.frame_calibration import FrameCalibration
 Q_MM = np.array([[1, 0, 0, -40.0], [0, 1, 0, -15.0], [0, 0, 0, 300.0], [0, 0, 1 / 60.0, 0]])
 
 
-def frame_set(width: int, height: int = 30, seed: int = 0) -> FrameSet:
-    """A rectified pair whose right image is the left shifted by 8 pixels: disparity 8 where it matches."""
+def frame_set(width: int, height: int = 30, seed: int = 0, stereo: bool = True) -> FrameSet:
+    """A rectified pair whose right image is the left shifted by 8 pixels: disparity 8 where it matches;
+    with ``stereo``, from an overlay whose stereo core's output (its model's beats, as the emulated core
+    gives them) was taken with it."""
     rng = np.random.default_rng(seed)
     left = rng.integers(0, 256, (height, width + 8), dtype=np.uint8)
     processed = np.zeros((height, width, 8), np.uint8)
     processed[..., 0:4] = left[:, :-8, None]
     processed[..., 4:8] = left[:, 8:, None]
-    # From a fabric with the stereo core: its output is the model's on the pair (ValueError where the
-    # core does not take the frame).
+
+    def core_output() -> np.ndarray:
+        return compute(processed[..., 3].copy(), processed[..., 7].copy()).beats()
+
     return FrameSet(seq=0, frame=7, fabric_count=7, timestamp=0.0, monotonic=0.0, source="test",
-                    processed=processed, raw=None, stereo=True,
-                    depth=lambda: compute(processed[..., 3].copy(), processed[..., 7].copy()).beats())
+                    processed=processed, raw=None, stereo=stereo, depth=core_output if stereo else None)
 
 
 def calibration(Q: np.ndarray, units: str) -> FrameCalibration:
@@ -86,11 +89,9 @@ def test_the_store_keeps_extra_files_and_refuses_clashing_names(tmp_path) -> Non
     assert [i.id for i in store.list()] == [info.id]
 
 
-def test_without_a_stereo_core_a_frame_has_no_depth_files() -> None:
-    fs = frame_set(64)
-    fs.stereo, fs.depth = False, None
-    files, section = depth_files(fs, calibration(Q_MM, "mm"), "frame 7")
-    assert files == {} and "this bitstream has no stereo core" in section["unavailable"]
+def test_without_a_stereo_core_a_frame_has_no_depth_and_says_so() -> None:
+    files, section = depth_files(frame_set(64, stereo=False), calibration(Q_MM, "mm"), "frame 7")
+    assert files == {} and "no stereo core" in section["unavailable"]
     with pytest.raises(ApiError) as exc:
-        frame_cloud(fs, calibration(Q_MM, "mm"), "frame 7")
-    assert exc.value.kind is Kind.CONFLICT and "load a depth build" in exc.value.message
+        frame_cloud(frame_set(64, stereo=False), calibration(Q_MM, "mm"), "frame 7")
+    assert exc.value.kind is Kind.CONFLICT and "no stereo core" in exc.value.message

@@ -28,6 +28,8 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from ..spec import camera_in as ci
 from ..spec import frame_gate as fg
+from ..spec.stereo import BUILDS as STEREO_BUILDS
+from ..spec.stereo import Build as StereoBuild
 from . import dsp_map, ip_estimates
 from . import toolchain as hdl
 
@@ -51,13 +53,23 @@ NOTE = ("yosys figures run above Vivado's: synth_xilinx does no place and route,
 
 @dataclass(frozen=True)
 class BuildParams:
-    """One bitstream build: the Verilog parameters of ``rectify_core`` it sets."""
+    """One bitstream build: the Verilog parameters of ``rectify_core`` it sets, and of the stereo
+    core where the build has one (the ``depth`` build: the gray rectify core and the stereo core)."""
 
     name: str
     max_width: int
     max_height: int
     lb_rows: int
     colour: bool
+    stereo: Optional[StereoBuild] = None
+
+    def stereo_parameters(self) -> Dict[str, int]:
+        """``stereo_core``'s parameters (empty without a stereo core)."""
+        b = self.stereo
+        if b is None:
+            return {}
+        return {"MAX_WIDTH": b.max_width, "MAX_HEIGHT": b.max_height, "MAX_DISP": b.max_disp,
+                "PARALLEL": b.parallel}
 
     def parameters(self) -> Dict[str, int]:
         """The ``chparam`` values, by Verilog parameter name."""
@@ -66,7 +78,7 @@ class BuildParams:
 
     def to_dict(self) -> Dict[str, Any]:
         return {"name": self.name, "max_width": self.max_width, "max_height": self.max_height,
-                "lb_rows": self.lb_rows, "colour": self.colour}
+                "lb_rows": self.lb_rows, "colour": self.colour, "stereo": self.stereo_parameters() or None}
 
 
 # TODO: remove once stereocam/overlays/spec/rectify.py defines BUILDS; builds() switches to it by itself.
@@ -88,7 +100,16 @@ def builds() -> Tuple[Dict[str, BuildParams], str]:
     out = {str(name): BuildParams(str(b.name), int(b.max_width), int(b.max_height), int(b.lb_rows),
                                   bool(int(b.colour)))
            for name, b in table.items()}
-    return out, "stereocam/overlays/spec/rectify.py BUILDS"
+    gray = out["gray"]
+    out[STEREO_BUILD] = BuildParams(STEREO_BUILD, gray.max_width, gray.max_height, gray.lb_rows, gray.colour,
+                                    STEREO_BUILDS[STEREO_BUILD])
+    return out, "stereocam/overlays/spec/rectify.py BUILDS; depth: gray + spec/stereo.py BUILDS"
+
+
+#: The build with a stereo core: the gray rectify core beside it (the colour build leaves too
+#: little block RAM, STEREO_CORE.md).
+STEREO_BUILD = "depth"
+STEREO_TOP = "stereo_core"
 
 
 # --------------------------------------------------------------------------- reference table
@@ -633,8 +654,34 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
         r = synthesize(camera, top=fg.TOP, parameters=params, extra_sources=shared, timeout=timeout,
                        use_cache=use_cache)
         parts.append(_rtl_part(f"frame_gate x{len(names)}", names, r))
-    rank = {"rectify": 0, "camera_in": 1, "frame_gate": 2}
+    if build.stereo is not None:
+        parts += stereo_parts(build, cells, timeout=timeout, use_cache=use_cache)
+    rank = {"rectify": 0, "stereo": 1, "camera_in": 2, "frame_gate": 3}
     return sorted(parts, key=lambda p: rank.get(p.name.split()[0], 3))
+
+
+def synthesize_stereo(build: BuildParams, *, timeout: float = DEFAULT_TIMEOUT_S, use_cache: bool = True,
+                      netlist: bool = False) -> SynthResult:
+    """yosys on the stereo core (``rtl/stereo/`` with the shared RAM and FIFO) with the build's parameters."""
+    rtl = rtl_dir()
+    return synthesize(rtl / "stereo", top=STEREO_TOP, parameters=build.stereo_parameters(),
+                      extra_sources=[rtl / "rc_ram.v", rtl / "rc_fifo.v"], timeout=timeout,
+                      use_cache=use_cache, netlist=netlist)
+
+
+def stereo_parts(build: BuildParams, cells: Sequence[BdCell], *, timeout: float = DEFAULT_TIMEOUT_S,
+                 use_cache: bool = True) -> List[Part]:
+    """What the depth build adds to the block design: the stereo core (synthesised) and the VDMA
+    that writes its output to DDR (``vdma_depth``, spec/overlay.py), estimated as ``vdma_raw``, the
+    other write-only channel (its 32-bit stream is narrower than vdma_raw's 64: no more)."""
+    core = synthesize_stereo(build, timeout=timeout, use_cache=use_cache)
+    raw = next((c for c in cells if c.name == "vdma_raw"), None)
+    if raw is None:
+        raise HwSynthError("the block design has no vdma_raw cell to estimate the depth build's VDMA from")
+    est, fig = ip_estimates.estimate(raw.vlnv, raw.config)
+    return [_rtl_part(f"stereo core ({build.name})", ["stereo"], core),
+            Part(f"{raw.ip} (estimate)", ("vdma_depth",), "estimate", fig.lut, fig.ff, fig.bram36, fig.dsp,
+                 f"as vdma_raw: {est.citation}: {est.basis}")]
 
 
 def overlay_totals(parts: Sequence[Part]) -> Dict[str, float]:

@@ -630,6 +630,15 @@ def synth_netlist(sources_dir: Path, *, top: str = hw_synth.TOP,
     return Netlist(data, result.cached, result.seconds, result.netlist)
 
 
+def stereo_netlist(build: hw_synth.BuildParams, *, timeout: float = hw_synth.DEFAULT_TIMEOUT_S,
+                   use_cache: bool = True) -> Netlist:
+    """yosys's mapped netlist of the build's stereo core (the run and cache of ``stereocam hw synth``)."""
+    result = hw_synth.synthesize_stereo(build, timeout=timeout, use_cache=use_cache, netlist=True)
+    assert result.netlist is not None
+    return Netlist(json.loads(result.netlist.read_text(encoding="utf-8")), result.cached, result.seconds,
+                   result.netlist)
+
+
 # --------------------------------------------------------------------------- report
 
 
@@ -640,7 +649,8 @@ def report_dict(paths: Sequence[TimingPath], build: hw_synth.BuildParams, netlis
     period = 1000.0 / mhz
     worst = paths[0].delay_ns if paths else 0.0
     return {
-        "top": hw_synth.TOP, "device": hw_synth.DEVICE, "speed_grade": -1, "build": build.to_dict(),
+        "top": hw_synth.TOP if build.stereo is None else f"{hw_synth.TOP} and {hw_synth.STEREO_TOP}",
+        "device": hw_synth.DEVICE, "speed_grade": -1, "build": build.to_dict(),
         "clock_mhz": mhz, "clock_from": "stereocam/overlays/spec/overlay.py FABRIC_CLOCK_HZ "
                                          "(= settings.tcl STEREOCAM_FCLK0_MHZ)",
         "period_ns": round(period, 3), "worst_ns": round(worst, 3),
@@ -706,6 +716,12 @@ def cmd_hw_timing(args: argparse.Namespace) -> int:
                             use_cache=not args.no_cache)
         paths = analyse(net.data, hw_synth.TOP, args.paths)
         fanout = high_fanout(net.data, hw_synth.TOP)
+        if build.stereo is not None:  # the depth build: the stereo core's paths beside the rectify core's
+            stereo = stereo_netlist(build, timeout=args.timeout, use_cache=not args.no_cache)
+            paths = sorted([*paths, *analyse(stereo.data, hw_synth.STEREO_TOP, args.paths)],
+                           key=lambda p: -p.delay_ns)[:args.paths]
+            fanout = sorted([*fanout, *high_fanout(stereo.data, hw_synth.STEREO_TOP)],
+                            key=lambda f: -f[1])[:len(fanout)]
     except hw_synth.HwSynthError as exc:
         print(f"stereocam hw timing: error: {exc}", file=sys.stderr)
         return 2

@@ -84,7 +84,7 @@ class CaptureService:
         asked = time.time()
 
         # Grabbed after the request, with its raw pair (and the stereo core's output, where there is a
-        # core: the capture stores the disparity), of a known calibration.
+        # core), of a known calibration.
         def wanted(f: FrameSet) -> bool:
             known = calibration.for_frame(f.fabric_count) is not None
             return f.timestamp >= asked and f.raw is not None and known and not needs_depth(f)

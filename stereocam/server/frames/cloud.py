@@ -14,7 +14,7 @@ from ...overlays.model.stereo import StereoResult
 from ...overlays.spec import stereo as spec
 from ..errors import ApiError, Kind
 from ..stores.frame_calibration import FrameCalibration
-from .depth import DepthNotTaken, disparity_by, stereo_of
+from .depth import DepthNotTaken, stereo_of
 from .pipeline import FrameSet
 
 __all__ = ["CLOUD_FILE", "cloud_unavailable", "frame_cloud", "depth_files"]
@@ -46,14 +46,18 @@ def frame_cloud(fs: FrameSet, calibration: Optional[FrameCalibration], what: str
 
 
 def _stereo(fs: FrameSet, what: str) -> StereoResult:
-    """The stereo core's output for ``fs``; ApiError where there is none (no core: CONFLICT)."""
+    """The stereo core's output for ``fs``; ApiError saying why there is none."""
     try:
         result = stereo_of(fs)
-    except (ValueError, DepthNotTaken) as exc:
+    except DepthNotTaken:
+        raise ApiError(f"no depth of {what}: it was read without the stereo core's output; try again",
+                       kind=Kind.UNAVAILABLE) from None
+    except ValueError as exc:
         raise ApiError(f"no depth of {what}: {exc}", kind=Kind.UNUSABLE) from None
     if result is None:
-        raise ApiError(f"no depth of {what}: this bitstream has no stereo core (the disparity view is "
-                       f"computed on the {disparity_by(False)}); load a depth build", kind=Kind.CONFLICT)
+        raise ApiError(f"no depth of {what}: this bitstream has no stereo core (the disparity view's "
+                       "StereoBM runs on the ARM for display only); `stereocam disparity` computes the "
+                       "core's disparity of a capture's rectified pair", kind=Kind.CONFLICT)
     return result
 
 
