@@ -307,6 +307,19 @@ def test_the_cores_output_is_taken_only_while_wanted(stepped) -> None:
     assert stereo_of(fs) is core, "read once per set"
 
 
+def test_a_frame_the_core_emitted_nothing_for_says_why(stepped) -> None:
+    stereo = stepped.stereo
+    assert stereo is not None
+    stereo.program(stereo.params(), size=(SMALL[0] - 8, SMALL[1]), wait=False)  # latched at the next frame
+    stepped.step(3)
+    pipeline = Pipeline(stepped, publish=lambda fs: None)
+    with pipeline.depth_wanted():
+        fs = pipeline.grab()
+    assert fs is not None and fs.depth is not None and stereo.status().flags["SIZE_ERROR"]
+    with pytest.raises(ValueError, match="emitted no output for frame .*SIZE_ERROR"):
+        stereo_of(fs)
+
+
 def test_without_a_stereo_core_nothing_is_taken() -> None:
     overlay = make_overlay(clock="stepped", stereo=False)
     overlay.start()

@@ -58,6 +58,15 @@ GRAB_ATTEMPTS = 3
 DOZE = 0.7  # share of the frame period the thread sleeps before polling for the next frame
 
 
+def _no_output(count: int) -> Callable[[], np.ndarray]:
+    """The stereo core's output for a frame it emitted none for: reading it says why (ValueError)."""
+    def read() -> np.ndarray:
+        raise ValueError(f"the stereo core emitted no output for frame {count} (a frame size it does not "
+                         "take sets its SIZE_ERROR flag: see /api/status)")
+
+    return read
+
+
 class OnceCache:
     """Values computed at most once per key, shared by every thread that asks.
 
@@ -510,7 +519,9 @@ class Pipeline:
             started = time.thread_time()
             processed = np.empty(buf.shape, dtype=np.uint8)
             np.copyto(processed, buf)
-            depth = overlay.take_depth(store) if self._depth_wanted and self.has_stereo else None
+            depth = None
+            if self._depth_wanted and self.has_stereo:
+                depth = overlay.take_depth(store) or _no_output(count)
             if self._charge is not None:
                 self._charge("copy", time.thread_time() - started)
             state = self.source_state
