@@ -142,7 +142,8 @@ def test_the_wheel_built_offline_from_the_sdist_is_complete_and_described(dists:
 
 # The package's third-party imports and the distributions that provide them.
 PROVIDERS = {"numpy": "numpy", "cv2": "opencv-python-headless", "aiohttp": "aiohttp", "PIL": "pillow",
-             "yaml": "pyyaml", "scipy": "scipy", "prometheus_client": "prometheus-client", "pynq": "pynq"}
+             "yaml": "pyyaml", "scipy": "scipy", "prometheus_client": "prometheus-client", "pynq": "pynq",
+             "numba": "numba"}  # pynq and numba: the extras "board" and "fast" (Requires-Dist with extra ==)
 
 
 def test_every_third_party_import_is_a_declared_dependency(dists: Dists) -> None:
