@@ -169,3 +169,25 @@ def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[st
     assert report["dsp_cascade"] == {"DSP48E1": 52, "PCIN": 39, "C_from_P": 0, "PREG": 26}
     print(build, {k: overlay["total"][k] for k in ("LUT", "FF", "BRAM36", "DSP48E1")}, overlay["share_pct"],
           report["dsp_cascade"])
+
+
+def test_the_depth_build_adds_the_stereo_core_and_its_vdma(cells: List[BdCell]) -> None:
+    """The depth build: the gray rectify core's parameters, and beside the block design's cells the stereo
+    core synthesised (here a small build of it, for time: the full one takes yosys half an hour) and the
+    VDMA writing its output (estimated as vdma_raw, the other write-only channel)."""
+    table, source = hw_synth.builds()
+    depth = table[hw_synth.STEREO_BUILD]
+    assert depth.parameters() == gray().parameters() and "depth" in source
+    assert depth.stereo_parameters() == {"MAX_WIDTH": 752, "MAX_HEIGHT": 1024, "MAX_DISP": 128,
+                                         "PARALLEL": 32}
+    small = dataclasses.replace(depth, stereo=hw_synth.StereoBuild("small", 64, 64, 32, 8))
+    parts = hw_synth.overlay_parts(small, fake_core(), cells=cells)
+    by_name = {p.name: p for p in parts}
+    stereo = by_name["stereo core (depth)"]
+    assert stereo.kind == "yosys" and stereo.cells == ("stereo",) and stereo.lut > 1000 and stereo.bram36 > 0
+    assert "MAX_DISP 32" in stereo.source and "PARALLEL 8" in stereo.source
+    vdma = [p for p in parts if p.cells == ("vdma_depth",)]
+    raw = [p for p in parts_of(cells) if p.cells == ("vdma_raw",)]
+    assert len(vdma) == 1 and vdma[0].values() == raw[0].values() and "as vdma_raw" in vdma[0].source
+    totals = hw_synth.overlay_totals(parts)
+    assert totals["LUT"] == sum(p.lut for p in parts) > sum(p.lut for p in parts_of(cells))
