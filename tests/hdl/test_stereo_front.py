@@ -83,3 +83,18 @@ def test_front_sums(sim: str, case: Case, cocotb_dir: Path) -> None:
                      test_dir=cocotb_dir)
     print(f"{sim} {case.name}: build {run.build_seconds:.1f} s, run {run.run_seconds:.1f} s")
     assert run.passed
+
+
+TREES = [  # (N, W, STAGES, OUT_REG): the front's four trees at the small builds, a padded N, odd widths
+    (32, 8, 2, 1), (8, 8, 2, 1), (16, 8, 1, 0), (8, 8, 1, 0), (128, 8, 1, 0), (13, 5, 3, 1), (6, 3, 2, 0),
+]
+
+
+@pytest.mark.parametrize("tree", TREES, ids=["-".join(map(str, t)) for t in TREES])
+def test_min_tree(tree: tuple[int, int, int, int], cocotb_dir: Path) -> None:
+    """sc_min_tree gives the minimum of the words taken STAGES enabled clocks before (Icarus)."""
+    build = dict(zip(("N", "W", "STAGES", "OUT_REG"), tree, strict=True))
+    env = {"STEREOCAM_UNIT_PARAMS": json.dumps(build), "COCOTB_RANDOM_SEED": "1"}
+    run = run_cocotb("sc_min_tree", [STEREO / "sc_min_tree.v"], "tb_sc_min_tree", sim="icarus",
+                     parameters=build, extra_env=env, test_dir=cocotb_dir)
+    assert run.passed

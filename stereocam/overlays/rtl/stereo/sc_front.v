@@ -236,12 +236,25 @@ cost_inst (
 localparam CW = PARALLEL * 6;
 reg [MAX_DISP*6-1:0] cost_all;
 wire [1:0] g_cost = phase + 2'd2;  // the group in `cost` now, and the group sc_path_up needs now
+// (explicit selects: a part select at CW * g_cost is a barrel shifter to yosys)
 always @(posedge clk) begin
-    if (run) begin
-        cost_all[CW*g_cost +: CW] <= cost;
+    if (run && g_cost == 2'd0) begin
+        cost_all[0 +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd1) begin
+        cost_all[CW +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd2) begin
+        cost_all[2*CW +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd3) begin
+        cost_all[3*CW +: CW] <= cost;
     end
 end
-wire [CW-1:0] cost_g = cost_all[CW*g_cost +: CW];
+wire [CW-1:0] cost_g = g_cost == 2'd0 ? cost_all[0 +: CW]
+                     : g_cost == 2'd1 ? cost_all[CW +: CW]
+                     : g_cost == 2'd2 ? cost_all[2*CW +: CW]
+                     : cost_all[3*CW +: CW];
 
 // ---- the three paths
 wire [MAX_DISP*8-1:0] l_left;
@@ -336,7 +349,10 @@ upright_inst (
 // ---- the sums of group (phase + 1) mod 4
 wire [1:0] g_out = phase + 2'd1;
 localparam LW = PARALLEL * 8;
-wire [LW-1:0] l_left_g = l_left[LW*g_out +: LW];
+wire [LW-1:0] l_left_g = g_out == 2'd0 ? l_left[0 +: LW]
+                        : g_out == 2'd1 ? l_left[LW +: LW]
+                        : g_out == 2'd2 ? l_left[2*LW +: LW]
+                        : l_left[3*LW +: LW];
 reg [PARALLEL*10-1:0] sums;
 integer j;
 always @* begin
