@@ -2,7 +2,8 @@
 
 ``tests/hdl/tb_sc_front.py`` writes frames into the front's line buffer, sweeps them slot by slot with
 random gaps in ``run``, and compares every real pixel's S(p, d), d < NUM_DISP, with
-``stereo_fast.aggregate``. Small builds keep the simulations short; each build runs a list of frames
+``stereo_fast.aggregate``. Small builds keep the simulations short (and the depth build itself sees
+a 170x8 frame at 128 disparities and a 9x7 at 64); each build runs a list of frames
 (odd sizes, the minimum 9x7, taller than the 8-row line buffer, as wide as the build) under several
 parameter sets (NUM_DISP of the whole build and less, edge thresholds that always, never and sometimes
 lower P2). Every case runs under Icarus, the first under Verilator too (every case with
@@ -57,6 +58,10 @@ CASES = [
         frame("shifted", 31, 8, 7, num_disp=32, p1=0, p2=0, p2_edge=0, edge_thresh=1),
         frame("flat", 12, 7, 8, num_disp=16, p1=5, p2=60, p2_edge=30, edge_thresh=24),
         frame("random", 9, 13, 9, num_disp=32, p1=63, p2=193, p2_edge=193, edge_thresh=128),
+    )),
+    Case("depth-build", {"MAX_WIDTH": 752, "MAX_DISP": 128, "PARALLEL": 32}, (
+        frame("shifted", 170, 8, 12, num_disp=128),
+        frame("random", 9, 7, 13, num_disp=64, p1=12, p2=80, p2_edge=30, edge_thresh=20),
     )),
     Case("parallel-4", {"MAX_WIDTH": 40, "MAX_DISP": 16, "PARALLEL": 4}, (
         frame("shifted", 40, 9, 10, num_disp=16),
