@@ -26,8 +26,9 @@
  * Pipeline of the pixel brought in by slot s0 (run clocks from its phase 0):
  *   0       line buffer read of column x + 4;   2  window shift;
  *   3       census words and gray values (sc_census);
- *   4 + g   cost group g, stage 1; 6 + g its costs (sc_cost), collected for
- *           the left path (all groups by 10);
+ *   3 + g   cost group g: its right census words picked; 4 + g stage 1;
+ *           6 + g its costs (sc_cost), collected for the left path (all
+ *           groups by 10);
  *   10, 11  the left path, lanes below MAX_DISP / 2, then the rest (sc_path_left);
  *   6 .. 13 the paths from above and the upper right (sc_path_up), group g
  *           in l_path during 11 + g;
@@ -42,6 +43,10 @@
  * hold junk. m_valid is 0 during a run clock whose pixel is not real, and
  * the outputs hold between run clocks. A consumer in lockstep samples them at
  * its run clocks.
+ *
+ * Resources at 752/128/32 (yosys 0.23 synth_xilinx -flatten, as `stereocam
+ * hw synth` counts): 19,771 LUT, 19,440 FF, 49 BRAM36 (the two upper paths'
+ * rows 2 x 24, the line buffer and the minima), no DSP.
  *
  * Reset: synchronous, active high: the valid bits of the pipeline (so no
  * output and no path-state write before the first real pixel); data is not
