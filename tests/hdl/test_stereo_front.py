@@ -2,7 +2,8 @@
 
 ``tests/hdl/tb_sc_front.py`` writes frames into the front's line buffer, sweeps them slot by slot with
 random gaps in ``run``, and compares every real pixel's S(p, d), d < NUM_DISP, with
-``stereo_fast.aggregate``. Small builds keep the simulations short; each build runs a list of frames
+``stereo_fast.aggregate``. Small builds keep the simulations short (and the depth build itself sees
+a 170x8 frame at 128 disparities and a 9x7 at 64); each build runs a list of frames
 (odd sizes, the minimum 9x7, taller than the 8-row line buffer, as wide as the build) under several
 parameter sets (NUM_DISP of the whole build and less, edge thresholds that always, never and sometimes
 lower P2). Every case runs under Icarus, the first under Verilator too (every case with
@@ -58,6 +59,10 @@ CASES = [
         frame("flat", 12, 7, 8, num_disp=16, p1=5, p2=60, p2_edge=30, edge_thresh=24),
         frame("random", 9, 13, 9, num_disp=32, p1=63, p2=193, p2_edge=193, edge_thresh=128),
     )),
+    Case("depth-build", {"MAX_WIDTH": 752, "MAX_DISP": 128, "PARALLEL": 32}, (
+        frame("shifted", 170, 8, 12, num_disp=128),
+        frame("random", 9, 7, 13, num_disp=64, p1=12, p2=80, p2_edge=30, edge_thresh=20),
+    )),
     Case("parallel-4", {"MAX_WIDTH": 40, "MAX_DISP": 16, "PARALLEL": 4}, (
         frame("shifted", 40, 9, 10, num_disp=16),
         frame("random", 13, 7, 11, num_disp=12, p1=20, p2=90, p2_edge=45, edge_thresh=60),
@@ -82,4 +87,19 @@ def test_front_sums(sim: str, case: Case, cocotb_dir: Path) -> None:
     run = run_cocotb("sc_front", SOURCES, "tb_sc_front", sim=sim, parameters=case.build, extra_env=env,
                      test_dir=cocotb_dir)
     print(f"{sim} {case.name}: build {run.build_seconds:.1f} s, run {run.run_seconds:.1f} s")
+    assert run.passed
+
+
+TREES = [  # (N, W, STAGES, OUT_REG): the front's four trees at the small builds, a padded N, odd widths
+    (32, 8, 2, 1), (8, 8, 2, 1), (16, 8, 1, 0), (8, 8, 1, 0), (128, 8, 1, 0), (13, 5, 3, 1), (6, 3, 2, 0),
+]
+
+
+@pytest.mark.parametrize("tree", TREES, ids=["-".join(map(str, t)) for t in TREES])
+def test_min_tree(tree: tuple[int, int, int, int], cocotb_dir: Path) -> None:
+    """sc_min_tree gives the minimum of the words taken STAGES enabled clocks before (Icarus)."""
+    build = dict(zip(("N", "W", "STAGES", "OUT_REG"), tree, strict=True))
+    env = {"STEREOCAM_UNIT_PARAMS": json.dumps(build), "COCOTB_RANDOM_SEED": "1"}
+    run = run_cocotb("sc_min_tree", [STEREO / "sc_min_tree.v"], "tb_sc_min_tree", sim="icarus",
+                     parameters=build, extra_env=env, test_dir=cocotb_dir)
     assert run.passed

@@ -13,7 +13,8 @@
  * So during a slot, with `cl` and `cr` those of pixel x (x: `x`, held for the
  * slot), element k is censusR(x - k). In phase g lane j takes element
  * d = PARALLEL * g + j: cost = popcount(cl ^ element d), or 62 when x < d,
- * in two pipeline stages (full adders and 6:3 counters, then their sum).
+ * in two pipeline stages (full adders and 6:3 counters, then their sum),
+ * after the element itself is picked a run clock ahead.
  *
  * Latency: group g of the slot's pixel is in `cost` (lane j at [6*j +: 6])
  * during the run clock 2 after its phase g, i.e. phase g + 2 (the next slot's
@@ -76,12 +77,21 @@ generate
     for (j = 0; j < PARALLEL; j = j + 1) begin : g_lane
         localparam [31:0] LANE32 = j;
         localparam [12:0] LANE = LANE32[12:0];
-        // stage 1: the element of this phase, XOR, a full adder on each 3 bits (as logic, so the
-        // XORs merge into its LUTs), then 6:3 counters on the sums (weight 1) and carries (weight 2)
-        wire [NB-1:0] word = phase == 2'd0 ? elems[NB*j +: NB]
-                           : phase == 2'd1 ? elems[NB*(PARALLEL + j) +: NB]
-                           : phase == 2'd2 ? elems[NB*(2*PARALLEL + j) +: NB]
-                           : elems[NB*(3*PARALLEL + j) +: NB];
+        // stage 0, a clock ahead: the element of the next phase's group (phase 3: the next slot's
+        // group 0, element j - 1 before the shift; lane 0 takes cr itself at phase 0), registered
+        // apart from the XOR so that neither makes the other's LUTs wider
+        reg [NB-1:0] word_reg;
+        always @(posedge clk) begin
+            if (run) begin
+                word_reg <= phase == 2'd0 ? elems[NB*(PARALLEL + j) +: NB]
+                          : phase == 2'd1 ? elems[NB*(2*PARALLEL + j) +: NB]
+                          : phase == 2'd2 ? elems[NB*(3*PARALLEL + j) +: NB]
+                          : elems[NB*(j == 0 ? 0 : j - 1) +: NB];
+            end
+        end
+        // stage 1: XOR, a full adder on each 3 bits (as logic, so the XORs merge into its LUTs),
+        // then 6:3 counters on the sums (weight 1) and carries (weight 2)
+        wire [NB-1:0] word = (j == 0 && phase == 2'd0) ? cr : word_reg;
         wire [NB:0] diff = {1'b0, cl ^ word};
         wire [NC-1:0] fa_s;
         wire [NC-1:0] fa_c;

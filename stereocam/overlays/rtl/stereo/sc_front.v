@@ -26,8 +26,9 @@
  * Pipeline of the pixel brought in by slot s0 (run clocks from its phase 0):
  *   0       line buffer read of column x + 4;   2  window shift;
  *   3       census words and gray values (sc_census);
- *   4 + g   cost group g, stage 1; 6 + g its costs (sc_cost), collected for
- *           the left path (all groups by 10);
+ *   3 + g   cost group g: its right census words picked; 4 + g stage 1;
+ *           6 + g its costs (sc_cost), collected for the left path (all
+ *           groups by 10);
  *   10, 11  the left path, lanes below MAX_DISP / 2, then the rest (sc_path_left);
  *   6 .. 13 the paths from above and the upper right (sc_path_up), group g
  *           in l_path during 11 + g;
@@ -42,6 +43,10 @@
  * hold junk. m_valid is 0 during a run clock whose pixel is not real, and
  * the outputs hold between run clocks. A consumer in lockstep samples them at
  * its run clocks.
+ *
+ * Resources at 752/128/32 (yosys 0.23 synth_xilinx -flatten, as `stereocam
+ * hw synth` counts): 19,771 LUT, 19,440 FF, 49 BRAM36 (the two upper paths'
+ * rows 2 x 24, the line buffer and the minima), no DSP.
  *
  * Reset: synchronous, active high: the valid bits of the pipeline (so no
  * output and no path-state write before the first real pixel); data is not
@@ -236,12 +241,25 @@ cost_inst (
 localparam CW = PARALLEL * 6;
 reg [MAX_DISP*6-1:0] cost_all;
 wire [1:0] g_cost = phase + 2'd2;  // the group in `cost` now, and the group sc_path_up needs now
+// (explicit selects: a part select at CW * g_cost is a barrel shifter to yosys)
 always @(posedge clk) begin
-    if (run) begin
-        cost_all[CW*g_cost +: CW] <= cost;
+    if (run && g_cost == 2'd0) begin
+        cost_all[0 +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd1) begin
+        cost_all[CW +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd2) begin
+        cost_all[2*CW +: CW] <= cost;
+    end
+    if (run && g_cost == 2'd3) begin
+        cost_all[3*CW +: CW] <= cost;
     end
 end
-wire [CW-1:0] cost_g = cost_all[CW*g_cost +: CW];
+wire [CW-1:0] cost_g = g_cost == 2'd0 ? cost_all[0 +: CW]
+                     : g_cost == 2'd1 ? cost_all[CW +: CW]
+                     : g_cost == 2'd2 ? cost_all[2*CW +: CW]
+                     : cost_all[3*CW +: CW];
 
 // ---- the three paths
 wire [MAX_DISP*8-1:0] l_left;
@@ -336,7 +354,10 @@ upright_inst (
 // ---- the sums of group (phase + 1) mod 4
 wire [1:0] g_out = phase + 2'd1;
 localparam LW = PARALLEL * 8;
-wire [LW-1:0] l_left_g = l_left[LW*g_out +: LW];
+wire [LW-1:0] l_left_g = g_out == 2'd0 ? l_left[0 +: LW]
+                        : g_out == 2'd1 ? l_left[LW +: LW]
+                        : g_out == 2'd2 ? l_left[2*LW +: LW]
+                        : l_left[3*LW +: LW];
 reg [PARALLEL*10-1:0] sums;
 integer j;
 always @* begin

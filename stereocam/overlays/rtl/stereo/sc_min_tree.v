@@ -83,25 +83,25 @@ function integer level_registered;
     end
 endfunction
 
-// heap-ordered nodes: node i at [i*W +: W]; the root is node 1, the leaves P .. 2P-1; node 0
-// unused. Verilator sees the tree, which reads and writes this one vector, as a combinational loop
-// (UNOPTFLAT, a note on its speed: it evaluates the vector until it settles); yosys 0.23 reads no
-// hierarchical names into generate blocks, which one wire a node would need.
+// heap-ordered nodes: node i is nodes[i]; the root is node 1, the leaves P .. 2P-1. An array of
+// wires, so a simulator follows each node apart (one vector read and written by the whole tree is
+// one signal to Icarus: every change would wake every node). Verilator still sees the array as one
+// variable, so a loop (UNOPTFLAT, a note on its speed, not a fault).
 /* verilator lint_off UNOPTFLAT */
-wire [2*P*W-1:0] nodes;
+wire [W-1:0] nodes [1:2*P-1];
 
 genvar i;
 generate
     for (i = P; i < 2 * P; i = i + 1) begin : g_leaf
         if (i - P < N) begin : g_in
-            assign nodes[i*W +: W] = in[(i-P)*W +: W];
+            assign nodes[i] = in[(i-P)*W +: W];
         end else begin : g_pad
-            assign nodes[i*W +: W] = {W{1'b1}};
+            assign nodes[i] = {W{1'b1}};
         end
     end
     for (i = 1; i < P; i = i + 1) begin : g_node
-        wire [W-1:0] a = nodes[2*i*W +: W];
-        wire [W-1:0] b = nodes[(2*i+1)*W +: W];
+        wire [W-1:0] a = nodes[2*i];
+        wire [W-1:0] b = nodes[2*i+1];
         wire [W-1:0] m = (b < a) ? b : a;
         if (level_registered(node_level(i)) != 0) begin : g_reg
             reg [W-1:0] m_reg;
@@ -110,16 +110,15 @@ generate
                     m_reg <= m;
                 end
             end
-            assign nodes[i*W +: W] = m_reg;
+            assign nodes[i] = m_reg;
         end else begin : g_wire
-            assign nodes[i*W +: W] = m;
+            assign nodes[i] = m;
         end
     end
 endgenerate
 /* verilator lint_on UNOPTFLAT */
 
-assign nodes[0 +: W] = {W{1'b0}};
-assign out = nodes[W +: W];
+assign out = nodes[1];
 
 endmodule
 
