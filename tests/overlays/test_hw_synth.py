@@ -209,8 +209,10 @@ def test_builds_come_from_the_spec_when_it_has_them() -> None:
     assert table["gray"].parameters() == {"MAX_WIDTH": table["gray"].max_width,
                                           "MAX_HEIGHT": table["gray"].max_height,
                                           "LB_ROWS": table["gray"].lb_rows, "COLOUR": 0}
-    assert source in ("stereocam/overlays/spec/rectify.py BUILDS",
+    assert source in ("stereocam/overlays/spec/rectify.py BUILDS; depth: gray + spec/stereo.py BUILDS",
                       "stereocam/overlays/rtl/synth.py FALLBACK_BUILDS")
+    if "depth" in table:  # the gray rectify core beside the stereo core
+        assert table["depth"].parameters() == table["gray"].parameters() and table["depth"].stereo
     assert hw_synth.FALLBACK_BUILDS["gray"] == BuildParams("gray", 752, 1024, 80, False)
     assert hw_synth.FALLBACK_BUILDS["colour"] == BuildParams("colour", 752, 1024, 80, True)
 
