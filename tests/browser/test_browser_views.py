@@ -54,6 +54,15 @@ def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, settings={"stereo_core": False}) as base:
         yield base
 
+
+@pytest.fixture
+def daemon_with_core(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
+    """The daemon on the emulated fabric as it comes (with the stereo core): captures hold depth."""
+    from .chromium import daemon_serving
+
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
+        yield base
+
 VIEWS = list(views.VIEWS)  # the registry, never a list of its own
 # Pixels on the rig's back wall, never reached by its moving planes (rig_truth.static_depth says so).
 WALL = [(615, 381), (644, 350), (612, 404)]
@@ -243,8 +252,9 @@ def _status(url: str) -> int:
         return exc.code
 
 
-def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon: str, tmp_path: Path,
+def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon_with_core: str, tmp_path: Path,
                                                                artifacts_dir: Path) -> None:
+    daemon = daemon_with_core
     w, h = get_json(daemon + "/api/status")["frame_size"]
     # The page's own checks that a deleted capture is gone (fetch) log a 404.
     with watched_page(tmp_path, artifacts_dir, "captures.png", expected=["status of 404"]) as page:
