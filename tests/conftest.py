@@ -79,6 +79,7 @@ def artifacts_dir(request: pytest.FixtureRequest) -> Path:
 MARKERS = (
     "armhf: the module runs in the armhf env's subset (tests/conftest.py)",
     "not_on_armhf(reason): deselected in the armhf env's subset, for the reason given",
+    "not_on_board_env(reason): deselected in the board env (what the board lacks by design, e.g. numba)",
 )
 
 
@@ -146,10 +147,22 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return True if ARMHF_MARK not in collection_path.read_text(encoding="utf-8") else None
 
 
+def _deselect_not_on_board(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """In the board env, the tests of what the board does not have (marked not_on_board_env)."""
+    if os.environ.get("STEREOCAM_TEST_ENV") != "board":
+        return
+    dropped = [item for item in items if item.get_closest_marker("not_on_board_env")]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        gone = {id(item) for item in dropped}
+        items[:] = [item for item in items if id(item) not in gone]
+
+
 @pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     _mark_slow(config, items)
     _scale_timeouts(config, items)
+    _deselect_not_on_board(config, items)
     if not _armhf_subset_run(config):
         return
     # The text check above only spares imports: the marks decide.

@@ -57,10 +57,10 @@ def daemon(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
 
 @pytest.fixture
 def daemon_with_core(tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    """The daemon on the emulated fabric as it comes (with the stereo core): captures hold depth."""
+    """The daemon on a fabric with the stereo core (in every env, numba or not): captures hold depth."""
     from .chromium import daemon_serving
 
-    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS) as base:
+    with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, settings={"stereo_core": True}) as base:
         yield base
 
 VIEWS = list(views.VIEWS)  # the registry, never a list of its own

@@ -209,7 +209,8 @@ if os.environ.get("STEREOCAM_TEST_ENV") == "board":
 
         from ..pynq_device import EmulatedPynqDevice
 
-        ov = EmulatedOverlay(clock="stepped")
+        # Today's bitstream: no stereo core (the emulated one has no vdma_depth for pynq to bind).
+        ov = EmulatedOverlay(clock="stepped", stereo=False)
         try:
             blocks = {n: (ADDRESS_MAP[n], b) for n, b in ov.emulation.blocks.items()}
             dev = EmulatedPynqDevice(ov.emulation.ddr, blocks, tick=ov.step)

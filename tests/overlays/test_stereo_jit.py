@@ -8,7 +8,9 @@ from stereocam.overlays.model import stereo, stereo_fast, stereo_jit
 
 from .test_stereo_model import VARIANTS, scenes, shifted
 
-pytestmark = pytest.mark.not_on_armhf("numba has no armhf wheels; the numpy path serves there")
+pytestmark = [pytest.mark.not_on_armhf("numba has no armhf wheels; the numpy path serves there"),
+              pytest.mark.not_on_board_env("the board (armv7l) has no numba: its env runs the numpy path, "
+                                           "tests/overlays/test_stereo_model.py")]
 
 
 def test_numba_is_installed_in_this_env() -> None:

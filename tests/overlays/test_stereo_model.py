@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereocam.overlays.model import stereo, stereo_fast, stereo_reference
+from stereocam.overlays.model import stereo, stereo_fast, stereo_jit, stereo_reference
 from stereocam.overlays.model.stereo_result import StereoResult
 from stereocam.overlays.spec import stereo as spec
 
@@ -102,3 +102,14 @@ def test_bad_input_is_refused_with_what_is_wrong(bad: tuple, words: str) -> None
             stereo.compute(*bad, P32, path=path)
     with pytest.raises(ValueError, match="unknown model path"):
         stereo.compute(*scenes()["random"], P32, path="gpu")
+
+
+def test_the_fastest_path_is_the_compiled_one_where_numba_runs_else_numpy() -> None:
+    left, right = scenes()["shifted"]
+    if stereo_jit.available():  # the current env
+        assert stereo.fastest_path() == "jit"
+    else:  # the board and armhf envs, as on the board
+        assert stereo.fastest_path() == "numpy"
+        with pytest.raises(RuntimeError, match=r"pip install 'stereocam\[fast\]'"):
+            stereo_jit.compute(left, right, P32)
+    assert stereo.compute(left, right, P32).equal(stereo_fast.compute(left, right, P32))

@@ -33,6 +33,7 @@ from aiohttp import web
 
 from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
 from ...overlays.interface import Overlay
+from ...overlays.model.stereo import fastest_path
 from ..frames.capturing import CaptureService
 from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
 from ..frames.encoders import Encoders
@@ -333,10 +334,17 @@ def program_default_calibration(overlay: Overlay, config: Settings) -> Calibrati
 def open_configured_overlay(config: Settings) -> Overlay:
     """The overlay ``config`` asks for (:func:`stereocam.overlays.backend.open_overlay`), or ServeError."""
     bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
+    stereo = config.stereo_core
+    if stereo is None:  # unset: an emulated stereo core only where its model keeps up
+        stereo = fastest_path() == "jit"
+        if not stereo:
+            log.info("the emulated fabric has no stereo core: its model needs numba to keep up "
+                     "(pip install 'stereocam[fast]', or stereo_core: true to have it anyway); the "
+                     "disparity view uses OpenCV's StereoBM")
     try:
         return open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
                             clock="realtime", build=config.core_build, core=config.core,
-                            rtl_dir=config.rtl_dir, stereo=config.stereo_core)
+                            rtl_dir=config.rtl_dir, stereo=stereo)
     except BackendError as exc:
         raise ServeError(str(exc)) from None
 

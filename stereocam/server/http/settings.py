@@ -43,7 +43,9 @@ class Settings:
     folder of recorded pairs to replay), ``fps`` (emulated camera rate), ``core_build``
     (the rectify core's build the emulated fabric has: ``colour`` or ``gray``), ``stereo_core``
     (the emulated fabric has the stereo core, as a ``depth`` bitstream does; false: it has none,
-    as today's bitstream, and the disparity falls back to the ARM), ``core`` (what
+    as today's bitstream, and the disparity falls back to the ARM; unset: it has one where the
+    core's model runs compiled (numba: ``pip install stereocam[fast]``), as its numpy path takes
+    seconds a 752x480 frame), ``core`` (what
     computes the emulated fabric's rectify core: ``model``, the numpy model, or ``rtl``, the
     core's Verilog compiled with Verilator; ``rtl_dir`` builds another copy of the RTL), ``calibration``
     (``intrinsics.yml,extrinsics.yml``; default: the synthetic rig's known
@@ -81,7 +83,7 @@ class Settings:
     source: str = "synthetic"
     fps: float = 60.0
     core_build: str = "colour"
-    stereo_core: bool = True
+    stereo_core: Optional[bool] = None
     core: str = "model"
     rtl_dir: Optional[str] = None
     calibration: Optional[str] = None
@@ -309,6 +311,8 @@ def _check(origin: Optional[str], key: str, value: Any) -> Any:
             raise SettingsError(f"{_where(origin)}allowed_hosts must be a list of host names "
                               f"(no ports or spaces), got {value!r}")
         return tuple(v.strip().lower() for v in value)
+    if key == "stereo_core" and value is None:
+        return None  # unset: where the core's model keeps up (open_configured_overlay)
     if key in ("allow_fault_injection", "stereo_core"):
         if not isinstance(value, bool):
             raise SettingsError(f"{_where(origin)}{key} must be true or false, got {value!r}")
