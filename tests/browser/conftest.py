@@ -23,13 +23,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture
 def daemon(request: pytest.FixtureRequest, tmp_path: Path, artifacts_dir: Path) -> Iterator[str]:
-    """The real daemon on a free port (emulated fabric) at the test module's ``DAEMON_FPS`` (else 15);
-    its base URL.
+    """The real daemon on a free port (emulated fabric) at the test module's ``DAEMON_FPS`` (else 15)
+    with its ``DAEMON_SETTINGS`` (else none); its base URL.
 
     A module that needs other options defines its own ``daemon``.
     """
     from .chromium import daemon_serving  # here: playwright is not in every environment that collects
 
     fps = float(getattr(request.module, "DAEMON_FPS", DAEMON_FPS))
-    with daemon_serving(tmp_path, artifacts_dir, fps=fps) as base:
+    settings = dict(getattr(request.module, "DAEMON_SETTINGS", {}))
+    with daemon_serving(tmp_path, artifacts_dir, fps=fps, settings=settings) as base:
         yield base
