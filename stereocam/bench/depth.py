@@ -169,22 +169,17 @@ def bench_pairs(n: int = 2) -> List[Tuple[np.ndarray, np.ndarray]]:
 
 
 def speed(seconds: float, matchers: Dict[str, Matcher]) -> Dict[str, Dict[str, float]]:
-    """Pairs per second of each matcher with 128 disparities, in alternating rounds on the same pairs."""
+    """Pairs per second of each matcher with 128 disparities, in alternating rounds on the same pairs
+    (``bench.rectify``'s rounds: one warm-up call each, where the compiled path compiles)."""
+    from .rectify import _time_rounds
+
     pairs = bench_pairs()
-    for fn in matchers.values():  # warm-up (the compiled path compiles here)
-        fn(*pairs[0], 128)
-    samples: Dict[str, List[float]] = {k: [] for k in matchers}
-    order = list(matchers.items())
-    deadline = time.perf_counter() + seconds
-    i = 0
-    while time.perf_counter() < deadline or i < 3:
-        for name, fn in (order if i % 2 == 0 else order[::-1]):
-            left, right = pairs[i % len(pairs)]
-            t0 = time.perf_counter()
-            fn(left, right, 128)
-            samples[name].append(time.perf_counter() - t0)
-        i += 1
-    out = {k: {"fps": 1.0 / float(np.median(v)), "rounds": float(len(v))} for k, v in samples.items()}
+
+    def on_pair(fn: Matcher) -> Callable[[int], object]:
+        return lambda i: fn(*pairs[i % len(pairs)], 128)
+
+    timings = _time_rounds({name: on_pair(fn) for name, fn in matchers.items()}, seconds, min_rounds=3)
+    out = {k: {"fps": t.rate, "rounds": float(t.rounds)} for k, t in timings.items()}
     for v in out.values():
         v["ratio_to_sgbm"] = v["fps"] / out["opencv_sgbm"]["fps"]
     return out
