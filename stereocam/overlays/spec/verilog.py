@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
 
 from . import rectify as spec
 from . import stereo
@@ -95,6 +95,13 @@ def _register_defines(out: _Lines, registers: List[Register]) -> None:
                 out.define(f"{reg.name}_{f.name}_W", f.width)
 
 
+def _build_defines(out: _Lines, builds: Iterable[Any], fields: Sequence[str]) -> None:
+    """``BUILD_<NAME>_<FIELD>`` for each build and field (a core's Verilog parameters per build)."""
+    for b in builds:
+        for f in fields:
+            out.define(f"BUILD_{b.name.upper()}_{f.upper()}", int(getattr(b, f)))
+
+
 def header() -> str:
     """``rectify_spec.vh``: register offsets and fields, parameter order and formats, widths, limits."""
     out = _Lines("RC", "stereocam/overlays/spec/rectify.py", "Rectify core specification "
@@ -140,12 +147,7 @@ def header() -> str:
     out.define("WEIGHT_BITS", spec.WEIGHT_BITS)
     out.define("SIZE_W", spec.SIZE_BITS, "column and row counters")
     out.section("Builds (rectify_core parameters MAX_WIDTH, MAX_HEIGHT, LB_ROWS, COLOUR)")
-    for b in spec.BUILDS.values():
-        up = b.name.upper()
-        out.define(f"BUILD_{up}_MAX_WIDTH", b.max_width)
-        out.define(f"BUILD_{up}_MAX_HEIGHT", b.max_height)
-        out.define(f"BUILD_{up}_LB_ROWS", b.lb_rows)
-        out.define(f"BUILD_{up}_COLOUR", int(b.colour))
+    _build_defines(out, spec.BUILDS.values(), ("max_width", "max_height", "lb_rows", "colour"))
     return out.text()
 
 
@@ -318,12 +320,7 @@ def stereo_header() -> str:
     out.define("IN_LEFT_GRAY_BYTE", stereo.IN_LEFT_GRAY_BYTE)
     out.define("IN_RIGHT_GRAY_BYTE", stereo.IN_RIGHT_GRAY_BYTE)
     out.section("Builds (stereo_core parameters MAX_WIDTH, MAX_HEIGHT, MAX_DISP, PARALLEL)")
-    for b in stereo.BUILDS.values():
-        up = b.name.upper()
-        out.define(f"BUILD_{up}_MAX_WIDTH", b.max_width)
-        out.define(f"BUILD_{up}_MAX_HEIGHT", b.max_height)
-        out.define(f"BUILD_{up}_MAX_DISP", b.max_disp)
-        out.define(f"BUILD_{up}_PARALLEL", b.parallel)
+    _build_defines(out, stereo.BUILDS.values(), ("max_width", "max_height", "max_disp", "parallel"))
     return out.text()
 
 
