@@ -106,6 +106,7 @@ def test_bad_input_is_refused_with_what_is_wrong(bad: tuple, words: str) -> None
 
 def test_the_fastest_path_is_the_compiled_one_where_numba_runs_else_numpy() -> None:
     left, right = scenes()["shifted"]
+    assert stereo.compiled_path_installed() == stereo_jit.available()  # what the daemon decides by
     if stereo_jit.available():  # the current env
         assert stereo.fastest_path() == "jit"
     else:  # the board and armhf envs, as on the board

@@ -7,6 +7,7 @@ speed, never a result.
 """
 from __future__ import annotations
 
+import importlib.util
 from typing import Callable, Dict
 
 import numpy as np
@@ -15,13 +16,19 @@ from ..spec import stereo as spec
 from . import stereo_fast, stereo_jit, stereo_reference
 from .stereo_result import StereoResult, check_pair
 
-__all__ = ["PATHS", "StereoResult", "check_pair", "compute", "fastest_path"]
+__all__ = ["PATHS", "StereoResult", "check_pair", "compiled_path_installed", "compute", "fastest_path"]
 
 PATHS: Dict[str, Callable[[np.ndarray, np.ndarray, spec.StereoParams], StereoResult]] = {
     "jit": stereo_jit.compute,
     "numpy": stereo_fast.compute,
     "reference": stereo_reference.compute,
 }
+
+
+def compiled_path_installed() -> bool:
+    """Whether numba is installed, without importing it (a second at start-up): what the daemon decides
+    its emulated stereo core by; :func:`fastest_path` then builds the kernels on first use."""
+    return importlib.util.find_spec("numba") is not None
 
 
 def fastest_path() -> str:

@@ -33,7 +33,7 @@ from aiohttp import web
 
 from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
 from ...overlays.interface import Overlay
-from ...overlays.model.stereo import fastest_path
+from ...overlays.model.stereo import compiled_path_installed
 from ..frames.capturing import CaptureService
 from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
 from ..frames.encoders import Encoders
@@ -336,7 +336,7 @@ def open_configured_overlay(config: Settings) -> Overlay:
     bitstream = Path(config.bitstream).expanduser() if config.bitstream else None
     stereo = config.stereo_core
     if stereo is None:  # unset: an emulated stereo core only where its model keeps up
-        stereo = fastest_path() == "jit"
+        stereo = compiled_path_installed()
         if not stereo:
             log.info("the emulated fabric has no stereo core: its model needs numba to keep up "
                      "(pip install 'stereocam[fast]', or stereo_core: true to have it anyway); the "
