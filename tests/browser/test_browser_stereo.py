@@ -45,6 +45,7 @@ def test_the_stereo_panel_sets_the_matcher(daemon: str, tmp_path: Path, artifact
         while get_json(daemon + "/api/stereo")["params"]["uniqueness"] != 25:
             assert time.monotonic() < deadline, "uniqueness never became 25"
             time.sleep(0.2)
+        expect(page.locator("#messages")).to_contain_text("uniqueness set")  # the page has the answer
         expect(page.get_by_test_id("stereo-uniqueness")).to_have_value("25")
 
         # A value the core refuses: the daemon's words on the page, the core's values unchanged.

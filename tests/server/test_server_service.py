@@ -350,3 +350,22 @@ def test_serve_refuses_a_bad_calibration_file(tmp_path) -> None:
         _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
     assert err.strip().splitlines()[-1] == f"stereocam serve: error: {tmp_path / 'no.yml'}: no such file"
+
+
+@pytest.mark.parametrize("numba_runs", [False, True])
+def test_serve_says_why_the_emulated_fabric_has_no_stereo_core(numba_runs, monkeypatch, caplog) -> None:
+    """Unset, the emulated stereo core is there only where numba runs; its absence is said, once."""
+    from stereocam.server.http.settings import Settings
+
+    monkeypatch.setattr(app_module, "compiled_path_installed", lambda: numba_runs)
+    with caplog.at_level("INFO", logger=app_module.__name__):
+        overlay = app_module.open_configured_overlay(Settings(backend="emulated", source="synthetic"))
+    try:
+        has_core = overlay.stereo is not None
+    finally:
+        overlay.close()
+    said = [r.getMessage() for r in caplog.records if "has no stereo core" in r.getMessage()]
+    assert has_core == numba_runs
+    assert len(said) == (0 if numba_runs else 1)
+    if said:
+        assert "stereocam[fast]" in said[0] and "StereoBM" in said[0]

@@ -337,16 +337,18 @@ def open_configured_overlay(config: Settings) -> Overlay:
     stereo = config.stereo_core
     if stereo is None:  # unset: an emulated stereo core only where its model keeps up
         stereo = compiled_path_installed()
-        if not stereo:
-            log.info("the emulated fabric has no stereo core: its model needs numba to keep up "
-                     "(pip install 'stereocam[fast]', or stereo_core: true to have it anyway); the "
-                     "disparity view uses OpenCV's StereoBM")
     try:
-        return open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
-                            clock="realtime", build=config.core_build, core=config.core,
-                            rtl_dir=config.rtl_dir, stereo=stereo)
+        overlay = open_overlay(config.backend, bitstream=bitstream, source=config.source, fps=config.fps,
+                               clock="realtime", build=config.core_build, core=config.core,
+                               rtl_dir=config.rtl_dir, stereo=stereo)
     except BackendError as exc:
         raise ServeError(str(exc)) from None
+    if config.stereo_core is None and not stereo and overlay.backend == "emulated":
+        # Said once the overlay is open: a refused --source is the only line a typo gets.
+        log.info("the emulated fabric has no stereo core: its model needs numba to keep up "
+                 "(pip install 'stereocam[fast]', or stereo_core: true to have it anyway); the "
+                 "disparity view uses OpenCV's StereoBM")
+    return overlay
 
 
 async def serve(app: web.Application, config: Settings, *, stop: Optional[asyncio.Event] = None,

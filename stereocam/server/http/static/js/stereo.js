@@ -62,6 +62,9 @@ function changes() {
 
 async function send(body) {
   if (!Object.keys(body).length) return;
+  // Held while the PUT is out: its answer rebuilds the inputs, which would drop a value typed meanwhile.
+  const set = $("stereo-set");
+  set.disabled = true;
   try {
     render(await api("PUT", "/api/stereo", body));
     showInfo("Stereo matcher: " + Object.keys(body).join(", ") + " set.", "stereo");
@@ -71,6 +74,8 @@ async function send(body) {
       409: (x) => x.detail + ".",
     } });
     await load();  // show what the core really holds
+  } finally {
+    set.disabled = false;
   }
 }
 
