@@ -155,9 +155,9 @@ Edit = Tuple[str, str, str]
 
 
 @lru_cache(maxsize=8)
-def scripted_design(edits: Tuple[Edit, ...] = ()) -> TclRun:
-    """build.tcl -to bd in the stubbed Vivado (package_ip.tcl, block_design.tcl), on a copy of the scripts
-    with ``edits`` applied: the cells, parameters, nets and addresses it built."""
+def scripted_design(edits: Tuple[Edit, ...] = (), build: str = "colour") -> TclRun:
+    """build.tcl -to bd -build ``build`` in the stubbed Vivado (package_ip.tcl, block_design.tcl), on a
+    copy of the scripts with ``edits`` applied: the cells, parameters, nets and addresses it built."""
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "vivado"
         shutil.copytree(VIVADO_DIR, folder, ignore=shutil.ignore_patterns("build"))
@@ -167,7 +167,8 @@ def scripted_design(edits: Tuple[Edit, ...] = ()) -> TclRun:
             if old not in text:
                 raise ValueError(f"{old!r} is not in {script}")
             path.write_text(text.replace(old, new, 1))
-        run = run_tcl(folder / "build.tcl", Path(tmp), argv=["-to", "bd", "-proj", str(Path(tmp) / "proj")],
+        run = run_tcl(folder / "build.tcl", Path(tmp),
+                      argv=["-to", "bd", "-build", build, "-proj", str(Path(tmp) / "proj")],
                       preset={"STEREOCAM_RTL_DIR": str(RTL_DIR)})
     if run.error:
         raise RuntimeError(f"the block design does not build in the stubbed Vivado: {run.error}")
@@ -390,9 +391,9 @@ def _ps7_clocks(config: Mapping[str, str]) -> Dict[str, str]:
     return out
 
 
-def design_hwh(name: str = "stereocam", edits: Tuple[Edit, ...] = ()) -> str:
+def design_hwh(name: str = "stereocam", edits: Tuple[Edit, ...] = (), build: str = "colour") -> str:
     """The ``.hwh`` of the block design the scripts build (with ``edits`` applied to a copy of them)."""
-    return _hwh_of(scripted_design(tuple(edits)), name)
+    return _hwh_of(scripted_design(tuple(edits), build), name)
 
 
 def bit(design: str, payload: bytes) -> bytes:
@@ -410,13 +411,13 @@ def bit(design: str, payload: bytes) -> bytes:
 
 
 def write_overlay(folder: Path, design: str = "stereocam", ips: Optional[List[Ip]] = None, *,
-                  edits: Tuple[Edit, ...] = ()) -> Path:
+                  edits: Tuple[Edit, ...] = (), build: str = "colour") -> Path:
     """Write ``<design>.bit`` and ``<design>.hwh`` into ``folder``; return the ``.bit``'s path.
 
     Without ``ips``: the block design the scripts build (``edits`` applied to a copy of them); with
-    ``ips``: another design, a PS7 and those IP (:func:`hwh`).
+    ``ips``: another design, a PS7 and those IP (:func:`hwh`). ``build``: build.tcl's ``-build``.
     """
-    text = design_hwh(design, edits) if ips is None else hwh(design, ips)
+    text = design_hwh(design, edits, build) if ips is None else hwh(design, ips)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / f"{design}.hwh").write_text(text, encoding="utf-8")
     path = folder / f"{design}.bit"

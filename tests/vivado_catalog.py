@@ -178,12 +178,25 @@ def _vdma_interfaces(c: Config) -> List[str]:
     return out
 
 
+def _genlock_in(c: Config, ch: str) -> bool:
+    """PG020 "Genlock Synchronization": a channel that follows (slave, dynamic slave) or watches
+    (dynamic master) another has ``<ch>_frame_ptr_in``, unless the core pairs its two channels
+    internally (both on, one master and one slave of the same kind, one master each)."""
+    modes = {x: int(c.get(f"c_{x.lower()}_genlock_mode", "0")) for x in _vdma_channels(c)}
+    if modes.get(ch, 0) == 0:
+        return False
+    internal = len(modes) == 2 and sorted(modes.values()) in ([0, 1], [2, 3]) and all(
+        int(c.get(f"c_{x.lower()}_genlock_num_masters", "1")) == 1 for x in modes)
+    return not internal
+
+
 def _vdma_pins(c: Config) -> List[str]:
     out = ["s_axi_lite_aclk", "axi_resetn"]
     if "MM2S" in _vdma_channels(c):
         out += ["m_axi_mm2s_aclk", "m_axis_mm2s_aclk", "mm2s_introut", "mm2s_frame_ptr_out"]
     if "S2MM" in _vdma_channels(c):
         out += ["m_axi_s2mm_aclk", "s_axis_s2mm_aclk", "s2mm_introut", "s2mm_frame_ptr_out"]
+    out += [f"{ch.lower()}_frame_ptr_in" for ch in _vdma_channels(c) if _genlock_in(c, ch)]
     return out
 
 

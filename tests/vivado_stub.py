@@ -612,7 +612,11 @@ class FakeVivado:
             opts, rest = options(args, {"-mode", "-vlnv"})
             d.intf_ports[rest[-1]] = opts
         elif verb == "connect_bd_net":
-            d.nets.append(list(args))
+            # Vivado adds the pins to the net a pin is already on (a net joins a pin once)
+            joined = [net for net in d.nets if set(net) & set(args)]
+            merged = [p for net in joined for p in net]
+            d.nets = [net for net in d.nets if net not in joined] + [
+                merged + [p for p in args if p not in merged]]
         elif verb == "connect_bd_intf_net":
             if len(args) != 2:
                 raise VivadoError(f"connect_bd_intf_net: needs two interfaces, got {args}")

@@ -47,11 +47,14 @@ CASES = [
     ("ci_rx", {"MAX_WIDTH": 0}, "ci_rx_parameter_MAX_WIDTH_must_fit_the_length_field"),
     ("ci_rx", {"MAX_WIDTH": 2048, "AW": 12}, "ci_rx_parameter_MAX_WIDTH_must_fit_the_length_field"),
     ("ci_rx", {"MAX_WIDTH": 31, "AW": 5}, "ci_rx_parameter_AW_too_small_for_MAX_WIDTH"),
+    ("stereo_core", {"MAX_DISP": 128, "PARALLEL": 16}, "stereo_core_parameter_MAX_DISP_must_be_4_x_PARALLEL"),
 ]
 # What each top needs besides its own file (relative to the RTL folder).
 SOURCES = {
     "rc_linebuf": ["rc_ram.v"],
     "ci_rx": ["camera/ci_sync.v"],
+    "stereo_core": ["rc_ram.v", "rc_fifo.v",
+                    *sorted(f"stereo/{p.name}" for p in (RTL / "stereo").glob("sc_*.v"))],
 }
 # The largest parameters each rule still allows, and the builds the callers make: they elaborate.
 ALLOWED = [
@@ -64,12 +67,14 @@ ALLOWED = [
     ("rc_coord_mul", {"AW": 42, "BW": 35, "LO": 17}),
     ("ci_rx", {"MAX_WIDTH": 2047, "AW": 12}),
     ("ci_rx", {"MAX_WIDTH": 30, "AW": 5}),
+    ("stereo_core", {"MAX_DISP": 32, "PARALLEL": 8}),
 ]
 
 
 def _path(top: str) -> Path:
-    direct = RTL / f"{top}.v"
-    return direct if direct.is_file() else RTL / "camera" / f"{top}.v"
+    found = [path for path in (RTL / f"{top}.v", RTL / "camera" / f"{top}.v", RTL / "stereo" / f"{top}.v")
+             if path.is_file()]
+    return found[0]
 
 
 def _elaborate(top: str, params: dict[str, int], out: Path) -> subprocess.CompletedProcess[str]:
@@ -77,8 +82,8 @@ def _elaborate(top: str, params: dict[str, int], out: Path) -> subprocess.Comple
     overrides = [arg for name, value in params.items() for arg in ("-P", f"{top}.{name}={value}")]
     sources = [str(RTL / s) for s in SOURCES.get(top, [])] + [str(_path(top))]
     return subprocess.run(
-        [str(iverilog), "-g2005", "-I", str(RTL), "-I", str(RTL / "camera"), "-s", top, *overrides,
-         "-o", str(out), *sources],
+        [str(iverilog), "-g2005", "-I", str(RTL), "-I", str(RTL / "camera"), "-I", str(RTL / "stereo"),
+         "-s", top, *overrides, "-o", str(out), *sources],
         capture_output=True, text=True, timeout=120, check=False,
     )
 

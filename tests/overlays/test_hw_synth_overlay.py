@@ -172,22 +172,31 @@ def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[st
 
 
 def test_the_depth_build_adds_the_stereo_core_and_its_vdma(cells: List[BdCell]) -> None:
-    """The depth build: the gray rectify core's parameters, and beside the block design's cells the stereo
-    core synthesised (here a small build of it, for time: the full one takes yosys half an hour) and the
-    VDMA writing its output (estimated as vdma_raw, the other write-only channel)."""
+    """The depth build: the gray rectify core's parameters, and the block design's depth cells: the stereo
+    core synthesised (here a small build of it, for time: the full one takes yosys half an hour), the
+    VDMA writing its output and the split feeding it estimated from their own configuration."""
     table, source = hw_synth.builds()
     depth = table[hw_synth.STEREO_BUILD]
     assert depth.parameters() == gray().parameters() and "depth" in source
     assert depth.stereo_parameters() == {"MAX_WIDTH": 752, "MAX_HEIGHT": 1024, "MAX_DISP": 128,
                                          "PARALLEL": 32}
+    depth_cells = hw_synth.block_design_cells(build="depth")
+    by_cell = {c.name: c for c in depth_cells}
+    assert set(by_cell) - {c.name for c in cells} == {"stereo", "vdma_depth", "rectified_split"}
+    assert by_cell["rectify"].config["COLOUR"] == "0", "the depth build's block design has the gray core"
+    assert by_cell["axi_ctrl"].config["NUM_MI"] == "6" and by_cell["irq_concat"].config["NUM_PORTS"] == "4"
     small = dataclasses.replace(depth, stereo=hw_synth.StereoBuild("small", 64, 64, 32, 8))
-    parts = hw_synth.overlay_parts(small, fake_core(), cells=cells)
+    parts = hw_synth.overlay_parts(small, fake_core(), cells=depth_cells)
+    assert sorted(name for p in parts for name in p.cells) == sorted(by_cell), "every cell counted once"
     by_name = {p.name: p for p in parts}
     stereo = by_name["stereo core (depth)"]
     assert stereo.kind == "yosys" and stereo.cells == ("stereo",) and stereo.lut > 1000 and stereo.bram36 > 0
     assert "MAX_DISP 32" in stereo.source and "PARALLEL 8" in stereo.source
-    vdma = [p for p in parts if p.cells == ("vdma_depth",)]
-    raw = [p for p in parts_of(cells) if p.cells == ("vdma_raw",)]
-    assert len(vdma) == 1 and vdma[0].values() == raw[0].values() and "as vdma_raw" in vdma[0].source
+    (vdma,) = [p for p in parts if p.cells == ("vdma_depth",)]
+    assert vdma.kind == "estimate" and "PG020" in vdma.source
+    (split,) = [p for p in parts if p.cells == ("rectified_split",)]
+    assert split.kind == "estimate" and "PG085" in split.source
+    with pytest.raises(hw_synth.HwSynthError, match="no stereo core"):
+        hw_synth.overlay_parts(small, fake_core(), cells=cells)
     totals = hw_synth.overlay_totals(parts)
     assert totals["LUT"] == sum(p.lut for p in parts) > sum(p.lut for p in parts_of(cells))

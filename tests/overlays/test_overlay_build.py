@@ -30,7 +30,17 @@ from stereocam.overlays import backend
 from stereocam.overlays.emulated.logic import EmulatedFabric, StreamCore
 from stereocam.overlays.emulated.regblock import EmulationError, RegisterBlock
 from stereocam.overlays.fabric import bind
-from stereocam.overlays.spec import axis_switch, camera_in, frame_gate, mt9v034, overlay, pixel, rectify, vdma
+from stereocam.overlays.spec import (
+    axis_switch,
+    camera_in,
+    frame_gate,
+    mt9v034,
+    overlay,
+    pixel,
+    rectify,
+    stereo,
+    vdma,
+)
 
 from ..vivado_stub import TclRun, bracketed, options, run_tcl, tcl_commands, tcl_list, unbrace
 
@@ -105,12 +115,22 @@ class BlockDesign:
         return found[0]
 
 
-def parse_block_design(text: str, variables: Dict[str, str]) -> BlockDesign:
-    bd = BlockDesign()
+BUILD_CONDITION = re.compile(r'\{\$STEREOCAM_BUILD eq "(\w+)"\}')
+
+
+def parse_block_design(text: str, variables: Dict[str, str], bd: Optional[BlockDesign] = None) -> BlockDesign:
+    """What ``text`` builds, for the build ``variables["STEREOCAM_BUILD"]`` (default colour): the body of
+    an ``if {$STEREOCAM_BUILD eq "<build>"} {...} else {...}`` is read as that build chooses."""
+    bd = BlockDesign() if bd is None else bd
     for raw in tcl_commands(text):
         words = [substitute(w, variables) for w in raw]
         verb = words[0]
-        if verb == "create_bd_cell":
+        build = BUILD_CONDITION.fullmatch(raw[1]) if verb == "if" and len(raw) > 2 else None
+        if build is not None:
+            chosen = variables.get("STEREOCAM_BUILD", "colour") == build.group(1)
+            body = raw[2] if chosen else (raw[4] if len(raw) > 4 and raw[3] == "else" else "{}")
+            parse_block_design(unbrace(body), variables, bd)
+        elif verb == "create_bd_cell":
             opts, rest = options(words[1:], {"-type", "-vlnv"})
             assert opts["-type"] == "ip", words
             bd.cells[rest[-1]] = opts["-vlnv"]
@@ -131,7 +151,11 @@ def parse_block_design(text: str, variables: Dict[str, str]) -> BlockDesign:
             assert len(pins) == 2, words
             bd.intf_nets.append((pins[0], pins[1]))
         elif verb == "connect_bd_net":
-            bd.nets.append([bracketed(w)[1] for w in words[1:] if w.startswith("[")])
+            pins = [bracketed(w)[1] for w in words[1:] if w.startswith("[")]
+            joined = [net for net in bd.nets if set(net) & set(pins)]  # Vivado adds to a pin's net
+            merged = [p for net in joined for p in net]
+            bd.nets = [net for net in bd.nets if net not in joined]
+            bd.nets.append(merged + [p for p in pins if p not in merged])
         elif verb == "create_bd_port":
             opts, rest = options(words[1:], {"-dir", "-from", "-to", "-type", "-freq_hz"})
             bd.ports[rest[-1]] = opts
@@ -279,6 +303,12 @@ def bd(variables: Dict[str, str]) -> BlockDesign:
 
 
 @pytest.fixture(scope="module")
+def depth_bd(variables: Dict[str, str]) -> BlockDesign:
+    """The depth build's block design (build.tcl -build depth)."""
+    return parse_block_design(read_script("block_design.tcl"), {**variables, "STEREOCAM_BUILD": "depth"})
+
+
+@pytest.fixture(scope="module")
 def packaged() -> Dict[str, PackagedIP]:
     return parse_package(read_script("package_ip.tcl"))
 
@@ -304,12 +334,13 @@ def test_every_instance_the_drivers_bind_is_in_the_design_with_an_accepted_vlnv(
 
 def test_the_packaged_ip_are_the_cores_the_design_instantiates(packaged: Dict[str, PackagedIP],
                                                                bd: BlockDesign) -> None:
-    assert set(packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
+    assert set(packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV, stereo.VLNV}
     assert packaged[rectify.VLNV].top == "rectify_core"
     assert packaged[camera_in.VLNV].top == camera_in.TOP
     assert packaged[frame_gate.VLNV].top == frame_gate.TOP
+    assert packaged[stereo.VLNV].top == "stereo_core"
     user_cells = {vlnv for vlnv in bd.cells.values() if not vlnv.startswith("xilinx.com:")}
-    assert user_cells == set(packaged)
+    assert user_cells == set(packaged) - {stereo.VLNV}, "the colour build has no stereo core"
 
 
 # ---- the rectify core and the camera input IP ---------------------------------------------------------
@@ -876,6 +907,9 @@ def rtl_copy(tmp_path: Path) -> Path:
         (rtl / "camera" / path.name).symlink_to(path)
     if not cams:
         (rtl / "camera" / "camera_in.v").write_text(f"module {camera_in.TOP}; endmodule\n")
+    (rtl / "stereo").mkdir()
+    for path in sorted((RTL_DIR / "stereo").iterdir()):
+        (rtl / "stereo" / path.name).symlink_to(path)
     return rtl
 
 
@@ -915,16 +949,18 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
                   argv=["-out", str(out), "--proj", str(proj), "-pins", str(pins), "-jobs", "1"])
     assert run.error == ""
     # the packaged IP
-    assert run.projects() == ["pkg_rectify", "pkg_camera_in", "pkg_frame_gate",
+    assert run.projects() == ["pkg_rectify", "pkg_camera_in", "pkg_frame_gate", "pkg_stereo",
                               variables["STEREOCAM_BD_NAME"]]
-    packaged_rtl = [{Path(p).name for p in tcl_list(c[-1])} for c in run.of("add_files")[:3]]
+    packaged_rtl = [{Path(p).name for p in tcl_list(c[-1])} for c in run.of("add_files")[:4]]
     assert packaged_rtl[0] == {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh")}
     camera = {p.name for p in (RTL_DIR / "camera").iterdir() if p.suffix in (".v", ".vh")}
     shared = {"rc_ram.v", "rc_fifo.v"}  # the rectify core's RAM and FIFO, used by both camera IPs
     assert packaged_rtl[1] == camera - {f"{frame_gate.TOP}.v"} | shared, "camera_in: its top, ci_*.v, headers"
     assert packaged_rtl[2] == {Path(name).name for name in frame_gate.SOURCES}
+    assert packaged_rtl[3] == {p.name for p in (RTL_DIR / "stereo").iterdir()} | shared
     names = [c[1] for c in run.of("set_property") if c[0] in ("name", "version") and c[-1] == "core"]
-    assert names == [part for ip in (rectify, camera_in, frame_gate) for part in ip.VLNV.split(":")[2:]]
+    cores = (rectify, camera_in, frame_gate, stereo)
+    assert names == [part for ip in cores for part in ip.VLNV.split(":")[2:]]
     # the block design as the text says
     assert {c[-1]: c[c.index("-vlnv") + 1] for c in run.of("create_bd_cell")} == bd.cells
     recorded: Dict[str, Dict[str, str]] = {}
@@ -1066,7 +1102,7 @@ def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_cop
     run = build_run(tmp_path, vivado_copy(tmp_path, "settings.tcl", "", ""), rtl_copy)
     assert run.error == ""
     assert set(run.design.cells) >= set(overlay.INSTANCES)
-    assert set(run.packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV}
+    assert set(run.packaged) == {rectify.VLNV, camera_in.VLNV, frame_gate.VLNV, stereo.VLNV}
     # the register window and the user parameters come from the spec (through ip_params.tcl)
     rect = run.packaged[rectify.VLNV]
     assert rect.ranges == {"s_axil/reg0": rectify.RECTIFY_MAP.size}
@@ -1149,3 +1185,193 @@ def test_build_tcl_stops_on_negative_routed_slack_and_writes_no_overlay(
     report = runs / "impl_1" / f"{variables['STEREOCAM_OVERLAY']}.timing.rpt"
     assert str(report) in run.error and report.is_file()
     assert not (out / overlay.BITSTREAM).exists()
+
+
+# ---- the depth build: the stereo core and its VDMA (build.tcl -build depth) --------------------------------
+
+def test_the_builds_are_the_ones_build_tcl_offers(variables: Dict[str, str]) -> None:
+    assert tcl_list(variables["STEREOCAM_BUILDS"]) == ["colour", "depth"]
+    assert "build colour" in read_script("build.tcl"), "the default build is today's overlay"
+
+
+def test_the_depth_build_adds_the_optional_instances_and_nothing_else_changes_name(
+        bd: BlockDesign, depth_bd: BlockDesign) -> None:
+    for name, accepted in overlay.OPTIONAL_INSTANCES.items():
+        assert name not in bd.cells, f"the colour build has {name}"
+        assert depth_bd.cells.get(name) in accepted, f"{name}: {depth_bd.cells.get(name)}, not in {accepted}"
+    assert depth_bd.cells[overlay.STEREO] == stereo.VLNV
+    added = set(depth_bd.cells) - set(bd.cells)
+    assert added == set(overlay.OPTIONAL_INSTANCES) | {"rectified_split"}
+    assert all(depth_bd.cells[name] == vlnv for name, vlnv in bd.cells.items())
+    # the gray rectify core: the colour one's block RAM and the stereo core's do not fit together
+    assert int(depth_bd.config["rectify"]["COLOUR"]) == int(rectify.BUILDS["gray"].colour) == 0
+    user_cells = {vlnv for vlnv in depth_bd.cells.values() if not vlnv.startswith("xilinx.com:")}
+    assert stereo.VLNV in user_cells
+
+
+def test_depth_register_windows_are_both_address_maps(depth_bd: BlockDesign) -> None:
+    windows = {a.segment.split("/")[0]: a for a in depth_bd.addresses if a.space == PS7_DATA}
+    expected = {**overlay.ADDRESS_MAP, **overlay.OPTIONAL_ADDRESS_MAP}
+    assert {name: a.offset for name, a in windows.items()} == expected
+    assert windows[overlay.STEREO].segment == f"{overlay.STEREO}/s_axil/reg0"
+    assert windows[overlay.STEREO].range >= stereo.STEREO_MAP.size
+    assert windows[overlay.DEPTH_VDMA].range >= vdma.VDMA_MAP.size
+    for a in windows.values():
+        assert a.range == overlay.WINDOW_SIZE and a.offset % a.range == 0
+        assert GP0_RANGE[0] <= a.offset and a.offset + a.range <= GP0_RANGE[1]
+    ends = sorted((a.offset, a.offset + a.range) for a in windows.values())
+    assert all(e0 <= s1 for (_, e0), (s1, _) in zip(ends, ends[1:], strict=False)), "windows overlap"
+
+
+@pytest.mark.parametrize("build", ["colour", "depth"])
+def test_every_register_port_of_the_interconnect_reaches_one_window(build: str, bd: BlockDesign,
+                                                                     depth_bd: BlockDesign) -> None:
+    design = depth_bd if build == "depth" else bd
+    (ctrl,) = design.connected(f"{PS7}/M_AXI_GP0")
+    hub = ctrl.split("/")[0]
+    slaves = {design.address(PS7_DATA, a.segment).segment.split("/")[0]
+              for a in design.addresses if a.space == PS7_DATA}
+    ports = int(design.config[hub]["NUM_MI"])
+    assert ports == len(slaves)
+    reached = set()
+    for i in range(ports):
+        (slave,) = design.connected(f"{hub}/M{i:02d}_AXI")
+        reached.add(slave.split("/")[0])
+        assert {f"{hub}/M{i:02d}_ACLK"} <= set(design.net_of(f"{PS7}/FCLK_CLK0")), i
+    assert reached == slaves
+
+
+def test_depth_stream_graph_splits_the_rectified_stream_to_the_stereo_core(bd: BlockDesign,
+                                                                           depth_bd: BlockDesign) -> None:
+    """rectify -> rectified_split: M00 -> vdma_proc S2MM as before, M01 -> stereo -> vdma_depth S2MM;
+    every other stream connection as in the colour build."""
+    expected = (stream_edges(bd) - {("rectify/m_axis", "vdma_proc/S_AXIS_S2MM")}) | {
+        ("rectify/m_axis", "rectified_split/S_AXIS"),
+        ("rectified_split/M00_AXIS", "vdma_proc/S_AXIS_S2MM"),
+        ("rectified_split/M01_AXIS", f"{overlay.STEREO}/s_axis"),
+        (f"{overlay.STEREO}/m_axis", f"{overlay.DEPTH_VDMA}/S_AXIS_S2MM"),
+    }
+    assert stream_edges(depth_bd) == expected
+    cfg = depth_bd.config["rectified_split"]
+    assert depth_bd.cells["rectified_split"].startswith("xilinx.com:ip:axis_broadcaster:")
+    assert int(cfg["NUM_MI"]) == 2
+    assert int(cfg["S_TDATA_NUM_BYTES"]) == int(cfg["M_TDATA_NUM_BYTES"]) == pixel.BYTES_PER_PIXEL
+    assert cfg["S_TUSER_WIDTH"] == cfg["M_TUSER_WIDTH"] == "1" and cfg["HAS_TLAST"] == "1"
+
+
+def test_vdma_depth_writes_the_stereo_cores_beats_to_ddr(depth_bd: BlockDesign) -> None:
+    name = overlay.DEPTH_VDMA
+    cfg = depth_bd.config[name]
+    assert vdma_channels(depth_bd, name) == ["S2MM"], "vdma_depth only writes"
+    assert int(cfg["c_num_fstores"]) == overlay.NUM_FSTORES and cfg["c_include_sg"] == "0"
+    stream, memory = int(cfg["c_s_axis_s2mm_tdata_width"]), int(cfg["c_m_axi_s2mm_data_width"])
+    assert stream == stereo.OUT_BEAT_BITS, "one stream beat per output beat of the core"
+    assert memory == int(depth_bd.config[PS7]["PCW_S_AXI_HP0_DATA_WIDTH"])
+    assert memory // stream == overlay.DEPTH_PIXELS_PER_BEAT, "the driver's width / 2 eight-byte pixels"
+    assert (cfg["c_use_s2mm_fsync"], cfg["c_s2mm_sof_enable"]) == (USE_FSYNC_TUSER, "1")
+    assert cfg["c_s_axis_s2mm_tdata_width.VALUE_SRC"] == "USER"
+    # genlock slave (PG020: mode 1) of vdma_proc's S2MM, the master (mode 0, the default)
+    assert cfg["c_s2mm_genlock_mode"] == "1"
+    assert depth_bd.config["vdma_proc"].get("c_s2mm_genlock_mode", "0") == "0"
+    assert set(depth_bd.net_of(f"{name}/s2mm_frame_ptr_in")) == {
+        f"{name}/s2mm_frame_ptr_in", "vdma_proc/s2mm_frame_ptr_out"}
+    (port,) = depth_bd.connected(f"{name}/M_AXI_S2MM")
+    hub = port.split("/")[0]
+    assert int(depth_bd.config[hub]["NUM_SI"]) == 4 and port == f"{hub}/S03_AXI"
+    assert depth_bd.address(f"{name}/Data_S2MM", HP0_DDR).offset == 0
+    fabric = EmulatedFabric(clock="stepped")
+    try:  # the driver takes this build of the channel
+        VDMA(fabric.blocks["vdma_raw"], fabric.ddr, num_fstores=int(cfg["c_num_fstores"]),
+             addr_width=int(cfg["c_addr_width"]), name=name)
+    finally:
+        fabric.close()
+
+
+def test_depth_interrupts_follow_the_colour_builds_in_the_spec_order(depth_bd: BlockDesign) -> None:
+    lines = overlay.INTERRUPTS + overlay.OPTIONAL_INTERRUPTS
+    (concat,) = [n for n, vlnv in depth_bd.cells.items() if vlnv.startswith("xilinx.com:ip:xlconcat:")]
+    assert int(depth_bd.config[concat]["NUM_PORTS"]) == len(lines)
+    for i, (cell, pin) in enumerate(lines):
+        assert set(depth_bd.net_of(f"{cell}/{pin}")) == {f"{cell}/{pin}", f"{concat}/In{i}"}
+
+
+def test_depth_clock_and_reset_reach_every_new_part(depth_bd: BlockDesign) -> None:
+    clock = set(depth_bd.net_of(f"{PS7}/FCLK_CLK0"))
+    assert {"rectified_split/aclk", f"{overlay.STEREO}/aclk", f"{overlay.DEPTH_VDMA}/s_axi_lite_aclk",
+            f"{overlay.DEPTH_VDMA}/m_axi_s2mm_aclk", f"{overlay.DEPTH_VDMA}/s_axis_s2mm_aclk"} <= clock
+    resets = [net for net in depth_bd.nets if any(p.endswith("/peripheral_aresetn") for p in net)]
+    assert len(resets) == 1, "one reset net, as in the colour build"
+    assert {"rectified_split/aresetn", f"{overlay.STEREO}/aresetn", f"{overlay.DEPTH_VDMA}/axi_resetn",
+            "axi_ctrl/M04_ARESETN", "axi_ctrl/M05_ARESETN"} <= set(resets[0])
+
+
+def test_stereo_build_parameters_are_the_depth_build(packaged: Dict[str, PackagedIP],
+                                                     depth_bd: BlockDesign) -> None:
+    build = stereo.DEFAULT_BUILD
+    expected = {"MAX_WIDTH": build.max_width, "MAX_HEIGHT": build.max_height, "MAX_DISP": build.max_disp,
+                "PARALLEL": build.parallel}
+    params = packaged[stereo.VLNV].params
+    assert {name: default for name, (default, _, _) in params.items()} == expected
+    assert {name: (low, high) for name, (_, low, high) in params.items()} == stereo.BUILD_LIMITS
+    assert {name: int(value) for name, value in depth_bd.config[overlay.STEREO].items()} == expected
+    module = verilog_module((RTL_DIR / "stereo" / "stereo_core.v").read_text(), "stereo_core")
+    assert module is not None and set(module.parameters) == set(params)
+    assert params["MAX_WIDTH"][2] < 2 ** stereo.SIZE_BITS and params["MAX_HEIGHT"][2] < 2 ** stereo.SIZE_BITS
+    # the frame the rectify core sends fits the stereo core
+    assert build.max_width >= rectify.DEFAULT_BUILD.max_width
+    assert build.max_height >= rectify.DEFAULT_BUILD.max_height
+
+
+def test_stereo_interfaces_match_the_rtl_ports(packaged: Dict[str, PackagedIP]) -> None:
+    ip = packaged[stereo.VLNV]
+    module = verilog_module((RTL_DIR / "stereo" / "stereo_core.v").read_text(), "stereo_core")
+    assert module is not None
+    clock, reset, busifs = ip.clock
+    assert module.ports[clock][0] == "input" and module.ports[reset][0] == "input"
+    assert set(ip.interfaces) == {clock, reset, *busifs}
+    assert ip.windows == {"s_axil": stereo.STEREO_MAP.size}
+    assert module.ports["s_axil_awaddr"][1] in (None, int(math.log2(stereo.STEREO_MAP.size)))
+    assert sorted(b for b in busifs if b != "s_axil") == ["m_axis", "s_axis"]
+    assert module.ports["s_axis_tdata"] == ("input", pixel.BYTES_PER_PIXEL * 8)
+    assert module.ports["m_axis_tdata"] == ("output", stereo.OUT_BEAT_BITS)
+    for busif in ("s_axis", "m_axis"):
+        assert module.ports[f"{busif}_tuser"][1] == 1 and module.ports[f"{busif}_tlast"][1] == 1
+
+
+def test_the_packaged_stereo_rtl_is_every_file_of_the_core() -> None:
+    """package_ip.tcl globs stereo/sc_*.v and stereo/*.vh, and names the shared rc_ram.v and rc_fifo.v:
+    the same files the simulators and yosys read (stereo_sources)."""
+    from stereocam.overlays.rtl.stereo_core import stereo_sources
+
+    text = read_script("package_ip.tcl")
+    assert "stereo_core.v" in text and "sc_*.v" in text
+    folder = RTL_DIR / "stereo"
+    globbed = ({folder / "stereo_core.v"} | set(folder.glob("sc_*.v")) | set(folder.glob("*.vh"))
+               | {RTL_DIR / "rc_ram.v", RTL_DIR / "rc_fifo.v"})
+    assert globbed == {p.resolve() for p in stereo_sources()} | set()
+    assert {p for p in folder.iterdir() if p.suffix in (".v", ".vh", ".sv")} <= globbed
+
+
+def test_the_depth_build_passes_the_stubbed_vivado_with_the_stereo_core_as_the_spec_says(
+        tmp_path: Path, rtl_copy: Path, depth_bd: BlockDesign) -> None:
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=["-to", "bd", "-build", "depth", "-proj",
+                                                            str(tmp_path / "p")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
+    assert run.error == ""
+    assert {name: cell.vlnv for name, cell in run.design.cells.items()} == depth_bd.cells
+    core = run.packaged[stereo.VLNV]
+    assert core.ranges == {"s_axil/reg0": stereo.STEREO_MAP.size}
+    declared = core.registers["s_axil/reg0"]
+    assert {n: (int(r["address_offset"], 0), int(r["reset_value"], 0)) for n, r in declared.items()} == {
+        reg.name: (reg.offset, reg.reset) for reg in stereo.STEREO_MAP}
+    assert {n: (p.low, p.high) for n, p in core.params.items()} == stereo.BUILD_LIMITS
+    assert set(run.design.net_of(f"{overlay.DEPTH_VDMA}/s2mm_frame_ptr_in")) == {
+        f"{overlay.DEPTH_VDMA}/s2mm_frame_ptr_in", "vdma_proc/s2mm_frame_ptr_out"}
+
+
+def test_build_tcl_refuses_a_build_it_does_not_have(tmp_path: Path, rtl_copy: Path) -> None:
+    run = run_tcl(VIVADO_DIR / "build.tcl", tmp_path, argv=["-to", "bd", "-build", "deep", "-proj",
+                                                            str(tmp_path / "p")],
+                  preset={"STEREOCAM_RTL_DIR": str(rtl_copy)})
+    assert "-build must be one of colour, depth, not 'deep'" in run.error
+    assert run.of("create_bd_design") == []

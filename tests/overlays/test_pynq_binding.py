@@ -36,15 +36,20 @@ from stereocam.overlays.emulated.render import SyntheticRig
 from stereocam.overlays.spec.axis_switch import LIVE, NUM_INPUTS, VIRTUAL
 from stereocam.overlays.spec.overlay import (
     ADDRESS_MAP,
+    DEPTH_VDMA,
     FABRIC_CLOCK_HZ,
     INSTANCES,
     INTERRUPTS,
     NUM_FSTORES,
+    OPTIONAL_ADDRESS_MAP,
+    OPTIONAL_INTERRUPTS,
+    STEREO,
     VDMA_VLNVS,
     WINDOW_SIZE,
 )
 from stereocam.overlays.spec.rectify import CORE_ID, DEFAULT_BUILD, RECTIFY_MAP
 from stereocam.overlays.spec.regs import Access
+from stereocam.overlays.spec.stereo import STEREO_MAP
 
 from .. import pynq_device as pd
 from ..pynq_hwh import Ip, pynq_for_tests, rectify_parameters, stereocam_ips, write_overlay
@@ -73,16 +78,25 @@ OWNER = textwrap.dedent("""
 
 
 
-def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(tmp_path: Path) -> None:
+@pytest.mark.parametrize("build", ["colour", "depth"])
+def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(tmp_path: Path, build: str) -> None:
     """What pynq reads but does not report (it lists interrupts only behind an AXI interrupt
-    controller; this design wires the VDMAs to IRQ_F2P through an xlconcat). Runs without pynq too."""
-    root = ElementTree.parse(write_overlay(tmp_path).with_suffix(".hwh")).getroot()
-    ranges = {r.get("INSTANCE"): r.get("ADDRESSBLOCK")
+    controller; this design wires the VDMAs to IRQ_F2P through an xlconcat). Runs without pynq too.
+    The depth build adds the stereo core's window and vdma_depth's, and its interrupt last."""
+    root = ElementTree.parse(write_overlay(tmp_path, build=build).with_suffix(".hwh")).getroot()
+    ranges = {r.get("INSTANCE"): (r.get("ADDRESSBLOCK"), int(r.get("BASEVALUE"), 0))
               for r in root.iter("MEMRANGE") if r.get("MASTERBUSINTERFACE") == "M_AXI_GP0"}
-    assert ranges == {"vdma_raw": "Reg", "vdma_proc": "Reg", "rectify": "reg0", "mux": "Reg"}
-    (block,) = [b for b in root.iter("ADDRESSBLOCK")]
-    assert (block.get("INTERFACE"), block.get("NAME"), int(block.get("RANGE"))) == (
-        "s_axil", "reg0", RECTIFY_MAP.size)
+    blocks = {"vdma_raw": "Reg", "vdma_proc": "Reg", "rectify": "reg0", "mux": "Reg"}
+    addresses = dict(ADDRESS_MAP)
+    if build == "depth":
+        blocks.update({STEREO: "reg0", DEPTH_VDMA: "Reg"})
+        addresses.update(OPTIONAL_ADDRESS_MAP)
+    assert ranges == {name: (blocks[name], addresses[name]) for name in blocks}
+    found = {m.get("INSTANCE"): [(b.get("INTERFACE"), b.get("NAME"), int(b.get("RANGE")))
+                                 for b in m.iter("ADDRESSBLOCK")] for m in root.iter("MODULE")}
+    sizes = {"rectify": RECTIFY_MAP.size, **({STEREO: STEREO_MAP.size} if build == "depth" else {})}
+    assert {name: blocks for name, blocks in found.items() if blocks} == {
+        name: [("s_axil", "reg0", size)] for name, size in sizes.items()}
     modules = {m.get("INSTANCE"): m for m in root.iter("MODULE")}
     irq = modules["processing_system7_0"].find("./PORTS/PORT[@NAME='IRQ_F2P']")
     assert irq is not None
@@ -95,8 +109,9 @@ def test_the_hwh_names_address_blocks_and_interrupts_as_the_design_does(tmp_path
         lines.append((driver.get("INSTANCE"), driver.get("PORT")))
         port = modules[driver.get("INSTANCE")].find(f"./PORTS/PORT[@NAME='{driver.get('PORT')}']")
         assert port is not None and port.get("SIGIS") == "INTERRUPT"
-    assert tuple(lines) == INTERRUPTS
-    assert int(irq.get("LEFT")) == len(INTERRUPTS) - 1
+    expected = INTERRUPTS + (OPTIONAL_INTERRUPTS if build == "depth" else ())
+    assert tuple(lines) == expected
+    assert int(irq.get("LEFT")) == len(expected) - 1
 
 
 if pynq is not None:
@@ -168,6 +183,25 @@ if pynq is not None:
         ps7 = ov.ip_dict["processing_system7_0"]["parameters"]
         assert float(ps7["PCW_FPGA0_PERIPHERAL_FREQMHZ"]) * 1e6 == FABRIC_CLOCK_HZ
         assert board.dev.downloads == [] and board.dev.bus_accesses == 0
+
+    def test_pynq_reads_the_depth_builds_stereo_core_and_its_vdma(board: Board) -> None:
+        """build.tcl -build depth: pynq's ip_dict has the optional instances where the spec puts them,
+        and the VLNVs our drivers register for."""
+        from stereocam.overlays.pynq.drivers import PynqStereoCore
+        from stereocam.overlays.spec.stereo import VLNV as STEREO_VLNV
+
+        bit = write_overlay(board.tmp / "depth", build="depth")
+        ov = pynq.Overlay(str(bit), device=board.dev, download=False)
+        assert set(ov.ip_dict) == set(INSTANCES) | {STEREO, DEPTH_VDMA, "processing_system7_0"}
+        stereo, depth = ov.ip_dict[STEREO], ov.ip_dict[DEPTH_VDMA]
+        assert (stereo["type"], stereo["phys_addr"], stereo["addr_range"]) == (
+            STEREO_VLNV, OPTIONAL_ADDRESS_MAP[STEREO], WINDOW_SIZE)
+        assert (depth["type"] in VDMA_VLNVS, depth["phys_addr"]) == (True, OPTIONAL_ADDRESS_MAP[DEPTH_VDMA])
+        params = depth["parameters"]
+        assert (params["C_INCLUDE_MM2S"], params["C_INCLUDE_S2MM"], params["C_NUM_FSTORES"]) == (
+            "0", "1", str(NUM_FSTORES))
+        assert ov.ip_dict[STEREO]["registers"]["CONTROL"]["address_offset"] == STEREO_MAP["CONTROL"].offset
+        assert pynq.overlay._ip_drivers[STEREO_VLNV] is PynqStereoCore
 
     def test_the_hwh_follows_the_block_design_script(board: Board) -> None:
         """A VDMA the script builds with MM2S gets it in the .hwh, its interrupt too: nothing typed twice."""

@@ -545,6 +545,7 @@ BLOCK_DESIGN = Path(__file__).resolve().parent.parent / "vivado" / "block_design
 CORE_VLNV_NAME = "rectify"
 CAMERA_VLNV_NAME = "camera_in"
 GATE_VLNV_NAME = "frame_gate"
+STEREO_VLNV_NAME = "stereo"
 OVERLAY_NOTE = ("RTL rows are yosys counts of the block design's own cores with its parameters; Xilinx IP "
                 "rows are estimates from the product guides cited (not synthesised); Vivado's "
                 "report_utilization of a real build replaces them.")
@@ -567,10 +568,42 @@ class BdCell:
         return parts[2] if len(parts) == 4 else self.vlnv
 
 
-def block_design_cells(path: Path = BLOCK_DESIGN) -> List[BdCell]:
-    """The IP cells of ``block_design.tcl`` in order, each with its literal ``CONFIG.*`` values."""
+_BUILD_IF = re.compile(r'^\s*if \{\$STEREOCAM_BUILD eq "(\w+)"\} \{', re.M)
+
+
+def _braced_end(text: str, start: int) -> int:
+    """Index just past the brace that closes the one at ``text[start]``."""
+    depth = 0
+    for i in range(start, len(text)):
+        depth += {"{": 1, "}": -1}.get(text[i], 0)
+        if depth == 0:
+            return i + 1
+    raise HwSynthError("the block design has an unclosed brace")
+
+
+def text_for_build(text: str, build: str) -> str:
+    """``text`` with each ``if {$STEREOCAM_BUILD eq "<b>"} {...} else {...}`` replaced by the branch
+    ``build`` takes (block_design.tcl's depth-only parts; the gray and colour builds take none)."""
+    design = "depth" if build == STEREO_BUILD else "colour"
+    while (m := _BUILD_IF.search(text)) is not None:
+        body_end = _braced_end(text, m.end() - 1)
+        chosen = text[m.end():body_end - 1] if m.group(1) == design else ""
+        end = body_end
+        rest = re.match(r"\s*else \{", text[end:])
+        if rest is not None:
+            else_end = _braced_end(text, end + rest.end() - 1)
+            if m.group(1) != design:
+                chosen = text[end + rest.end():else_end - 1]
+            end = else_end
+        text = text[:m.start()] + chosen + text[end:]
+    return text
+
+
+def block_design_cells(path: Path = BLOCK_DESIGN, build: str = "colour") -> List[BdCell]:
+    """The IP cells of ``block_design.tcl`` in order for ``build`` (the depth build's own cells only in
+    it), each with its literal ``CONFIG.*`` values (a later ``set_property`` wins)."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = text_for_build(path.read_text(encoding="utf-8"), build)
     except OSError as exc:
         raise HwSynthError(f"cannot read the block design {path}: {exc}") from None
     config: Dict[str, Dict[str, str]] = {}
@@ -624,7 +657,7 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
 
     A cell this cannot account for (an IP without an estimate) is refused, naming it.
     """
-    cells = list(cells) if cells is not None else block_design_cells()
+    cells = list(cells) if cells is not None else block_design_cells(build=build.name)
     camera = camera_dir or rtl_dir() / "camera"
     shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]
     parts: List[Part] = []
@@ -640,6 +673,8 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
             parts.append(_rtl_part("camera_in", [cell.name], r))
         elif cell.ip == GATE_VLNV_NAME:
             gates.setdefault(tuple(sorted(cell.config.items())), []).append(cell.name)
+        elif cell.ip == STEREO_VLNV_NAME:
+            continue  # stereo_parts, with the build's parameters
         else:
             try:
                 est, fig = ip_estimates.estimate(cell.vlnv, cell.config)
@@ -671,17 +706,14 @@ def synthesize_stereo(build: BuildParams, *, timeout: float = DEFAULT_TIMEOUT_S,
 
 def stereo_parts(build: BuildParams, cells: Sequence[BdCell], *, timeout: float = DEFAULT_TIMEOUT_S,
                  use_cache: bool = True) -> List[Part]:
-    """What the depth build adds to the block design: the stereo core (synthesised) and the VDMA
-    that writes its output to DDR (``vdma_depth``, spec/overlay.py), estimated as ``vdma_raw``, the
-    other write-only channel (its 32-bit stream is narrower than vdma_raw's 64: no more)."""
+    """The depth build's stereo core, synthesised with the build's parameters (its VDMA, split and
+    the interconnects' extra ports are cells of the block design's depth build, estimated as the others)."""
+    names = [c.name for c in cells if c.ip == STEREO_VLNV_NAME]
+    if not names:
+        raise HwSynthError("the block design's cells have no stereo core: read them for the depth build "
+                           "(block_design_cells(build='depth'))")
     core = synthesize_stereo(build, timeout=timeout, use_cache=use_cache)
-    raw = next((c for c in cells if c.name == "vdma_raw"), None)
-    if raw is None:
-        raise HwSynthError("the block design has no vdma_raw cell to estimate the depth build's VDMA from")
-    est, fig = ip_estimates.estimate(raw.vlnv, raw.config)
-    return [_rtl_part(f"stereo core ({build.name})", ["stereo"], core),
-            Part(f"{raw.ip} (estimate)", ("vdma_depth",), "estimate", fig.lut, fig.ff, fig.bram36, fig.dsp,
-                 f"as vdma_raw: {est.citation}: {est.basis}")]
+    return [_rtl_part(f"stereo core ({build.name})", names, core)]
 
 
 def overlay_totals(parts: Sequence[Part]) -> Dict[str, float]:

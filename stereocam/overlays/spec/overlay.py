@@ -8,12 +8,15 @@ The stereo core (``STEREO_CORE.md``) is optional: a bitstream may have it or not
 daemon asks (:data:`OPTIONAL_INSTANCES`). Where it is, it sits after the rectify core on the
 rectified stream (a broadcaster feeds both the processed channel and the stereo core) and its
 32-bit output beats reach DDR through a channel of their own: a third VDMA, ``vdma_depth``,
-S2MM only, genlocked to ``vdma_proc``'s S2MM so that frame store ``k`` of one holds the
-disparity of frame store ``k`` of the other. Its stream is 64 bits wide like the others, two
-output beats per stream beat (the left pixel in the low word), so the channel is started
-``width / 2`` eight-byte pixels wide (:data:`DEPTH_PIXELS_PER_BEAT`) and a store reads back as
-``(H, W)`` uint32 beats. Today's block design (``vivado/``) has neither: its address map is
-:data:`ADDRESS_MAP`, and :data:`OPTIONAL_ADDRESS_MAP` is where a ``depth`` build places them.
+S2MM only. The broadcaster gives every rectified frame to both channels or to neither, so frame
+store ``k`` of one holds the disparity of frame store ``k`` of the other; the block design also
+wires ``vdma_depth`` as genlock slave of ``vdma_proc``'s S2MM, which the drivers do not enable
+(``GenlockEn``) yet. Its stream takes the core's 32-bit beats and the VDMA packs two to a 64-bit
+memory word (the left pixel in the low word), so the channel is started ``width / 2``
+eight-byte pixels wide (:data:`DEPTH_PIXELS_PER_BEAT`) and a store reads back as ``(H, W)``
+uint32 beats. The block design (``vivado/``) builds them with ``build.tcl -build depth``: its
+address map is then :data:`ADDRESS_MAP` and :data:`OPTIONAL_ADDRESS_MAP`, its interrupts
+:data:`INTERRUPTS` and :data:`OPTIONAL_INTERRUPTS`. The default build (``colour``) has neither.
 """
 from __future__ import annotations
 
@@ -70,6 +73,10 @@ INTERRUPTS: Tuple[Tuple[str, str], ...] = (
     ("vdma_raw", "s2mm_introut"),
     ("vdma_proc", "mm2s_introut"),
     ("vdma_proc", "s2mm_introut"),
+)
+#: The depth build's interrupt lines, after :data:`INTERRUPTS` (IRQ_F2P[3] on).
+OPTIONAL_INTERRUPTS: Tuple[Tuple[str, str], ...] = (
+    (DEPTH_VDMA, "s2mm_introut"),
 )
 
 #: The sensors' two-wire interface: both MT9V034s on one bus, the PS7's I2C0 routed through EMIO

@@ -108,6 +108,15 @@ class Build:
 BUILDS: Dict[str, Build] = {"depth": Build("depth", 752, 1024, 128, 32)}
 DEFAULT_BUILD = BUILDS["depth"]
 SIZE_BITS = 11
+#: What a build may choose (the packaged IP's user parameters offer these ranges): a frame at least
+#: the census window, sizes within the size registers, and 32 to 128 disparities, the range the
+#: tests simulate. A slot is 4 clocks, so MAX_DISP must also be 4 x PARALLEL.
+BUILD_LIMITS: Dict[str, Tuple[int, int]] = {
+    "MAX_WIDTH": (16, (1 << SIZE_BITS) - 1),
+    "MAX_HEIGHT": (16, (1 << SIZE_BITS) - 1),
+    "MAX_DISP": (32, 128),
+    "PARALLEL": (8, 32),
+}
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,12 @@
 #  DDR (HP0) -> vdma_proc MM2S ---------------------------------> mux S01 -+-> mux M00 -> rectify
 #                                                                                 -> vdma_proc S2MM -> HP0
 #
+# The depth build ($STEREOCAM_BUILD depth, build.tcl -build depth) adds the stereo core on the rectified
+# stream (stereocam/overlays/spec/overlay.py: OPTIONAL_INSTANCES, STEREO_CORE.md):
+#
+#  rectify -> rectified_split -+-> vdma_proc S2MM -> HP0
+#                              +-> stereo -> vdma_depth S2MM -> HP0
+#
 # Sourced by build.tcl into an open project whose IP catalogue holds the packaged cores (package_ip.tcl).
 # Written in the style of Vivado's write_bd_tcl (PYNQ's boards/*/base/base.tcl): one cell per
 # create_bd_cell, its configuration in one set_property -dict, literal values. The names, VLNVs,
@@ -15,6 +21,12 @@
 # pixel clocks, which camera_in crosses into it; one proc_sys_reset drives every reset.
 
 source [file join [file dirname [file normalize [info script]]] settings.tcl]
+if {![info exists STEREOCAM_BUILD]} {
+    set STEREOCAM_BUILD colour
+}
+if {[lsearch -exact $STEREOCAM_BUILDS $STEREOCAM_BUILD] < 0} {
+    error "block_design.tcl: STEREOCAM_BUILD must be one of [join $STEREOCAM_BUILDS {, }], not '$STEREOCAM_BUILD'"
+}
 
 create_bd_design $STEREOCAM_BD_NAME
 
@@ -62,6 +74,16 @@ set_property -dict [list \
     CONFIG.NUM_SI {3} \
     CONFIG.NUM_MI {1} \
 ] [get_bd_cells axi_mem]
+
+# The depth build: M04 stereo, M05 vdma_depth on GP0; S03 vdma_depth S2MM to HP0.
+if {$STEREOCAM_BUILD eq "depth"} {
+    set_property -dict [list \
+        CONFIG.NUM_MI {6} \
+    ] [get_bd_cells axi_ctrl]
+    set_property -dict [list \
+        CONFIG.NUM_SI {4} \
+    ] [get_bd_cells axi_mem]
+}
 
 # ---- The camera input IP (stereocam/overlays/spec/camera_in.py), the split of its stream and the frame gates ----
 
@@ -174,12 +196,76 @@ set_property -dict [list \
     CONFIG.LB_ROWS {80} \
     CONFIG.COLOUR {1} \
 ] [get_bd_cells rectify]
+# The depth build has the gray rectify core: the colour build's block RAM and the stereo core's
+# would not fit the xc7z020 together (stereocam hw synth --build depth; STEREO_CORE.md).
+if {$STEREOCAM_BUILD eq "depth"} {
+    set_property -dict [list \
+        CONFIG.COLOUR {0} \
+    ] [get_bd_cells rectify]
+}
+
+# ---- The depth build's stereo core (stereocam/overlays/spec/stereo.py: DEFAULT_BUILD), the split that feeds
+# it the rectified pixels, and its output channel -----------------------------------------------------------
+if {$STEREOCAM_BUILD eq "depth"} {
+    # Both outputs take every rectified beat: a broadcaster passes a beat when both take it (PG085),
+    # so a frame reaches vdma_proc and the stereo core alike, or neither, and frame store k of
+    # vdma_depth holds the disparity of frame store k of vdma_proc.
+    create_bd_cell -type ip -vlnv xilinx.com:ip:axis_broadcaster:1.1 rectified_split
+    set_property -dict [list \
+        CONFIG.NUM_MI {2} \
+        CONFIG.S_TDATA_NUM_BYTES {8} \
+        CONFIG.M_TDATA_NUM_BYTES {8} \
+        CONFIG.S_TUSER_WIDTH {1} \
+        CONFIG.M_TUSER_WIDTH {1} \
+        CONFIG.HAS_TLAST {1} \
+        CONFIG.HAS_TKEEP {0} \
+        CONFIG.HAS_TSTRB {0} \
+    ] [get_bd_cells rectified_split]
+
+    create_bd_cell -type ip -vlnv stereocam:user:stereo:1.0 stereo
+    set_property -dict [list \
+        CONFIG.MAX_WIDTH {752} \
+        CONFIG.MAX_HEIGHT {1024} \
+        CONFIG.MAX_DISP {128} \
+        CONFIG.PARALLEL {32} \
+    ] [get_bd_cells stereo]
+
+    # vdma_depth: S2MM only, the stereo core's 32-bit beats to DDR. The VDMA packs two to a 64-bit
+    # memory word, the left pixel in the low half (spec/overlay.py: DEPTH_PIXELS_PER_BEAT), so the
+    # driver starts it width / 2 eight-byte pixels wide. Genlock slave of vdma_proc's S2MM
+    # (s2mm_frame_ptr_in from its s2mm_frame_ptr_out).
+    create_bd_cell -type ip -vlnv xilinx.com:ip:axi_vdma:6.3 vdma_depth
+    set_property -dict [list \
+        CONFIG.c_m_axi_s2mm_data_width.VALUE_SRC USER \
+        CONFIG.c_s_axis_s2mm_tdata_width.VALUE_SRC USER \
+    ] [get_bd_cells vdma_depth]
+    set_property -dict [list \
+        CONFIG.c_include_sg {0} \
+        CONFIG.c_include_mm2s {0} \
+        CONFIG.c_include_s2mm {1} \
+        CONFIG.c_num_fstores {3} \
+        CONFIG.c_addr_width {32} \
+        CONFIG.c_m_axi_s2mm_data_width {64} \
+        CONFIG.c_s_axis_s2mm_tdata_width {32} \
+        CONFIG.c_s2mm_linebuffer_depth {512} \
+        CONFIG.c_s2mm_max_burst_length {16} \
+        CONFIG.c_include_s2mm_dre {0} \
+        CONFIG.c_s2mm_genlock_mode {1} \
+        CONFIG.c_use_s2mm_fsync {2} \
+        CONFIG.c_s2mm_sof_enable {1} \
+    ] [get_bd_cells vdma_depth]
+}
 
 # ---- Interrupts: the VDMA channels' introut, In0.. in this order, to IRQ_F2P ---------------------------
 create_bd_cell -type ip -vlnv xilinx.com:ip:xlconcat:2.1 irq_concat
 set_property -dict [list \
     CONFIG.NUM_PORTS {3} \
 ] [get_bd_cells irq_concat]
+if {$STEREOCAM_BUILD eq "depth"} {
+    set_property -dict [list \
+        CONFIG.NUM_PORTS {4} \
+    ] [get_bd_cells irq_concat]
+}
 
 # ---- Camera pins: external ports of the design (the board's pin map places them; the MT9V034's PIXCLK,
 # DOUT[9:0], LINE_VALID, FRAME_VALID of the left (cam0) and right (cam1) sensor) ----------------------
@@ -214,7 +300,14 @@ connect_bd_intf_net [get_bd_intf_pins camera_split/M01_AXIS] [get_bd_intf_pins g
 connect_bd_intf_net [get_bd_intf_pins gate_live/m_axis] [get_bd_intf_pins mux/S00_AXIS]
 connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXIS_MM2S] [get_bd_intf_pins mux/S01_AXIS]
 connect_bd_intf_net [get_bd_intf_pins mux/M00_AXIS] [get_bd_intf_pins rectify/s_axis]
-connect_bd_intf_net [get_bd_intf_pins rectify/m_axis] [get_bd_intf_pins vdma_proc/S_AXIS_S2MM]
+if {$STEREOCAM_BUILD eq "depth"} {
+    connect_bd_intf_net [get_bd_intf_pins rectify/m_axis] [get_bd_intf_pins rectified_split/S_AXIS]
+    connect_bd_intf_net [get_bd_intf_pins rectified_split/M00_AXIS] [get_bd_intf_pins vdma_proc/S_AXIS_S2MM]
+    connect_bd_intf_net [get_bd_intf_pins rectified_split/M01_AXIS] [get_bd_intf_pins stereo/s_axis]
+    connect_bd_intf_net [get_bd_intf_pins stereo/m_axis] [get_bd_intf_pins vdma_depth/S_AXIS_S2MM]
+} else {
+    connect_bd_intf_net [get_bd_intf_pins rectify/m_axis] [get_bd_intf_pins vdma_proc/S_AXIS_S2MM]
+}
 
 # ---- Register buses (GP0) ----------------------------------------------------------------------------
 connect_bd_intf_net [get_bd_intf_pins processing_system7_0/M_AXI_GP0] [get_bd_intf_pins axi_ctrl/S00_AXI]
@@ -222,17 +315,29 @@ connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M00_AXI] [get_bd_intf_pins vdma_r
 connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M01_AXI] [get_bd_intf_pins vdma_proc/S_AXI_LITE]
 connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M02_AXI] [get_bd_intf_pins rectify/s_axil]
 connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M03_AXI] [get_bd_intf_pins mux/S_AXI_CTRL]
+if {$STEREOCAM_BUILD eq "depth"} {
+    connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M04_AXI] [get_bd_intf_pins stereo/s_axil]
+    connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M05_AXI] [get_bd_intf_pins vdma_depth/S_AXI_LITE]
+}
 
 # ---- Frame memory (HP0) ------------------------------------------------------------------------------
 connect_bd_intf_net [get_bd_intf_pins vdma_raw/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S00_AXI]
 connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_MM2S] [get_bd_intf_pins axi_mem/S01_AXI]
 connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S02_AXI]
+if {$STEREOCAM_BUILD eq "depth"} {
+    connect_bd_intf_net [get_bd_intf_pins vdma_depth/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S03_AXI]
+}
 connect_bd_intf_net [get_bd_intf_pins axi_mem/M00_AXI] [get_bd_intf_pins processing_system7_0/S_AXI_HP0]
 
 # ---- Interrupts --------------------------------------------------------------------------------------
 connect_bd_net [get_bd_pins vdma_raw/s2mm_introut] [get_bd_pins irq_concat/In0]
 connect_bd_net [get_bd_pins vdma_proc/mm2s_introut] [get_bd_pins irq_concat/In1]
 connect_bd_net [get_bd_pins vdma_proc/s2mm_introut] [get_bd_pins irq_concat/In2]
+if {$STEREOCAM_BUILD eq "depth"} {
+    connect_bd_net [get_bd_pins vdma_depth/s2mm_introut] [get_bd_pins irq_concat/In3]
+    # genlock: vdma_depth's S2MM follows the store vdma_proc's S2MM writes
+    connect_bd_net [get_bd_pins vdma_proc/s2mm_frame_ptr_out] [get_bd_pins vdma_depth/s2mm_frame_ptr_in]
+}
 connect_bd_net [get_bd_pins irq_concat/dout] [get_bd_pins processing_system7_0/IRQ_F2P]
 
 # ---- Clock: FCLK_CLK0 everywhere ---------------------------------------------------------------------
@@ -262,6 +367,17 @@ connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
     [get_bd_pins mux/aclk] \
     [get_bd_pins mux/s_axi_ctrl_aclk] \
     [get_bd_pins rectify/aclk]
+if {$STEREOCAM_BUILD eq "depth"} {
+    # added to FCLK_CLK0's net
+    connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
+        [get_bd_pins axi_ctrl/M04_ACLK] \
+        [get_bd_pins axi_ctrl/M05_ACLK] \
+        [get_bd_pins rectified_split/aclk] \
+        [get_bd_pins stereo/aclk] \
+        [get_bd_pins vdma_depth/s_axi_lite_aclk] \
+        [get_bd_pins vdma_depth/m_axi_s2mm_aclk] \
+        [get_bd_pins vdma_depth/s_axis_s2mm_aclk]
+}
 
 # ---- Resets ------------------------------------------------------------------------------------------
 connect_bd_net [get_bd_pins processing_system7_0/FCLK_RESET0_N] [get_bd_pins rst_ps7_0/ext_reset_in]
@@ -283,6 +399,15 @@ connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
     [get_bd_pins mux/aresetn] \
     [get_bd_pins mux/s_axi_ctrl_aresetn] \
     [get_bd_pins rectify/aresetn]
+if {$STEREOCAM_BUILD eq "depth"} {
+    # added to peripheral_aresetn's net
+    connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
+        [get_bd_pins axi_ctrl/M04_ARESETN] \
+        [get_bd_pins axi_ctrl/M05_ARESETN] \
+        [get_bd_pins rectified_split/aresetn] \
+        [get_bd_pins stereo/aresetn] \
+        [get_bd_pins vdma_depth/axi_resetn]
+}
 
 # ---- Addresses (stereocam/overlays/spec/overlay.py: ADDRESS_MAP, WINDOW_SIZE) ----------------------------------
 # The PS7 sees each register window at its base; each VDMA channel sees the 512 MiB of DDR through HP0.
@@ -307,3 +432,14 @@ assign_bd_address -offset 0x00000000 -range 0x20000000 \
 assign_bd_address -offset 0x00000000 -range 0x20000000 \
     -target_address_space [get_bd_addr_spaces vdma_proc/Data_S2MM] \
     [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
+if {$STEREOCAM_BUILD eq "depth"} {
+    assign_bd_address -offset 0x43020000 -range 0x00010000 \
+        -target_address_space [get_bd_addr_spaces processing_system7_0/Data] \
+        [get_bd_addr_segs vdma_depth/S_AXI_LITE/Reg] -force
+    assign_bd_address -offset 0x43C20000 -range 0x00010000 \
+        -target_address_space [get_bd_addr_spaces processing_system7_0/Data] \
+        [get_bd_addr_segs stereo/s_axil/reg0] -force
+    assign_bd_address -offset 0x00000000 -range 0x20000000 \
+        -target_address_space [get_bd_addr_spaces vdma_depth/Data_S2MM] \
+        [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
+}

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Build the stereocam overlay with Vivado: stereocam.bit and stereocam.hwh (see README.md here).
 #
-#   stereocam/overlays/vivado/build.sh [-out DIR] [-proj DIR] [-pins FILE] [-xdc FILE] [-jobs N]
+#   stereocam/overlays/vivado/build.sh [-out DIR] [-proj DIR] [-pins FILE] [-xdc FILE] [-jobs N] [-build colour|depth]
 #       [-to package|bd|synth|impl|bit]
 #
 # The options are build.tcl's. Needs `vivado` on PATH: source <Xilinx>/Vivado/2022.1/settings64.sh

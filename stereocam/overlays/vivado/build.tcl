@@ -12,6 +12,9 @@
 #               pins are placeholders (FILL_IN): implementation refuses it until they are filled in.
 #   -xdc FILE   the timing constraints. Default: stereocam.xdc beside this script.
 #   -jobs N     parallel synthesis/implementation jobs. Default: 2.
+#   -build B    what the overlay holds ($STEREOCAM_BUILDS in settings.tcl): colour (the default: the
+#               rectify core's colour build) or depth (that, and the stereo core with its own VDMA,
+#               stereocam/overlays/STEREO_CORE.md). Either is written as stereocam.bit and stereocam.hwh.
 #   -to STEP    stop after STEP: package (the IP), bd (block design, wrapper, output products),
 #               synth, impl (placed and routed), bit (the default: bitstream and .hwh copied to -out).
 #
@@ -101,6 +104,7 @@ set stereocam_opts [stereocam_parse_args $argv [dict create \
     pins [file join $STEREOCAM_VIVADO_DIR pins $STEREOCAM_BOARD.pins] \
     xdc [file join $STEREOCAM_VIVADO_DIR stereocam.xdc] \
     jobs 2 \
+    build colour \
     to bit]]
 set stereocam_out [stereocam_path [dict get $stereocam_opts out]]
 set stereocam_proj [stereocam_path [dict get $stereocam_opts proj]]
@@ -110,6 +114,10 @@ set stereocam_jobs [dict get $stereocam_opts jobs]
 set stereocam_last [lsearch -exact $stereocam_steps [dict get $stereocam_opts to]]
 if {$stereocam_last < 0} {
     error "build.tcl: -to must be one of [join $stereocam_steps {, }], not '[dict get $stereocam_opts to]'"
+}
+set STEREOCAM_BUILD [dict get $stereocam_opts build]
+if {[lsearch -exact $STEREOCAM_BUILDS $STEREOCAM_BUILD] < 0} {
+    error "build.tcl: -build must be one of [join $STEREOCAM_BUILDS {, }], not '$STEREOCAM_BUILD'"
 }
 if {![string is integer -strict $stereocam_jobs] || $stereocam_jobs < 1} {
     error "build.tcl: -jobs must be a positive number, not '$stereocam_jobs'"
@@ -152,7 +160,8 @@ if {![file isfile $stereocam_pins]} {
     }
 }
 
-puts "stereocam: Vivado $stereocam_found, project $stereocam_proj, outputs to $stereocam_out"
+puts "stereocam: Vivado $stereocam_found, the $STEREOCAM_BUILD build, project $stereocam_proj, outputs to\
+      $stereocam_out"
 
 # ---- 1. package the IP (before the project: Vivado holds one project at a time) ---------------------
 set STEREOCAM_IP_REPO [file join $stereocam_proj ip_repo]

@@ -5,7 +5,19 @@
 # each {name byte_offset access reset_value} (32 bits).
 
 set STEREOCAM_IP_WINDOW(rectify) 4096
-set STEREOCAM_IP_PARAMS(rectify) {{MAX_WIDTH 752 2 2047} {MAX_HEIGHT 1024 2 2047} {LB_ROWS 80 1 2047} {COLOUR 1 0 1}}
+set STEREOCAM_IP_PARAMS(rectify) {
+    {MAX_WIDTH 752 2 2047}
+    {MAX_HEIGHT 1024 2 2047}
+    {LB_ROWS 80 1 2047}
+    {COLOUR 1 0 1}
+}
+set STEREOCAM_IP_WINDOW(stereo) 4096
+set STEREOCAM_IP_PARAMS(stereo) {
+    {MAX_WIDTH 752 16 2047}
+    {MAX_HEIGHT 1024 16 2047}
+    {MAX_DISP 128 32 128}
+    {PARALLEL 32 8 32}
+}
 set STEREOCAM_IP_PARAMS(camera_in) {{MAX_WIDTH 752 2 2047} {BAYER_PHASE 3 0 3}}
 set STEREOCAM_IP_PARAMS(frame_gate) {{DEPTH 1024 16 32768}}
 set STEREOCAM_IP_REGISTERS(rectify) {
@@ -91,4 +103,25 @@ set STEREOCAM_IP_REGISTERS(rectify) {
     {R_P1_HI 0x27c read-write 0x0}
     {R_P2_LO 0x280 read-write 0x0}
     {R_P2_HI 0x284 read-write 0x0}
+}
+set STEREOCAM_IP_REGISTERS(stereo) {
+    {ID 0x000 read-only 0x53544552}
+    {VERSION 0x004 read-only 0x10000}
+    {MAX_WIDTH 0x008 read-only 0x2f0}
+    {MAX_HEIGHT 0x00c read-only 0x400}
+    {MAX_DISP 0x010 read-only 0x80}
+    {PARALLEL 0x014 read-only 0x20}
+    {CONTROL 0x020 read-write 0xe}
+    {STATUS 0x024 read-only 0x0}
+    {FLAGS 0x028 read-write 0x0}
+    {FRAME_COUNT 0x02c read-only 0x0}
+    {WIDTH 0x030 read-write 0x2f0}
+    {HEIGHT 0x034 read-write 0x1e0}
+    {NUM_DISP 0x038 read-write 0x80}
+    {P1 0x03c read-write 0x10}
+    {P2 0x040 read-write 0x64}
+    {P2_EDGE 0x044 read-write 0x28}
+    {EDGE_THRESH 0x048 read-write 0x18}
+    {UNIQUENESS 0x04c read-write 0xd}
+    {LR_TOL 0x050 read-write 0x2}
 }

@@ -6,10 +6,13 @@
 #                                  ../rc_fifo.v (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
 #   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ../rc_ram.v, ../rc_fifo.v
 #                                  (stereocam/overlays/spec/frame_gate.py: VLNV, TOP, SOURCES, PORTS, PARAMETERS)
+#   stereocam:user:stereo:1.0      stereocam/overlays/rtl/stereo/stereo_core.v, sc_*.v, *.vh, ../rc_ram.v,
+#                                  ../rc_fifo.v (stereocam/overlays/spec/stereo.py: VLNV, DEFAULT_BUILD);
+#                                  only the depth build's block design instantiates it
 #
 # Each IP is packaged from a throw-away project of its own (Vivado holds one project at a time, so
 # build.tcl sources this file before it creates the overlay's project). The cores land in
-# $STEREOCAM_IP_REPO/rectify, .../camera_in and .../frame_gate, with their sources copied in.
+# $STEREOCAM_IP_REPO/rectify, .../camera_in, .../frame_gate and .../stereo, with their sources copied in.
 #
 # Sourced by build.tcl, which sets STEREOCAM_IP_REPO and STEREOCAM_IP_BUILD; alone:
 #   vivado -mode batch -source stereocam/overlays/vivado/package_ip.tcl -tclargs <ip_repo_dir>
@@ -221,4 +224,37 @@ stereocam_require_interfaces $core {aclk aresetn s_axis m_axis}
 stereocam_clock $core aclk aresetn {s_axis m_axis}
 # Parameters: defaults frame_gate.PARAMETERS, range frame_gate.DEPTH_RANGE.
 stereocam_user_params $core frame_gate
+stereocam_save_core $core
+
+# ---- stereocam:user:stereo:1.0 (stereocam/overlays/spec/stereo.py: VLNV; STEREO_CORE.md) -------------------------
+# The stereo core and the RAM and FIFO it shares with the rectify core (stereo_sources() in
+# stereocam/overlays/rtl/stereo_core.py lists the same files for the simulators and yosys).
+
+set stereo_dir [file join $STEREOCAM_RTL_DIR stereo]
+if {![file exists [file join $stereo_dir stereo_core.v]]} {
+    error "stereocam: no stereo core RTL (stereo_core.v) in $stereo_dir: the stereo IP cannot be packaged"
+}
+set stereo_sources [concat \
+    [list [file join $stereo_dir stereo_core.v]] \
+    [lsort [glob -nocomplain -directory $stereo_dir sc_*.v]] \
+    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v]] \
+    [lsort [glob -nocomplain -directory $stereo_dir *.vh]]]
+
+stereocam_packaging_project pkg_stereo stereo_core $stereo_sources
+ipx::package_project -root_dir [file join $STEREOCAM_IP_REPO stereo] -vendor stereocam -library user \
+    -taxonomy /UserIP -import_files -set_current true -force
+set core [ipx::current_core]
+set_property name stereo $core
+set_property version 1.0 $core
+set_property display_name {stereocam stereo core} $core
+set_property description {Census and semi-global matching of the rectified pair at pixel rate (STEREO_CORE.md)} \
+    $core
+set_property supported_families {zynq Production} $core
+stereocam_require_interfaces $core {aclk aresetn s_axil s_axis m_axis}
+stereocam_clock $core aclk aresetn {s_axil s_axis m_axis}
+# The register map (STEREO_MAP.size bytes); the block design maps a 64 KiB window onto it.
+stereocam_register_window $core s_axil $STEREOCAM_IP_WINDOW(stereo) $STEREOCAM_IP_REGISTERS(stereo)
+# Build parameters: defaults DEFAULT_BUILD (the depth build), ranges BUILD_LIMITS (spec/stereo.py);
+# MAX_DISP must be 4 x PARALLEL, which the RTL checks when it is elaborated.
+stereocam_user_params $core stereo
 stereocam_save_core $core

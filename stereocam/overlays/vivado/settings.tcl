@@ -20,6 +20,11 @@ set STEREOCAM_BOARD_PART ""
 # (stereocam/board/<name>.yaml, name:) whose sensors and I2C bus it wires.
 set STEREOCAM_BOARD zynq-stereo
 
+# What the block design holds (build.tcl -build): colour, the rectify core's colour build as the board
+# runs it today; depth, that and the stereo core with its own VDMA (stereocam/overlays/STEREO_CORE.md).
+# Both are written as stereocam.bit/.hwh: the daemon finds the stereo core in the .hwh.
+set STEREOCAM_BUILDS {colour depth}
+
 # Block design name, and the overlay's file names: stereocam.bit + stereocam.hwh
 # (stereocam/overlays/spec/overlay.py: BITSTREAM; pynq needs the .hwh beside the .bit under the same name).
 set STEREOCAM_BD_NAME stereocam

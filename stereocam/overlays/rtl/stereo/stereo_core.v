@@ -76,6 +76,14 @@ localparam OUT_DEPTH = 32;
 localparam PRE = 16;
 localparam LAG = 4;
 
+// parameter checks: a build that breaks one fails to elaborate, naming the rule (the packaged IP's
+// user parameters allow each value alone; this is the rule between them)
+generate
+    if (MAX_DISP != 4 * PARALLEL) begin : g_check_slots
+        stereo_core_parameter_MAX_DISP_must_be_4_x_PARALLEL max_disp_not_4_slots();
+    end
+endgenerate
+
 reg rst = 1'b1;
 always @(posedge aclk) rst <= !aresetn;
 
