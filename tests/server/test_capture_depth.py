@@ -4,6 +4,7 @@ of the calibration the frame ran with, listed in meta.json, in the zip and at
 with OpenCV and trimesh on a real daemon on the emulated fabric."""
 from __future__ import annotations
 
+import dataclasses
 import io
 import zipfile
 from typing import Any, Dict
@@ -15,7 +16,7 @@ import trimesh
 
 from stereocam.overlays.model.stereo import compute
 from stereocam.overlays.spec.pixel import gray_of
-from stereocam.overlays.spec.stereo import INVALID
+from stereocam.overlays.spec.stereo import DEFAULT_BUILD, DEFAULT_PARAMS, INVALID
 from stereocam.server.http.state import CALIBRATION
 
 from .daemon import start_uncalibrated, wait_for_frames
@@ -74,6 +75,9 @@ async def test_a_capture_stores_disparity_confidence_and_its_cloud(start_daemon)
     assert disp.dtype == np.uint16 and np.array_equal(disp, expected.disp)
     assert conf.dtype == np.uint8 and np.array_equal(conf, expected.conf)
     assert depth["valid_pixels"] == int(np.count_nonzero(disp != INVALID)) > 0
+    # what computed it, so that `stereocam disparity` can again
+    build = {k: v for k, v in dataclasses.asdict(DEFAULT_BUILD).items() if k != "name"}
+    assert depth["matcher"] == {"params": DEFAULT_PARAMS.as_json(), "build": build}
 
     # The cloud: Q [x y d 1] by hand, in metres, coloured by the rectified left image.
     scale = d.app[CALIBRATION].now.frame_calibration.depth

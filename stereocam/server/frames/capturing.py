@@ -26,7 +26,7 @@ from ..errors import ApiError, Kind
 from ..stores.captures import CaptureInfo, CaptureStore
 from ..stores.frame_calibration import FrameCalibration
 from .cloud import depth_files
-from .depth import needs_depth
+from .depth import matcher_section, needs_depth
 from .feed import BroadcastClosed, FrameFeed
 from .pipeline import FrameSet, Pipeline
 from .virtual_camera import VirtualCamera
@@ -165,6 +165,10 @@ class CaptureService:
         files: Dict[str, bytes] = {}
         if depth:
             files, meta["depth"] = await self.run(depth_files, fs, calibration, f"frame {fs.frame}")
+            stereo = overlay.stereo
+            if stereo is not None and "unavailable" not in meta["depth"]:
+                # as the core holds them when the capture is stored, as "registers" is
+                meta["depth"]["matcher"] = await self.run(matcher_section, stereo)
         frames = {"raw_left": raw[..., pixel.LEFT], "raw_right": raw[..., pixel.RIGHT],
                   "rect_left": fs.processed[..., pixel.LEFT], "rect_right": fs.processed[..., pixel.RIGHT]}
         return await self.run(store.save, frames, meta, sorted(files.items()))

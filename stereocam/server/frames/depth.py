@@ -8,8 +8,10 @@ the consumer falls back (the disparity view to OpenCV's StereoBM on the ARM).
 """
 from __future__ import annotations
 
-from typing import Optional
+import dataclasses
+from typing import Any, Dict, Optional
 
+from ...overlays.interface import StereoControl
 from ...overlays.model.stereo import StereoResult, compute
 from ...overlays.spec import pixel
 from ...overlays.spec.stereo import StereoParams
@@ -30,6 +32,18 @@ class DepthNotTaken(LookupError):
 def disparity_by(has_stereo: bool) -> str:
     """Which computes the disparity: the fabric's stereo core, or the ARM where the bitstream has none."""
     return BY_CORE if has_stereo else BY_ARM
+
+
+def matcher_section(stereo: StereoControl) -> Dict[str, Any]:
+    """The stereo core's parameters and build as it holds them now (register reads, blocking): what a
+    capture's ``depth`` section records beside the disparity, so that it can be computed again
+    (``stereocam disparity``). ``error`` where the core cannot be read."""
+    try:
+        # read back from the registers, the build has no name
+        build = {k: v for k, v in dataclasses.asdict(stereo.build).items() if k != "name"}
+        return {"params": stereo.params().as_json(), "build": build}
+    except Exception as exc:  # a capture is stored without it rather than refused
+        return {"error": f"{type(exc).__name__}: {exc}"}
 
 
 def needs_depth(fs: FrameSet) -> bool:
