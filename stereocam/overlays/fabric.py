@@ -23,7 +23,7 @@ from ..drivers.rectify import RectifyCore
 from ..drivers.stereo import StereoCore
 from ..drivers.switch import AxisSwitch
 from ..drivers.vdma import VDMA, MM2SChannel, S2MMChannel
-from .interface import COMMIT_TIMEOUT_S, Channel, ChannelStatus, Choice, StoredFrame
+from .interface import COMMIT_TIMEOUT_S, DEPTH_CHANNEL, Channel, ChannelStatus, Choice, StoredFrame
 from .model.result import CoreOptions
 from .spec.axis_switch import INPUT_NAMES, LIVE, VIRTUAL
 from .spec.overlay import DEPTH_PIXELS_PER_BEAT, DEPTH_VDMA, INSTANCES, OPTIONAL_INSTANCES, STEREO
@@ -228,24 +228,30 @@ class StereoFabric:
                 "params": self.stereo.params().as_json(), **self.stereo.status().as_json()}
 
     # -- health -------------------------------------------------------------------------
-    def channel(self, name: Channel) -> Union[S2MMChannel, MM2SChannel]:
-        """The driver of one DMA channel, by its :data:`~.interface.Channel` name."""
+    def channel(self, name: Channel) -> Optional[Union[S2MMChannel, MM2SChannel]]:
+        """The driver of one DMA channel, by its :data:`~.interface.Channel` name; None for the depth
+        channel where the overlay has none (no stereo core, or an emulated core's own stores)."""
         if name == "vdma_raw.s2mm":
             return self.raw_vdma.s2mm
         if name == "vdma_proc.s2mm":
             return self.proc_vdma.s2mm
         if name == "vdma_proc.mm2s":
             return self.proc_vdma.mm2s
+        if name == DEPTH_CHANNEL:
+            return self.depth.vdma.s2mm if isinstance(self.depth, VdmaDepthStores) else None
         raise ValueError(f"no DMA channel {name!r}")
 
     def channel_status(self, name: Channel) -> ChannelStatus:
         ch = self.channel(name)
-        if ch.config is None:
+        if ch is None or ch.config is None:
             return ChannelStatus(configured=False, running=False, errors=())
         return ChannelStatus(configured=True, running=bool(ch.running), errors=tuple(ch.errors()))
 
     def restart_channel(self, name: Channel, timeout: Optional[float] = None) -> None:
-        self.channel(name).recover(timeout)
+        ch = self.channel(name)
+        if ch is None:
+            raise ValueError(f"this overlay has no DMA channel {name!r}")
+        ch.recover(timeout)
 
     def status(self) -> Dict[str, Any]:
         core = self.rectify.status()
@@ -262,6 +268,7 @@ class StereoFabric:
                 "raw_s2mm": list(self.raw_vdma.s2mm.errors()),
                 "proc_s2mm": list(self.proc_vdma.s2mm.errors()),
                 "proc_mm2s": list(self.proc_vdma.mm2s.errors()),
+                **({"depth_s2mm": list(depth.errors())} if (depth := self.channel(DEPTH_CHANNEL)) else {}),
             },
         }
 

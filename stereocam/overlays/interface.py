@@ -48,15 +48,18 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..calibration.file import Calibration
 
 __all__ = [
-    "Overlay", "RectifyControl", "Choice", "ChannelStatus", "StoredFrame", "Channel", "CHANNELS", "Source",
+    "Overlay", "RectifyControl", "Choice", "ChannelStatus", "StoredFrame", "Channel", "CHANNELS",
+    "DEPTH_CHANNEL", "Source",
     "COMMIT_TIMEOUT_S", "DriverError", "RegisterTimeout", "ChannelFault", "ChannelNotStarted", "NoFrameYet",
     "VDMAError", "BackendError", "I2CBus", "I2CDenied", "I2CError", "CAMERAS", "SensorUnavailable",
     "StereoSensors", "StereoControl", "StereoConfigRefused", "StereoStatus", "StereoBuild", "StereoParams",
 ]
 
-# The three DMA channels, named ``<vdma instance>.<direction>``.
-Channel = Literal["vdma_raw.s2mm", "vdma_proc.s2mm", "vdma_proc.mm2s"]
+# The DMA channels, named ``<vdma instance>.<direction>``: the three every overlay has, and the
+# stereo core's output channel where the bitstream has one (``DEPTH_CHANNEL``).
+Channel = Literal["vdma_raw.s2mm", "vdma_proc.s2mm", "vdma_proc.mm2s", "vdma_depth.s2mm"]
 CHANNELS: Tuple[Channel, ...] = ("vdma_raw.s2mm", "vdma_proc.s2mm", "vdma_proc.mm2s")
+DEPTH_CHANNEL: Channel = "vdma_depth.s2mm"
 Source = Literal["live", "virtual"]
 COMMIT_TIMEOUT_S = 0.5  # a mux commit waits for the end of a packet (a line): microseconds when healthy
 Camera = Union[CameraParams, CameraRegs]
@@ -273,7 +276,9 @@ class Overlay(Protocol):
 
     # -- health ---------------------------------------------------------------------------
     def channel_status(self, channel: Channel) -> ChannelStatus:
-        """One DMA channel's state (one register read)."""
+        """One DMA channel's state (one register read); ``configured`` False for a channel this
+        overlay has not started or does not have (``vdma_depth.s2mm`` without a stereo core, or
+        where the emulated core hands its output over without a DMA channel)."""
 
     def restart_channel(self, channel: Channel, timeout: Optional[float] = None) -> None:
         """Get a halted channel running again as it was configured (:class:`RegisterTimeout` if it won't)."""

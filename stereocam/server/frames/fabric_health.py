@@ -3,7 +3,8 @@
 A fault shows in the registers, not in a callback: a VDMA channel that
 halts on a DMA error, a soft reset that does not finish, a mux commit that
 never completes, cameras that stop sending. :class:`FabricHealth` polls the
-three channels' status registers every :data:`POLL_S` on a thread of its
+DMA channels' status registers (the stereo core's output channel too, where the
+bitstream has one) every :data:`POLL_S` on a thread of its
 own (never the pipeline's: a hung reset would stall every stream), restarts
 a halted channel at most every :data:`RETRY_S`, and re-commits the source
 the daemon wants after a refused mux commit. :meth:`FabricHealth.faults`
@@ -23,19 +24,20 @@ from typing import Any, Callable, Dict, List, Optional
 
 from prometheus_client.core import CounterMetricFamily, Metric
 
-from ...overlays.interface import Channel, DriverError, Overlay
+from ...overlays.interface import DEPTH_CHANNEL, Channel, DriverError, Overlay
 
 log = logging.getLogger(__name__)
 
 __all__ = ["FabricHealth", "POLL_S", "RETRY_S", "CHANNELS"]
 
-POLL_S = 0.1  # status register reads: three per poll
+POLL_S = 0.1  # status register reads: one per channel the overlay has, per poll
 RETRY_S = 0.5  # at most one restart (or mux re-commit) per part per half second: each costs a reset
 RECOVER_TIMEOUT_S = 0.25  # how long one restart waits for a halt or a reset before trying again later
 CHANNELS: Dict[Channel, str] = {
     "vdma_raw.s2mm": "raw frames channel (vdma_raw S2MM)",
     "vdma_proc.s2mm": "processed frames channel (vdma_proc S2MM)",
     "vdma_proc.mm2s": "virtual camera channel (vdma_proc MM2S)",
+    "vdma_depth.s2mm": "disparity channel (vdma_depth S2MM)",  # where the bitstream has a stereo core
 }
 
 
@@ -72,7 +74,9 @@ class FabricHealth:
         self._frame_age = frame_age
         self._period = period
         self.no_signal_s = no_signal_s
-        self.channels: Dict[Channel, _Part] = {name: _Part(name, label) for name, label in CHANNELS.items()}
+        self.channels: Dict[Channel, _Part] = {
+            name: _Part(name, label) for name, label in CHANNELS.items()
+            if name != DEPTH_CHANNEL or overlay.stereo is not None}
         self.mux = _Part("mux", "the mux (AXI4-Stream switch)")
         self._lock = threading.Lock()
         self._stop = threading.Event()
