@@ -789,6 +789,7 @@ def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
                    help="time per client count of --serve (default 5)")
     b.set_defaults(func=cmd_bench)
     if command in (None, "bench"):
+        from .bench.a9.run import add_parser as add_a9_parser  # stereocam bench a9
         from .bench.budget import add_budget_parser  # stereocam bench budget
         from .bench.depth import add_depth_parser  # stereocam bench depth
         from .bench.recording import add_recording_parser  # stereocam bench recording
@@ -799,6 +800,7 @@ def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
         add_budget_parser(suites)
         add_recording_parser(suites)
         add_depth_parser(suites)
+        add_a9_parser(suites)
 
     # stereocam hw ...: the rectify core's RTL (stereocam/overlays/rtl/); each action adds itself to hsub.
     h = sub.add_parser("hw", help="the rectify core's HDL: synthesis and a timing estimate with yosys",

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 from typing import Callable, Collection, Deque, Dict, Hashable, Iterable, List, Mapping, Optional, Tuple
 
 __all__ = ["BOARD_CORES", "MIN_FPS", "PLAN_PERIOD_S", "Demand", "ViewPlan", "CpuBudget", "DaemonCpu",
-           "plan_rates", "default_cores", "single_threaded_opencv"]
+           "plan_rates", "default_cores", "single_threaded_opencv", "Priors", "HOST_PRIORS", "board_priors"]
 
 BOARD_CORES = 1.0  # of the Zynq-7020's two: the other is the system's (kernel, DMA cache maintenance, sshd)
 MIN_FPS = 1.0  # a watched view never stops, even over budget
@@ -61,6 +61,37 @@ SMOOTHING = 0.25  # weight of a new cost sample in its running average
 PRIOR_ENCODE_S_PER_BYTE = 2.2e-9
 PRIOR_COPY_S_PER_BYTE = 0.2e-9
 PRIOR_MATCH_S_PER_PIXEL = 60e-9
+
+
+@dataclass(frozen=True)
+class Priors:
+    """What a cost is taken to be until it has been measured: per byte of the image rendered and
+    encoded, per byte of a frame copied, per pixel of the disparity match (and its colour map)."""
+
+    encode_s_per_byte: float = PRIOR_ENCODE_S_PER_BYTE
+    copy_s_per_byte: float = PRIOR_COPY_S_PER_BYTE
+    match_s_per_pixel: float = PRIOR_MATCH_S_PER_PIXEL
+    source: str = "this machine's (cpu_budget.py)"
+
+
+HOST_PRIORS = Priors()
+
+
+def board_priors(seconds: Optional[Mapping[str, float]] = None) -> Priors:
+    """The priors of the board's Cortex-A9, from the table ``stereocam bench a9`` counted
+    (:func:`stereocam.board.a9_costs.board_seconds`, at the upper end of its cycles per instruction):
+    a colour view's render and JPEG at quality 80, the copy of a frame store, StereoBM with its
+    colour map; all at 752x480. A9TableError when the table cannot be read."""
+    from ...board.a9_costs import board_seconds
+
+    s = seconds if seconds is not None else board_seconds()
+    pixels = 752 * 480
+    return Priors(
+        encode_s_per_byte=(s["render.rect_left.colour.x1"] + s["jpeg.colour.q80"]) / (3 * pixels),
+        copy_s_per_byte=s["copy.frame"] / (8 * pixels),
+        match_s_per_pixel=(s["stereobm.full"] + s["stereobm.colour_map"]) / pixels,
+        source="the Cortex-A9 table (stereocam/board/a9_costs.json)",
+    )
 
 COPY = "copy"  # the pipeline's copy of a processed frame
 RAW_COPY = "raw_copy"  # ... and of a raw frame
@@ -226,10 +257,11 @@ class CpuBudget:
     """
 
     def __init__(self, cores: float, *, excluded_threads: Callable[[], Collection[str]] = tuple,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, priors: Priors = HOST_PRIORS) -> None:
         if not cores > 0:
             raise ValueError(f"a CPU budget must be more than 0 cores, got {cores!r}")
         self.cores = float(cores)
+        self.priors = priors
         self.costs = Costs()
         self.cpu = DaemonCpu(excluded_threads, clock)
         self.gain = 1.0
@@ -250,8 +282,8 @@ class CpuBudget:
         """Rates for ``demands`` (see the module doc); also sets :attr:`copy_rate` and the gain."""
         used = self.cpu.sample()
         self.used = used
-        copy = self.costs.get(COPY, PRIOR_COPY_S_PER_BYTE * frame_bytes)
-        raw_copy = self.costs.get(RAW_COPY, PRIOR_COPY_S_PER_BYTE * frame_bytes)
+        copy = self.costs.get(COPY, self.priors.copy_s_per_byte * frame_bytes)
+        raw_copy = self.costs.get(RAW_COPY, self.priors.copy_s_per_byte * frame_bytes)
         if used is not None and demands:
             if used > self.cores:  # over: shrink at once, in proportion
                 self.gain *= max(0.5, (HEADROOM * self.cores / used) ** 0.5)
@@ -285,6 +317,7 @@ class CpuBudget:
             "limited": any(p.limited for p in self.plans.values()),
             "rate_cap_fps": None if math.isinf(self.rate_cap) else round(self.rate_cap, 2),
             "gain": round(self.gain, 3),
+            "priors": self.priors.source,
         }
 
 

@@ -36,7 +36,7 @@ from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
 import cv2
 import numpy as np
 
-from .cpu_budget import PRIOR_ENCODE_S_PER_BYTE, PRIOR_MATCH_S_PER_PIXEL, CpuBudget, Demand, ViewPlan
+from .cpu_budget import CpuBudget, Demand, ViewPlan
 from .feed import BroadcastClosed, FeedItem, FrameFeed, Latest
 from .held import HeldFrames, ShownLatest
 from .pipeline import FrameSet, NoSignal, Pipeline, RateMeter
@@ -361,9 +361,9 @@ class Encoders:
             if uses_disparity_worker(key.view):
                 target = min(target, self.disparity.fps)
                 w, h = frame_size
-                match = budget.cost("match", PRIOR_MATCH_S_PER_PIXEL * w * h)
+                match = budget.cost("match", budget.priors.match_s_per_pixel * w * h)
             w, h = view_size(key.view, frame_size, key.scale)
-            prior = PRIOR_ENCODE_S_PER_BYTE * w * h * (1 if key.gray else 3)
+            prior = budget.priors.encode_s_per_byte * w * h * (1 if key.gray else 3)
             out.append(Demand(key=key, asked=asked, target=target, cost=budget.cost(key, prior),
                               raw=key.view in RAW_VIEWS, match=match))
         return out

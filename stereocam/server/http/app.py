@@ -35,7 +35,15 @@ from ...overlays.backend import RTL_TIMEOUT_S, BackendError, open_overlay
 from ...overlays.interface import Overlay
 from ...overlays.model.stereo import compiled_path_installed
 from ..frames.capturing import CaptureService
-from ..frames.cpu_budget import PLAN_PERIOD_S, CpuBudget, default_cores, single_threaded_opencv
+from ..frames.cpu_budget import (
+    HOST_PRIORS,
+    PLAN_PERIOD_S,
+    CpuBudget,
+    Priors,
+    board_priors,
+    default_cores,
+    single_threaded_opencv,
+)
 from ..frames.encoders import Encoders
 from ..frames.fabric_health import FabricHealth
 from ..frames.feed import FrameFeed
@@ -118,6 +126,18 @@ async def _static(request: web.Request) -> web.StreamResponse:
 
 # -- the app ----------------------------------------------------------------------------------
 
+def budget_priors(backend: str, on_board: bool) -> Priors:
+    """The CPU budget's priors: the Cortex-A9's table where the daemon runs on the board (the pynq
+    backend, or the emulated fabric on a board without its bitstream), this machine's elsewhere."""
+    if backend != "pynq" and not on_board:
+        return HOST_PRIORS
+    try:
+        return board_priors()
+    except Exception as exc:  # a package without its table plans as off the board, and says so
+        log.warning("the CPU budget plans with this machine's costs until it has measured them: %s", exc)
+        return HOST_PRIORS
+
+
 def create_app(
     config: Settings,
     overlay: Overlay,
@@ -142,7 +162,8 @@ def create_app(
     cores = config.cpu_budget if config.cpu_budget is not None else default_cores(overlay.backend,
                                                                                  board=on_board)
     emulation = tuple(overlay.emulation_threads)
-    budget = CpuBudget(cores, excluded_threads=lambda: emulation)
+    budget = CpuBudget(cores, excluded_threads=lambda: emulation,
+                       priors=budget_priors(overlay.backend, on_board))
     feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
     # FabricHealth reads the pipeline's frame period and the virtual camera's source, which are
     # told of its faults (constructor arguments): it is made first and reads the two once the
