@@ -21,6 +21,8 @@ MEASURED: Tuple[str, ...] = (
     "bench/a9/measure.py",
     "server/frames/views.py",
     "server/frames/encoders.py",
+    "server/frames/recorder.py",
+    "server/stores/capture_images.py",
     "overlays/spec/pixel.py",
 )
 
@@ -62,3 +64,27 @@ def board_seconds(table: Optional[Mapping[str, Any]] = None, *,
     cpu = table["cpu"]
     rate = float(cpu["clock_hz"]) / (cpi if cpi is not None else float(cpu["cpi"][1]))
     return {name: float(op["instructions"]) / rate for name, op in table["ops"].items()}
+
+
+#: The frame the table was counted on (its ``render.*`` and ``jpeg.*`` rows).
+FRAME = (752, 480)
+_WIDE = ("sbs",)  # views twice the frame's width (server/frames/views.py REGISTRY: wide)
+
+
+def view_seconds(seconds: Mapping[str, float], view: str, gray: bool, scale: float, quality: int,
+                 frame_size: Tuple[int, int]) -> Optional[float]:
+    """A frame of ``view`` on the board: its render at ``scale`` (the table's row, full size or half)
+    and its JPEG at ``quality``, the table's encode of that kind per pixel times the view's pixels
+    (qualities between those counted take the next one up). None for what the table did not count:
+    another frame size or scale, or the disparity views (their render is the shared match's)."""
+    kind = "gray" if gray else "colour"
+    render = seconds.get(f"render.{view}.{kind}.x{scale:g}")
+    if render is None or tuple(frame_size) != FRAME:
+        return None
+    counted = sorted(int(name.rsplit(".q", 1)[1]) for name in seconds if name.startswith(f"jpeg.{kind}.q"))
+    if not counted:
+        return None
+    q = next((c for c in counted if c >= quality), counted[-1])
+    per_pixel = seconds[f"jpeg.{kind}.q{q}"] / (FRAME[0] * FRAME[1])
+    width = FRAME[0] * (2 if view in _WIDE else 1)
+    return render + per_pixel * round(width * scale) * round(FRAME[1] * scale)

@@ -14,8 +14,18 @@ import pytest
 from stereocam.bench.a9 import run
 from stereocam.board import a9_costs
 from stereocam.server.frames import views
-from stereocam.server.frames.cpu_budget import HOST_PRIORS, CpuBudget, board_priors
-from stereocam.server.http.app import budget_priors
+from stereocam.server.frames.cpu_budget import (
+    HEADROOM,
+    HOST_PRIORS,
+    CpuBudget,
+    board_priors,
+    default_cores,
+    plan_cost,
+    plan_rates,
+)
+from stereocam.server.frames.encoders import EncoderKey, demand_for
+from stereocam.server.http.app import BOARD_DISPARITY_FPS, arm_disparity, budget_priors
+from stereocam.server.http.settings import Settings
 
 
 def test_the_table_was_measured_on_the_code_as_it_is() -> None:
@@ -83,3 +93,40 @@ def test_on_the_board_the_budget_plans_with_the_a9s_costs(tmp_path: Path) -> Non
     with pytest.raises(a9_costs.A9TableError, match="stereocam bench a9"):
         a9_costs.load_table(broken)
     assert json.loads(a9_costs.TABLE.read_text())["cpu"]["name"] == "Cortex-A9"
+
+
+def test_the_pages_default_fits_the_boards_budget_with_every_view_at_2_fps_or_more() -> None:
+    """Issue 25 item 3, by the table: the page's default (every view as a half-size thumbnail at the
+    default quality, 15 fps asked, cameras at 60 fps) planned by the daemon's planner on the board's
+    budget, today's bitstream (StereoBM on the ARM): every view at 2 fps or more but the disparity
+    views, which run at a slower rate of their own, granted in full, as the status panel says."""
+    settings = Settings()
+    scale, disparity_fps = arm_disparity(settings, board=True, has_stereo=False)
+    assert (scale, disparity_fps) == (0.5, BOARD_DISPARITY_FPS)
+    assert arm_disparity(settings, board=False, has_stereo=False) == (1.0, 10.0)
+    assert arm_disparity(settings, board=True, has_stereo=True) == (0.5, 10.0), "a stereo core: no ARM work"
+    budget = CpuBudget(default_cores("pynq"), priors=budget_priors("pynq", False, scale))
+    frame, thumb, page_fps, camera_fps = (752, 480), 0.5, 15.0, 60.0
+    demands = [demand_for(EncoderKey(view, settings.default_quality, False, thumb), page_fps, camera_fps,
+                          frame, budget, disparity_fps) for view in views.VIEWS]
+    seconds = a9_costs.board_seconds()
+    # the planner's costs are the table's: a thumbnail is the view rendered, scaled and encoded
+    rect = next(d for d in demands if d.key.view == "rect_left")
+    assert rect.cost == pytest.approx(seconds["render.rect_left.colour.x0.5"]
+                                      + seconds["jpeg.colour.q80"] / 4, rel=1e-3)
+    disparity = next(d for d in demands if d.key.view == "disparity")
+    assert disparity.match * 1.0 == pytest.approx(seconds["stereobm.half"] + seconds["stereobm.colour_map"])
+    frame_bytes = frame[0] * frame[1] * 8
+    copy = budget.priors.copy_s_per_byte * frame_bytes
+    cores = HEADROOM * budget.cores
+    rate, _ = plan_rates(demands, cores, copy, copy)
+    planned = {d.key.view: min(d.target, rate) for d in demands}
+    for view, fps in planned.items():
+        if views.uses_disparity_worker(view):
+            assert fps == disparity_fps, (view, planned)
+        else:
+            assert fps >= 2.0, (view, planned)
+    assert plan_cost(demands, rate, copy, copy) <= cores + 1e-9
+    # at full size StereoBM alone would take more than the board's core at that rate: why half
+    full = budget_priors("pynq", False, 1.0).match_s_per_pixel * frame[0] * frame[1]
+    assert full * disparity_fps > budget.cores

@@ -155,7 +155,7 @@ def capture(tmp_path: Path, state: CalibrationState, fs: FrameSet) -> Dict[str, 
     async def run(fn: Callable[..., Any], *args: Any) -> Any:
         return fn(*args)
 
-    overlay = SimpleNamespace(rectify=SimpleNamespace(dump=dict), backend="test")
+    overlay = SimpleNamespace(rectify=SimpleNamespace(dump=dict), backend="test", stereo=None)
     service = CaptureService(feed=None, pipeline=None, overlay=overlay,  # type: ignore[arg-type]
                              virtual=SimpleNamespace(origin={"kind": "test"}),  # type: ignore[arg-type]
                              calibration=InEffect(state), run=run, frame_wait_s=lambda: 1.0)

@@ -161,7 +161,11 @@ async def test_without_a_stereo_core_the_arm_computes_the_disparity(start_daemon
     d = await start_daemon(overlay=make_overlay(calibrate=False, stereo=False))
     await wait_for_frames(d)
     status, body = await _json(d, "GET", "/api/status")
+    arm = body["disparity"].pop("arm")
     assert body["disparity"] == {"by": BY_ARM, "stereo": None} and BY_ARM == "ARM, OpenCV StereoBM"
+    # off the board StereoBM runs at full size, at the default disparity rate, and status says so
+    assert arm == {"scale": 1.0, "size": [W, H], "num_disparities": 128, "block_size": 19, "max_fps": 10.0,
+                   "text": "StereoBM at full size, 128 disparities, block 19, at most 10 fps"}
     status, state = await _json(d, "GET", "/api/stereo")
     assert status == 200 and state == {"present": False, "by": BY_ARM}
     status, body = await _json(d, "PUT", "/api/stereo", json={"p1": 8})
@@ -179,3 +183,24 @@ async def test_without_a_stereo_core_the_arm_computes_the_disparity(start_daemon
         assert resp.status == 200, await resp.text()
     status, report = await _json(d, "POST", "/api/verify")
     assert status == 200 and report["stereo"]["compared"] is False and report["stereo"]["by"] == BY_ARM
+
+
+async def test_within_the_boards_budget_the_arm_matches_at_half_size_and_status_says_so(start_daemon) -> None:
+    """arm_disparity: half (what `auto` chooses on the board, where StereoBM at full size costs a
+    Cortex-A9 seconds a frame): the views and the readout read StereoBM of the half-size pair, in
+    full-size pixels, and /api/status says how the ARM computes them and at what rate."""
+    d = await start_daemon(overlay=make_overlay(calibrate=False, stereo=False), arm_disparity="half",
+                           disparity_fps=2)
+    await wait_for_frames(d)
+    status, body = await _json(d, "GET", "/api/status")
+    arm = body["disparity"]["arm"]
+    assert (arm["scale"], arm["size"], arm["num_disparities"], arm["block_size"], arm["max_fps"]) == (
+        0.5, [W // 2, H // 2], 64, 9, 2.0)
+    assert arm["text"] == f"StereoBM at half size ({W // 2}x{H // 2}), 64 disparities, block 9, at most 2 fps"
+    p = await _rectified(d)
+    left, right = p[..., pixel.LEFT.start + pixel.Y], p[..., pixel.RIGHT.start + pixel.Y]
+    half = disparity_map(left, right, 0.5)
+    assert not np.array_equal(half, disparity_map(left, right)), "the two scales differ on this scene"
+    view = await _png(d, "/snapshot/disparity.png")
+    assert np.array_equal(view, colour_disparity(half))
+    assert (half[half >= 0] % 2 == 0).all(), "1/16 of a half-size pixel, doubled: 1/16 full-size pixels"

@@ -10,7 +10,8 @@ its first mark and how many times it ran between that mark and the next, so that
 It imports only what it measures, and measures what the daemon runs per frame: the views'
 rendering (``views.render``), the JPEG and PNG encodes (``encoders.encode_image``) at the page's
 sizes and qualities, the pipeline's copy of a frame store, StereoBM and its colour map (the
-disparity view on a bitstream without a stereo core), and the start-up's imports.
+disparity view on a bitstream without a stereo core), a recording's frame (``recorder.encode_pair``)
+and the start-up's imports.
 """
 from __future__ import annotations
 
@@ -63,6 +64,7 @@ def main() -> int:
     from stereocam.server.frames import views
     from stereocam.server.frames.encoders import encode_image
     from stereocam.server.frames.pipeline import FrameSet
+    from stereocam.server.frames.recorder import encode_pair
 
     cv2.setNumThreads(0)  # as the daemon runs OpenCV under its budget (cpu_budget.single_threaded_opencv)
     frame = SyntheticRig(size=(752, 480), motion=False).read(0, 0.0)
@@ -95,8 +97,11 @@ def main() -> int:
     marks.measure("jpeg.colour_half.q80", lambda: encode_image(half, ".jpg", 80), reps=5)
     marks.measure("png.colour", lambda: encode_image(colour, ".png"), reps=2)
     marks.measure("png.gray", lambda: encode_image(gray, ".png"), reps=2)
+    # a recording's frame: both cameras of the raw frame as the recorder stores them (PNGs, the Y plane's too)
+    marks.measure("record.pair", lambda: encode_pair(frame), reps=1)
     left, right = frame[..., views._Y["left"]].copy(), frame[..., views._Y["right"]].copy()
     marks.measure("stereobm.full", lambda: views.disparity_map(left, right))
+    marks.measure("stereobm.half", lambda: views.disparity_map(left, right, 0.5), reps=2)
     disp = views.disparity_map(left, right)
     marks.measure("stereobm.colour_map", lambda: views.colour_disparity(disp), reps=3)
     print(json.dumps({"frame": [752, 480], "ops": marks.ops, "python": sys.version.split()[0],

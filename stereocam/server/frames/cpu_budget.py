@@ -39,11 +39,12 @@ Event-loop thread for :meth:`CpuBudget.plan` and :meth:`CpuBudget.status`;
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Collection, Deque, Dict, Hashable, Iterable, List, Mapping, Optional, Tuple
 
 __all__ = ["BOARD_CORES", "MIN_FPS", "PLAN_PERIOD_S", "Demand", "ViewPlan", "CpuBudget", "DaemonCpu",
@@ -66,30 +67,45 @@ PRIOR_MATCH_S_PER_PIXEL = 60e-9
 @dataclass(frozen=True)
 class Priors:
     """What a cost is taken to be until it has been measured: per byte of the image rendered and
-    encoded, per byte of a frame copied, per pixel of the disparity match (and its colour map)."""
+    encoded, per byte of a frame copied, per pixel of the disparity match (and its colour map);
+    ``view`` where a table knows a view's render and encode better than bytes do (a thumbnail is
+    the full view rendered, then scaled: more than its bytes say)."""
 
     encode_s_per_byte: float = PRIOR_ENCODE_S_PER_BYTE
     copy_s_per_byte: float = PRIOR_COPY_S_PER_BYTE
     match_s_per_pixel: float = PRIOR_MATCH_S_PER_PIXEL
     source: str = "this machine's (cpu_budget.py)"
+    view: Optional[Callable[[str, bool, float, int, Tuple[int, int]], Optional[float]]] = field(
+        default=None, compare=False)
+
+    def view_seconds(self, view: str, gray: bool, scale: float, quality: int, frame_size: Tuple[int, int],
+                     view_size: Tuple[int, int]) -> float:
+        """A frame of ``view``: the table's where it has one, else by the bytes of ``view_size``."""
+        known = self.view(view, gray, scale, quality, frame_size) if self.view is not None else None
+        if known is not None:
+            return known
+        return self.encode_s_per_byte * view_size[0] * view_size[1] * (1 if gray else 3)
 
 
 HOST_PRIORS = Priors()
 
 
-def board_priors(seconds: Optional[Mapping[str, float]] = None) -> Priors:
+def board_priors(seconds: Optional[Mapping[str, float]] = None, *, arm_scale: float = 1.0) -> Priors:
     """The priors of the board's Cortex-A9, from the table ``stereocam bench a9`` counted
     (:func:`stereocam.board.a9_costs.board_seconds`, at the upper end of its cycles per instruction):
-    a colour view's render and JPEG at quality 80, the copy of a frame store, StereoBM with its
-    colour map; all at 752x480. A9TableError when the table cannot be read."""
-    from ...board.a9_costs import board_seconds
+    a colour view's render and JPEG at quality 80, the copy of a frame store, StereoBM (at
+    ``arm_scale``, views.ARM_SCALES) with its colour map; all at 752x480. A9TableError when the table
+    cannot be read."""
+    from ...board.a9_costs import board_seconds, view_seconds
 
     s = seconds if seconds is not None else board_seconds()
     pixels = 752 * 480
     return Priors(
+        view=functools.partial(view_seconds, s),
         encode_s_per_byte=(s["render.rect_left.colour.x1"] + s["jpeg.colour.q80"]) / (3 * pixels),
         copy_s_per_byte=s["copy.frame"] / (8 * pixels),
-        match_s_per_pixel=(s["stereobm.full"] + s["stereobm.colour_map"]) / pixels,
+        match_s_per_pixel=(s["stereobm.full" if arm_scale == 1.0 else "stereobm.half"]
+                           + s["stereobm.colour_map"]) / pixels,
         source="the Cortex-A9 table (stereocam/board/a9_costs.json)",
     )
 
@@ -202,15 +218,18 @@ class Demand:
 
 
 def plan_cost(demands: Iterable[Demand], rate: float, copy: float, raw_copy: float) -> float:
-    """Cores used with every demand at ``min(target, rate)``: encodes, matching and the pipeline's copies."""
-    total, fastest, fastest_raw = 0.0, 0.0, 0.0
+    """Cores used with every demand at ``min(target, rate)``: encodes, the pipeline's copies and the
+    matching, which the disparity and depth views share (one worker matches each frame once, at the
+    rate of the faster of them)."""
+    total, fastest, fastest_raw, match = 0.0, 0.0, 0.0, 0.0
     for d in demands:
         r = min(d.target, rate)
-        total += r * (d.cost + d.match)
+        total += r * d.cost
         fastest = max(fastest, r)
         if d.raw:
             fastest_raw = max(fastest_raw, r)
-    return total + fastest * copy + fastest_raw * raw_copy
+        match = max(match, r * d.match)
+    return total + match + fastest * copy + fastest_raw * raw_copy
 
 
 def plan_rates(demands: List[Demand], cores: float, copy: float, raw_copy: float) -> Tuple[float, bool]:

@@ -281,6 +281,23 @@ class Encoder:
             self.output.publish(encoded)
 
 
+def demand_for(key: EncoderKey, asked: float, fabric_fps: float, frame_size: Tuple[int, int],
+               budget: CpuBudget, disparity_fps: float) -> Demand:
+    """What an encoder of ``key`` asked at ``asked`` fps needs (its measured costs, or the budget's
+    priors until measured): its target is capped by the fabric's rate, and a disparity view's by
+    ``disparity_fps``, whose matching it shares with the other disparity view."""
+    target = min(asked, fabric_fps) if fabric_fps > 0 else asked
+    match = 0.0
+    if uses_disparity_worker(key.view):
+        target = min(target, disparity_fps)
+        w, h = frame_size
+        match = budget.cost("match", budget.priors.match_s_per_pixel * w * h)
+    size = view_size(key.view, frame_size, key.scale)
+    prior = budget.priors.view_seconds(key.view, key.gray, key.scale, key.quality, frame_size, size)
+    return Demand(key=key, asked=asked, target=target, cost=budget.cost(key, prior),
+                  raw=key.view in RAW_VIEWS, match=match)
+
+
 class Encoders:
     """The encoders of one daemon, by key; ``subscribe`` is the only way to get one (loop thread only)."""
 
@@ -353,20 +370,8 @@ class Encoders:
         """What every running encoder needs, for :meth:`CpuBudget.plan` (see cpu_budget.py)."""
         budget = self.budget
         assert budget is not None
-        out: List[Demand] = []
-        for key, encoder in self._encoders.items():
-            asked = encoder.fps
-            target = min(asked, fabric_fps) if fabric_fps > 0 else asked
-            match = 0.0
-            if uses_disparity_worker(key.view):
-                target = min(target, self.disparity.fps)
-                w, h = frame_size
-                match = budget.cost("match", budget.priors.match_s_per_pixel * w * h)
-            w, h = view_size(key.view, frame_size, key.scale)
-            prior = budget.priors.encode_s_per_byte * w * h * (1 if key.gray else 3)
-            out.append(Demand(key=key, asked=asked, target=target, cost=budget.cost(key, prior),
-                              raw=key.view in RAW_VIEWS, match=match))
-        return out
+        return [demand_for(key, encoder.fps, fabric_fps, frame_size, budget, self.disparity.fps)
+                for key, encoder in self._encoders.items()]
 
     def apply(self, plans: Dict[Any, ViewPlan]) -> None:
         """Give every encoder (and the disparity worker) its planned rate."""

@@ -137,6 +137,9 @@ class FrameSet:
     depth: Optional[Callable[[], np.ndarray]] = field(default=None, repr=False)
     # The calibration this frame ran with, stamped with the depth (``Pipeline.set_calibration``).
     calibration: Optional[FrameCalibration] = field(default=None, repr=False)
+    # Where the overlay has no stereo core: the scale the ARM's StereoBM matches this frame at
+    # (views.ARM_SCALES; 0.5 within the board's budget), stamped by the pipeline.
+    arm_scale: float = field(default=1.0, repr=False)
     signal = True
 
     @property
@@ -219,8 +222,10 @@ class Pipeline:
         alive: Optional[Callable[[], None]] = None,
         charge: Optional[Callable[[str, float], None]] = None,
         channel_ok: Callable[[Channel], bool] = lambda name: True,
+        arm_scale: float = 1.0,
     ) -> None:
         self.overlay = overlay
+        self.arm_scale = arm_scale  # FrameSet.arm_scale of every set
         self._publish = publish
         self._heartbeat = heartbeat
         # Frames per second somebody needs copied (None: every frame); frames beyond it are only seen:
@@ -565,7 +570,7 @@ class Pipeline:
         frame_set = FrameSet(seq=self._seq, frame=number, fabric_count=count, timestamp=now_wall,
                              monotonic=now, source=state.source, processed=processed, raw=raw,
                              raw_previous=raw_previous, raw_store=raw_store, stereo=self.has_stereo,
-                             depth=depth)
+                             depth=depth, arm_scale=self.arm_scale)
         if self._depth_wanted and self._calibration_for is not None:
             frame_set.calibration = self._calibration_for(count)
         self.frames += 1

@@ -190,29 +190,70 @@ def _render(fs: FrameSet, view: str, gray: bool) -> np.ndarray:
 _local = threading.local()
 
 
-def _matcher() -> Any:
-    bm = getattr(_local, "bm", None)
-    if bm is None:  # StereoBM objects are not thread-safe: one per thread
-        bm = cv2.StereoBM.create(numDisparities=STEREO_BM["num_disparities"],
-                                 blockSize=STEREO_BM["block_size"])
-        bm.setMinDisparity(STEREO_BM["min_disparity"])
-        bm.setUniquenessRatio(STEREO_BM["uniqueness_ratio"])
-        _local.bm = bm
+#: The scales the ARM's StereoBM runs at (``FrameSet.arm_scale``). At 0.5, where its budget is the
+#: board's (a Cortex-A9 takes 1.8-2.7 s for StereoBM at full size, stereocam/board/a9_costs.json), it
+#: matches the pair at half size with half the disparities and a block of 9: the same range of
+#: disparity in full-size pixels, an eighth of the work; the map is scaled back to full size.
+ARM_SCALES = (1.0, 0.5)
+HALF_BM = {"num_disparities": STEREO_BM["num_disparities"] // 2, "block_size": 9}
+
+
+def arm_matcher(scale: float) -> Dict[str, int]:
+    """StereoBM's parameters at ``scale`` (one of :data:`ARM_SCALES`)."""
+    return dict(STEREO_BM) if scale == 1.0 else {**STEREO_BM, **HALF_BM}
+
+
+def arm_status(scale: float, frame_size: Tuple[int, int], fps: float) -> Dict[str, Any]:
+    """How the ARM computes the disparity views (``/api/status``'s ``disparity.arm``, the page's
+    status panel): the size StereoBM matches at, its disparities and block, the views' rate at most,
+    and the same in words."""
+    p = arm_matcher(scale)
+    w, h = (max(1, round(n * scale)) for n in frame_size)
+    size = "full size" if scale == 1.0 else f"half size ({w}x{h})"
+    return {"scale": scale, "size": [w, h], "num_disparities": p["num_disparities"],
+            "block_size": p["block_size"], "max_fps": fps,
+            "text": f"StereoBM at {size}, {p['num_disparities']} disparities, block {p['block_size']}, "
+                    f"at most {fps:g} fps"}
+
+
+def _matcher(scale: float = 1.0) -> Any:
+    cache = getattr(_local, "bm", None)
+    if cache is None:  # StereoBM objects are not thread-safe: one per thread
+        cache = _local.bm = {}
+    bm = cache.get(scale)
+    if bm is None:
+        p = arm_matcher(scale)
+        bm = cv2.StereoBM.create(numDisparities=p["num_disparities"], blockSize=p["block_size"])
+        bm.setMinDisparity(p["min_disparity"])
+        bm.setUniquenessRatio(p["uniqueness_ratio"])
+        cache[scale] = bm
     return bm
 
 
-def disparity_map(left_gray: np.ndarray, right_gray: np.ndarray) -> np.ndarray:
-    """StereoBM disparities (int16, 1/16 pixel; negative where none was found) of a rectified gray pair."""
-    return _matcher().compute(np.ascontiguousarray(left_gray), np.ascontiguousarray(right_gray))
+def disparity_map(left_gray: np.ndarray, right_gray: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """StereoBM disparities (int16, 1/16 pixel of the full-size pair; negative where none was found)
+    of a rectified gray pair, matched at ``scale`` of its size (:data:`ARM_SCALES`)."""
+    if scale not in ARM_SCALES:
+        raise ValueError(f"the ARM's StereoBM runs at one of the scales {ARM_SCALES}, not {scale!r}")
+    left, right = np.ascontiguousarray(left_gray), np.ascontiguousarray(right_gray)
+    if scale == 1.0:
+        return _matcher().compute(left, right)
+    h, w = left.shape
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    small = _matcher(scale).compute(cv2.resize(left, size, interpolation=cv2.INTER_AREA),
+                                    cv2.resize(right, size, interpolation=cv2.INTER_AREA))
+    full = cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST)
+    return full * np.int16(round(1 / scale))  # in full-size pixels; none stays negative
 
 
 def colour_disparity(disp16: np.ndarray) -> np.ndarray:
-    """JET colour map of 0..128 pixels of disparity; black where none was found."""
+    """JET colour map of 0..128 pixels of disparity; black where none was found (OpenCV's vector
+    code throughout: numpy's masked assignment cost a Cortex-A9 more than the colour map)."""
     scale = 255.0 / (16 * (STEREO_BM["min_disparity"] + STEREO_BM["num_disparities"]))
     level = cv2.convertScaleAbs(disp16, alpha=scale)
-    out = cv2.applyColorMap(level, cv2.COLORMAP_JET)
-    out[disp16 < 16 * STEREO_BM["min_disparity"]] = 0
-    return out
+    colour = cv2.applyColorMap(level, cv2.COLORMAP_JET)
+    found = (disp16 >= 16 * STEREO_BM["min_disparity"]).view(np.uint8)
+    return cv2.bitwise_and(colour, colour, mask=found)
 
 
 def disparity_view(fs: FrameSet, charge: Optional[Callable[[str, float], None]] = None) -> np.ndarray:
@@ -243,7 +284,7 @@ def disparity_raw(fs: FrameSet) -> np.ndarray:
             out[~core.valid] = -SUBPIX_ONE
         else:
             p = fs.processed
-            out = disparity_map(p[..., _Y["left"]], p[..., _Y["right"]])
+            out = disparity_map(p[..., _Y["left"]], p[..., _Y["right"]], fs.arm_scale)
         out.flags.writeable = False
         return out
 

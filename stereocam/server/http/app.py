@@ -27,7 +27,7 @@ import logging
 import signal
 import time
 from pathlib import Path
-from typing import Any, AsyncIterator, Callable, List, Optional, Sequence
+from typing import Any, AsyncIterator, Callable, List, Optional, Sequence, Tuple
 
 from aiohttp import web
 
@@ -126,13 +126,30 @@ async def _static(request: web.Request) -> web.StreamResponse:
 
 # -- the app ----------------------------------------------------------------------------------
 
-def budget_priors(backend: str, on_board: bool) -> Priors:
+#: The disparity views' rate where the ARM computes them within the board's budget: StereoBM at half
+#: size costs a Cortex-A9 0.2-0.3 s a frame (stereocam/board/a9_costs.json), so the other views keep
+#: 2 fps or more in one core beside it (tests/board/test_a9_costs.py plans the page's default).
+BOARD_DISPARITY_FPS = 1.0
+DISPARITY_FPS = 10.0  # elsewhere, unless disparity_fps says otherwise
+
+
+def arm_disparity(config: Settings, board: bool, has_stereo: bool) -> Tuple[float, float]:
+    """The scale the ARM's StereoBM runs at (``arm_disparity``: half within the board's budget) and the
+    disparity views' rate (``disparity_fps``; unset: :data:`BOARD_DISPARITY_FPS` where the ARM computes
+    them on the board, :data:`DISPARITY_FPS` elsewhere). A stereo core takes the work off the ARM."""
+    scale = 0.5 if config.arm_disparity == "half" or (config.arm_disparity == "auto" and board) else 1.0
+    if config.disparity_fps is not None:
+        return scale, config.disparity_fps
+    return scale, BOARD_DISPARITY_FPS if board and not has_stereo else DISPARITY_FPS
+
+
+def budget_priors(backend: str, on_board: bool, arm_scale: float = 1.0) -> Priors:
     """The CPU budget's priors: the Cortex-A9's table where the daemon runs on the board (the pynq
     backend, or the emulated fabric on a board without its bitstream), this machine's elsewhere."""
     if backend != "pynq" and not on_board:
         return HOST_PRIORS
     try:
-        return board_priors()
+        return board_priors(arm_scale=arm_scale)
     except Exception as exc:  # a package without its table plans as off the board, and says so
         log.warning("the CPU budget plans with this machine's costs until it has measured them: %s", exc)
         return HOST_PRIORS
@@ -162,8 +179,10 @@ def create_app(
     cores = config.cpu_budget if config.cpu_budget is not None else default_cores(overlay.backend,
                                                                                  board=on_board)
     emulation = tuple(overlay.emulation_threads)
+    arm_scale, disparity_fps = arm_disparity(config, overlay.backend == "pynq" or on_board,
+                                             overlay.stereo is not None)
     budget = CpuBudget(cores, excluded_threads=lambda: emulation,
-                       priors=budget_priors(overlay.backend, on_board))
+                       priors=budget_priors(overlay.backend, on_board, arm_scale))
     feed = FrameFeed(frame_size=overlay.frame_size, no_signal_s=config.no_signal_s)
     # FabricHealth reads the pipeline's frame period and the virtual camera's source, which are
     # told of its faults (constructor arguments): it is made first and reads the two once the
@@ -171,7 +190,7 @@ def create_app(
     health = FabricHealth(overlay, source=lambda: virtual.source, frame_age=feed.frame_age,
                           period=lambda: pipeline.period, no_signal_s=config.no_signal_s)
     pipeline = Pipeline(overlay, publish=feed.push, alive=feed.alive, charge=budget.charge,
-                        channel_ok=health.channel_ok)
+                        channel_ok=health.channel_ok, arm_scale=arm_scale)
     executors = Executors.create(config.encode_threads)
     app[SETTINGS] = config
     app[OVERLAY] = overlay
@@ -180,7 +199,7 @@ def create_app(
     app[PIPELINE] = pipeline
     app[EXECUTORS] = executors
     app[BUDGET] = budget
-    app[ENCODERS] = encoders = Encoders(feed, pipeline, executors.encode, disparity_fps=config.disparity_fps,
+    app[ENCODERS] = encoders = Encoders(feed, pipeline, executors.encode, disparity_fps=disparity_fps,
                                         observe=metrics.observe_encode,
                                         on_error=lambda text: metrics.error(text, "encode"), budget=budget)
     pipeline.set_copy_rate(encoders.copy_rate)  # Encoders reads the pipeline: set once both exist

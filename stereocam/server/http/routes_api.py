@@ -26,7 +26,7 @@ from ..frames.encoders import png_for
 from ..frames.feed import BroadcastClosed
 from ..frames.pipeline import FrameSet
 from ..frames.verify import compare, compare_stereo, difference_image
-from ..frames.views import REGISTRY
+from ..frames.views import REGISTRY, arm_status
 from ..frames.virtual_camera import VerifyResult, VirtualCamera
 from ..stores.captures import CaptureError, CaptureStore
 from ..stores.errors import NotFound
@@ -114,7 +114,9 @@ async def status_handler(request: web.Request) -> web.Response:
         "core": hw.get("core"),
         "core_impl": overlay.core_kind,
         # Which computes the disparity, and the stereo core's state (null without one).
-        "disparity": {"by": disparity_by(pipeline.has_stereo), "stereo": hw.get("stereo")},
+        "disparity": {"by": disparity_by(pipeline.has_stereo), "stereo": hw.get("stereo"),
+                      "arm": None if pipeline.has_stereo else arm_status(
+                          pipeline.arm_scale, overlay.frame_size, app[ENCODERS].disparity.fps)},
         "vdma": hw.get("vdma"),
         "calibration": {**calibration.to_json(), "changing": calibration.changing},
         "virtual_camera": app[VIRTUAL].to_json(),

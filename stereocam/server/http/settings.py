@@ -55,7 +55,10 @@ class Settings:
     captures folder's parent). Streams: ``max_streams``
     (MJPEG + WebSocket clients; more get 503), ``stream_timeout_s`` (a
     client whose frame write takes longer is dropped), ``default_fps`` /
-    ``default_quality`` (when the query gives none), ``disparity_fps``,
+    ``default_quality`` (when the query gives none), ``disparity_fps`` (the disparity and depth
+    views' rate at most; unset: 10, and 1 where the ARM computes it within the board's budget),
+    ``arm_disparity`` (where the bitstream has no stereo core, the ARM's StereoBM: ``full`` size,
+    ``half`` size, an eighth of the work, or ``auto``: half within the board's budget, full elsewhere),
     ``no_signal_s`` (no frame for that long shows the no-signal frame),
     ``encode_threads``, ``cpu_budget`` (cores the daemon may spend on the views; unset: 1 core on the
     board, the whole machine off it; see ``cpu_budget.py``).
@@ -94,7 +97,8 @@ class Settings:
     stream_timeout_s: float = 10.0
     default_fps: float = 60.0
     default_quality: int = 80
-    disparity_fps: float = 10.0
+    disparity_fps: Optional[float] = None
+    arm_disparity: str = "auto"
     no_signal_s: float = 0.5
     encode_threads: int = 2
     cpu_budget: Optional[float] = None
@@ -257,12 +261,18 @@ _RANGES: Dict[str, Tuple[float, float, bool, bool]] = {
 
 
 FLAG_ONLY = ("allow_fault_injection",)
+ARM_DISPARITY = ("auto", "full", "half")
 
 
 def _check(origin: Optional[str], key: str, value: Any) -> Any:
     """``value`` if valid for ``key`` (ints widened to float where a float is wanted), else SettingsError."""
-    if key == "cpu_budget" and value is None:
-        return None
+    if key in ("cpu_budget", "disparity_fps") and value is None:
+        return None  # unset: chosen by where the daemon runs (app.py)
+    if key == "arm_disparity":
+        if value not in ARM_DISPARITY:
+            raise SettingsError(f"{_where(origin)}arm_disparity must be one of {', '.join(ARM_DISPARITY)}, "
+                                f"got {value!r}")
+        return value
     if key in _RANGES:
         lo, hi, integer, lo_open = _RANGES[key]
         return _number(origin, key, value, lo, hi, integer=integer, lo_open=lo_open)

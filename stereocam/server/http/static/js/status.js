@@ -138,6 +138,7 @@ function renderStatus(st) {
   // disparity: the stereo core, or the ARM where the bitstream has none
   if (st.disparity) {
     add("stereo", "disparity-by", "computed by", fmt(st.disparity.by));
+    if (st.disparity.arm) add("stereo", "disparity-arm", "on the ARM", st.disparity.arm.text);
     const sc = st.disparity.stereo;
     if (sc) {
       add("stereo", "stereo-frame_count", "frames", fmt(sc.frame_count) + (sc.enabled ? "" : " (disabled)"));
