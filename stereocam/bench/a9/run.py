@@ -164,7 +164,11 @@ def add_parser(bench_sub: "argparse._SubParsersAction[argparse.ArgumentParser]")
     """``stereocam bench a9``, added to the ``bench`` group by the CLI."""
     p = bench_sub.add_parser(
         "a9", help="count what each per-frame operation costs a Cortex-A9 (armhf code under QEMU)",
-        description=__doc__.split("\n\n")[0] + " Writes the table the CPU budget plans with on the board.")
+        description="What each per-frame operation of the daemon costs the board's 650 MHz Cortex-A9, "
+                    "counted: the operations run as armhf code (the armhf test environment's Debian "
+                    "userland) under qemu-arm with a plugin counting their instructions. Writes the "
+                    "table the CPU budget plans with on the board. Needs a checkout, Debian's "
+                    "qemu-user and proot, and a C compiler.")
     p.add_argument("--out", type=Path, default=TABLE, help=f"where the table goes (default {TABLE})")
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after S seconds (default 3600)")
     p.add_argument("--json", action="store_true", help="print the table as JSON instead of text")
