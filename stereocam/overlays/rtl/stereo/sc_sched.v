@@ -16,6 +16,10 @@
  * (row - 2, col), phase C's (row - 3, col - 4). A slot starts only when the rows phase A reads
  * have arrived (`rows_in` > min(row + 3, height - 1)) and the output has room (`out_room`); once
  * started, `run` stays high for its 4 clocks (`phase` 0..3). After the last slot, `frame_done`.
+ * Both tests are registered (`ready_q`), from the row and column the next clock will have and
+ * this clock's `rows_in` and `out_room`: `run` fans out to every register and RAM of the core, so
+ * it is one gate from registers, and a slot may start a clock later than its rows arrived
+ * (`rows_in` only grows within a frame; the caller's `out_room` leaves a beat for the clock).
  * Reset: synchronous, active high.
  */
 module sc_sched #
@@ -51,9 +55,15 @@ reg        state = S_IDLE;
 reg signed [11:0] ncol;
 
 wire signed [11:0] h = $signed({1'b0, height});
-wire signed [11:0] need = (row + 12'sd4 < h) ? row + 12'sd4 : h;   // rows phase A needs in
-wire rows_ready = row >= h || $signed({1'b0, rows_in}) >= need;
-wire go = state == S_RUN && phase == 2'd0 && rows_ready && out_room;
+wire sweep_end = phase == 2'd3 && col == ncol - 12'sd1;
+// the row of the next clock: 0 at a frame's start, the next sweep's after the last slot of a sweep
+wire signed [11:0] row_next = (state == S_IDLE) ? 12'sd0 : (run && sweep_end) ? row + 12'sd1 : row;
+wire signed [11:0] need = (row_next + 12'sd4 < h) ? row_next + 12'sd4 : h;   // rows phase A needs in
+reg ready_q = 1'b0;  // at phase 0: the rows have arrived and the output has room
+always @(posedge clk) begin
+    ready_q <= (row_next >= h || $signed({1'b0, rows_in}) >= need) && out_room;
+end
+wire go = state == S_RUN && phase == 2'd0 && ready_q;
 assign run = (state == S_RUN) && (phase != 2'd0 || go);
 assign accept_frame = state == S_IDLE && enable && !hold;
 assign busy = state == S_RUN;
