@@ -171,7 +171,7 @@ def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[st
           report["dsp_cascade"])
 
 
-@pytest.mark.timeout(1800)  # a yosys run of a small stereo core: a minute or two idle, far more on a busy machine
+@pytest.mark.timeout(1800)  # a yosys run of a small stereo core: a minute or two idle, more when busy
 def test_the_depth_build_adds_the_stereo_core_and_its_vdma(cells: List[BdCell]) -> None:
     """The depth build: the gray rectify core's parameters, and the block design's depth cells: the stereo
     core synthesised (here a small build of it, for time: the full one takes yosys half an hour), the

@@ -20,6 +20,7 @@ import pytest
 
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.emulated.render import SyntheticRig
+from stereocam.overlays.model.stereo import compiled_path_installed
 from stereocam.server.http.state import CAPTURES
 
 from ..slowness import SLOWNESS
@@ -80,7 +81,10 @@ async def poll(daemon, counts: Dict[str, int], stop: asyncio.Event) -> None:
 
 @pytest.mark.timeout(900)  # a busy machine makes this slower, never red
 async def test_200_captures_under_load_each_pair_raw_and_rectified_of_one_frame(start_daemon) -> None:
-    overlay = EmulatedOverlay(source=SyntheticRig(size=SMALL, motion=True), fps=CAMERA_FPS)
+    # With a stereo core where the daemon would give the emulated fabric one (its model compiled):
+    # on its numpy path, beside 200 captures that each wait for its output, the streams starve.
+    overlay = EmulatedOverlay(source=SyntheticRig(size=SMALL, motion=True), fps=CAMERA_FPS,
+                              stereo=compiled_path_installed())
     # The emulated fabric is a thread of this very process, beside 200 captures, streams and polls:
     # a machine busy with other work can hold it up for more than the default second a capture
     # waits for a fresh frame (2 x no_signal_s). What is checked here is pairing, not that wait.
