@@ -137,6 +137,14 @@ def options(words: Sequence[str], valued: Set[str]) -> Tuple[Dict[str, str], Lis
     return opts, rest
 
 
+def connect_net(nets: List[List[str]], pins: Sequence[str]) -> List[List[str]]:
+    """``nets`` after ``connect_bd_net`` of ``pins``: Vivado adds the pins to the net one of them is
+    already on (a net joins a pin once), else they make a new net."""
+    joined = [net for net in nets if set(net) & set(pins)]
+    merged = [p for net in joined for p in net]
+    return [net for net in nets if net not in joined] + [merged + [p for p in pins if p not in merged]]
+
+
 # ---- running the scripts in Tcl, Vivado's commands recorded -----------------------------------------------
 
 # Every Vivado command the scripts may call, and what the stand-in returns (a Tcl body; $args are the
@@ -613,10 +621,7 @@ class FakeVivado:
             d.intf_ports[rest[-1]] = opts
         elif verb == "connect_bd_net":
             # Vivado adds the pins to the net a pin is already on (a net joins a pin once)
-            joined = [net for net in d.nets if set(net) & set(args)]
-            merged = [p for net in joined for p in net]
-            d.nets = [net for net in d.nets if net not in joined] + [
-                merged + [p for p in args if p not in merged]]
+            d.nets = connect_net(d.nets, args)
         elif verb == "connect_bd_intf_net":
             if len(args) != 2:
                 raise VivadoError(f"connect_bd_intf_net: needs two interfaces, got {args}")

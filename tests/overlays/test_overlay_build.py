@@ -42,7 +42,7 @@ from stereocam.overlays.spec import (
     vdma,
 )
 
-from ..vivado_stub import TclRun, bracketed, options, run_tcl, tcl_commands, tcl_list, unbrace
+from ..vivado_stub import TclRun, bracketed, connect_net, options, run_tcl, tcl_commands, tcl_list, unbrace
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 VIVADO_DIR = REPO_ROOT / "stereocam" / "overlays" / "vivado"
@@ -152,10 +152,7 @@ def parse_block_design(text: str, variables: Dict[str, str], bd: Optional[BlockD
             bd.intf_nets.append((pins[0], pins[1]))
         elif verb == "connect_bd_net":
             pins = [bracketed(w)[1] for w in words[1:] if w.startswith("[")]
-            joined = [net for net in bd.nets if set(net) & set(pins)]  # Vivado adds to a pin's net
-            merged = [p for net in joined for p in net]
-            bd.nets = [net for net in bd.nets if net not in joined]
-            bd.nets.append(merged + [p for p in pins if p not in merged])
+            bd.nets = connect_net(bd.nets, pins)
         elif verb == "create_bd_port":
             opts, rest = options(words[1:], {"-dir", "-from", "-to", "-type", "-freq_hz"})
             bd.ports[rest[-1]] = opts
