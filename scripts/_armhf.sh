@@ -17,8 +17,8 @@
 #
 # Cache: $STEREOCAM_ARMHF_CACHE or ~/.cache/stereocam/armhf/rootfs-<hash>, the hash of this
 # file, requirements/armhf.txt and the helper the rootfs uses (scripts/_enosys_exec.py): change
-# one and the next run builds a new rootfs. A build happens in a .build-* folder under a lock and is renamed into place only once it passed its
-# checks, so a half-built rootfs is never used; downloaded .debs stay in debs/ for the next build.
+# one and the next run builds a new rootfs (cached_build in scripts/_env.sh: under a lock, renamed
+# into place only once it passed its checks); downloaded .debs stay in debs/ for the next build.
 # The project is not installed in the rootfs: every process there has the checkout on PYTHONPATH
 # (stereocam/ is the package as it is in git), so one rootfs serves every checkout on the machine.
 #
@@ -162,30 +162,28 @@ assert numpy.dtype(numpy.intp).itemsize == 4, 'numpy intp is not 32-bit'
 
 # setup_armhf: make sure the armhf rootfs for this checkout's inputs exists; sets ARMHF_ROOTFS.
 setup_armhf() {
-    local stamp build build_log
+    armhf_rootfs "$ARMHF_CACHE"
+    ARMHF_ROOTFS="$ARMHF_BUILT"
+}
+
+# armhf_rootfs DIR [PACKAGE...]: the rootfs with ARMHF_DEBIAN_PACKAGES and PACKAGEs, cached in DIR
+# (rootfs-<hash>, built when missing), in ARMHF_BUILT. Every build holds the armhf cache's lock: they
+# all download into its debs/.
+armhf_rootfs() {
+    local dir="$1" stamp
+    shift
     ensure_armhf_tools
     _ARMHF_HOST_PY="$(_armhf_host_python)"
-    stamp="$(_armhf_stamp)"
-    ARMHF_ROOTFS="$ARMHF_CACHE/rootfs-$stamp"
-    [ -f "$ARMHF_ROOTFS/.stereocam-ready" ] && return 0
-    mkdir -p "$ARMHF_CACHE"
-    _lock "$ARMHF_CACHE"
-    # Another run may have built it while we waited for the lock.
-    if [ -f "$ARMHF_ROOTFS/.stereocam-ready" ]; then _unlock; return 0; fi
-    [ "$(id -u)" -eq 0 ] || die "building the armhf rootfs needs root (debootstrap): run once as root"
-    # Under the lock, a .build-* folder is what an interrupted build left.
-    rm -rf "$ARMHF_CACHE"/.build-* "$ARMHF_ROOTFS"
-    build="$ARMHF_CACHE/.build-$stamp"
-    build_log="$ARMHF_CACHE/build-$stamp.log"
-    : >"$build_log"
-    log "armhf: building the rootfs in ${ARMHF_CACHE/#"$HOME"/\~} (log: $build_log)"
-    _armhf_build "$build" "$build_log"
-    printf '%s\n' "$stamp" >"$build/.stereocam-ready"
-    mv -T "$build" "$ARMHF_ROOTFS"
-    # Older rootfs (other inputs) and their logs go.
-    local old
-    for old in "$ARMHF_CACHE"/rootfs-* "$ARMHF_CACHE"/build-*.log; do
-        case "$old" in *"$stamp"*) ;; *) rm -rf "$old" ;; esac
-    done
-    _unlock
+    stamp="$({ _armhf_stamp; printf '%s\n' "$@"; } | sha256sum | cut -c1-16)"
+    ARMHF_BUILT="$dir/rootfs-$stamp"
+    cached_build "$ARMHF_CACHE" "$ARMHF_BUILT" _armhf_build_rootfs "$@"
+}
+
+# _armhf_build_rootfs DIR LOG [PACKAGE...]: a rootfs into DIR (cached_build's builder).
+_armhf_build_rootfs() {
+    local dir="$1" build_log="$2"
+    shift 2
+    [ "$(id -u)" -eq 0 ] || die "building an armhf rootfs needs root (debootstrap): run once as root"
+    log "armhf: building a rootfs in ${dir%/*} (${*:+with $*, }log: $build_log)"
+    (ARMHF_DEBIAN_PACKAGES+=("$@"); _armhf_build "$dir" "$build_log")
 }

@@ -45,6 +45,34 @@ _lock() {
 }
 _unlock() { command -v flock >/dev/null 2>&1 && exec 9>&- || true; }
 
+# cached_build LOCK TARGET BUILDER [ARGS...]: make sure TARGET (a folder named <kind>-<stamp>, <stamp> the
+# hash of its inputs) exists, whole. If not, under the lock LOCK: BUILDER DIR LOG ARGS builds it in DIR,
+# a .build-* folder beside it, with its tools' output in LOG (<kind>-<stamp>.log beside it); DIR is renamed
+# to TARGET only once BUILDER returned, so a half-built one is never used, and the other <kind>-* folders
+# and logs (older inputs) go. A .build-* folder found under the lock is what an interrupted build left.
+cached_build() {
+    local key="$1" target="$2" builder="$3" parent name kind stamp build build_log old
+    shift 3
+    [ -f "$target/.stereocam-ready" ] && return 0
+    parent="$(dirname "$target")" name="$(basename "$target")"
+    kind="${name%-*}" stamp="${name##*-}"
+    mkdir -p "$parent"
+    _lock "$key"
+    # Another run may have built it while we waited for the lock.
+    if [ -f "$target/.stereocam-ready" ]; then _unlock; return 0; fi
+    build="$parent/.build-$name"
+    build_log="$parent/$name.log"
+    rm -rf "$parent/.build-$kind-"* "$target"
+    : >"$build_log"
+    "$builder" "$build" "$build_log" "$@"
+    printf '%s\n' "$stamp" >"$build/.stereocam-ready"
+    mv -T "$build" "$target"
+    for old in "$parent/$kind"-*; do
+        case "$old" in *"$stamp"*) ;; *) rm -rf "$old" ;; esac
+    done
+    _unlock
+}
+
 _apt_updated=0
 apt_install() {
     local logfile="${TMPDIR:-/tmp}/stereocam-apt.log"
@@ -240,3 +268,7 @@ env with STEREOCAM_ENVS=current"
 # The armhf env: setup_armhf, armhf_exec.
 # shellcheck source=scripts/_armhf.sh
 source "$ROOT/scripts/_armhf.sh"
+
+# The Zynq VM: setup_zynq, zynq_image, zynq_boot.
+# shellcheck source=scripts/_zynq.sh
+source "$ROOT/scripts/_zynq.sh"

@@ -99,6 +99,15 @@ class OnceCache:
         with self._lock:
             return self._values.get(key)
 
+    def release(self, keep: Callable[[Hashable], bool]) -> int:
+        """Drop the computed values whose key ``keep`` refuses (a later :meth:`get` computes them again);
+        returns how many went. Values being computed now are not touched."""
+        with self._lock:
+            gone = [key for key in self._values if not keep(key)]
+            for key in gone:
+                del self._values[key]
+        return len(gone)
+
 
 @dataclass(eq=False)
 class FrameSet:
