@@ -115,11 +115,12 @@ setup_zynq_rootfs() {
     [ -x "$ZYNQ_ROOTFS/lib/systemd/systemd" ] || die "zynq: $ZYNQ_ROOTFS has no systemd: remove it and run again"
 }
 
-# setup_zynq: tools, kernel and rootfs.
+# setup_zynq: tools, kernel and rootfs. The kernel first: the rootfs waits for the armhf env's lock (the
+# armhf env builds its own rootfs under it), and on a fresh machine the kernel's build fills that wait.
 setup_zynq() {
     ensure_zynq_tools
-    setup_zynq_rootfs
     setup_zynq_kernel
+    setup_zynq_rootfs
 }
 
 # zynq_image DIR: DIR/sd.img, the SD card the VM boots: the cached rootfs (hard links, never written),
