@@ -32,8 +32,10 @@ from playwright.sync_api import Page, expect
 from stereocam.server.frames import views
 
 from ..rig_truth import static_depth
+from ..slowness import SLOWNESS
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
+    TIMEOUT_MS,
     assert_no_sideways_scroll,
     get_json,
     wait_frames,
@@ -43,6 +45,10 @@ from .chromium import (
 pytestmark = BROWSER_TEST_TIMEOUT
 
 DAEMON_FPS = 10.0  # the daemon fixture's camera rate (tests/browser/conftest.py)
+# A capture on the fabric with the stereo core waits for its frame's depth: where numba is missing (the
+# board env) the core's model is numpy's, seconds a frame, and a loaded machine made one capture take
+# more than the page's minute (the Capture button stayed busy; the last fresh run).
+CAPTURE_TIMEOUT_MS = TIMEOUT_MS * SLOWNESS
 
 
 @pytest.fixture
@@ -262,8 +268,8 @@ def test_captures_thumbnails_viewer_replay_and_delete_with_undo(daemon_with_core
         wait_frames(page, ["rect_left"])
         items = page.get_by_test_id("captures-list").locator("[data-testid=capture]")
         for n in (1, 2):
-            page.get_by_test_id("btn-capture").click()
-            expect(items).to_have_count(n)
+            page.get_by_test_id("btn-capture").click(timeout=CAPTURE_TIMEOUT_MS)
+            expect(items).to_have_count(n, timeout=CAPTURE_TIMEOUT_MS)
         ids = [items.nth(i).get_attribute("data-id") for i in range(2)]
         assert all(ids)
         # Thumbnails, from the daemon, decoded.
