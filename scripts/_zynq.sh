@@ -186,7 +186,6 @@ EOF
 zynq_boot() {
     local dir="$1" console_log="$2" limit="$3" rc=0
     timeout --signal=TERM --kill-after=10 "$limit" qemu-system-arm -M xilinx-zynq-a9 -m "$ZYNQ_MEMORY_MB" \
-        ${ZYNQ_ICOUNT:+-icount "$ZYNQ_ICOUNT"} \
         -kernel "$ZYNQ_KERNEL/zImage" -dtb "$ZYNQ_KERNEL/stereocam-vm.dtb" \
         -drive "if=sd,format=raw,file=$dir/sd.img" \
         -append "console=ttyPS0,115200 root=/dev/mmcblk0 rw rootfstype=ext4 rootwait" \

@@ -81,6 +81,16 @@ def meminfo() -> Dict[str, int]:
     return out
 
 
+def uptime() -> float:
+    """The guest's seconds since boot (the clock the journal's monotonic stamps use)."""
+    return float(Path("/proc/uptime").read_text().split()[0])
+
+
+def unit_cgroup() -> Path:
+    """The unit's cgroup folder (cgroup 2)."""
+    return Path(f"/sys/fs/cgroup{show('ControlGroup')['ControlGroup']}")
+
+
 def loaded(module: str) -> bool:
     return Path("/sys/module", module.replace("-", "_")).is_dir()
 
@@ -147,8 +157,7 @@ overlay.close()
 
 def probe(paths: List[str]) -> Dict[str, str]:
     """Open each path read-write from a process inside the unit's cgroup: 'opened' or the error's text."""
-    group = show("ControlGroup")["ControlGroup"]
-    procs = f"/sys/fs/cgroup{group}/cgroup.procs"
+    procs = str(unit_cgroup() / "cgroup.procs")
     result = run(f"{VENV}/bin/python3", "-c", PROBE, procs, *paths, timeout=300)
     if result.returncode != 0:
         return {p: f"probe failed: {result.stderr.strip()[-200:]}" for p in paths}
@@ -224,8 +233,7 @@ def watched_memory() -> Dict[str, object]:
     flowing = wait_for(lambda: all(seen.get(u, 0) > 4096 for u in urls), limit=WAIT_S, every=2.0)
     time.sleep(30)
     info = meminfo()
-    group = show("ControlGroup")["ControlGroup"]
-    daemon_mib = int(Path(f"/sys/fs/cgroup{group}/memory.current").read_text()) / 2**20
+    daemon_mib = int((unit_cgroup() / "memory.current").read_text()) / 2**20
     stop.set()
     end = time.monotonic() + 120
     for t in threads:  # each ends at its stream's next chunk
@@ -261,8 +269,7 @@ def memory_check(watched: Dict[str, object], emulation: Dict[str, float]) -> Non
 
 def main() -> int:
     info = meminfo()
-    uptime = float(Path("/proc/uptime").read_text().split()[0])
-    say("BOOT", f"systemd reached multi-user {uptime:.0f} s after the kernel started;",
+    say("BOOT", f"systemd reached multi-user {uptime():.0f} s after the kernel started;",
         f"MemTotal {info['MemTotal'] // 1024} MiB, CmaTotal {info.get('CmaTotal', 0) // 1024} MiB,",
         f"MemAvailable {info['MemAvailable'] // 1024} MiB; kernel {os.uname().release}")
     try:
@@ -272,7 +279,7 @@ def main() -> int:
     passed = sum(results)
     # The guest's own clock at the end: the host compares it with its own (scripts/zynq-vm), since every
     # timeout above is counted on it.
-    say("DONE", passed, len(results) - passed, f"{float(Path('/proc/uptime').read_text().split()[0]):.1f}")
+    say("DONE", passed, len(results) - passed, f"{uptime():.1f}")
     run("systemctl", "--no-block", "reboot", timeout=60)
     return 0
 
@@ -368,7 +375,7 @@ def steps() -> None:
           f"modprobe@i2c-dev loaded i2c-dev again: {loaded('i2c-dev')}; {i2c} from inside the sandbox: "
           f"{opened.get(i2c)}")
 
-    since = float(Path("/proc/uptime").read_text().split()[0])
+    since = uptime()
     t0 = time.monotonic()
     stop = run("systemctl", "stop", UNIT)
     took = time.monotonic() - t0
