@@ -9,6 +9,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -99,6 +100,40 @@ async def test_watchdog_is_fed_only_while_the_pipeline_beats(monkeypatch) -> Non
         assert len(sent) <= n + 1
     finally:
         task.cancel()
+
+
+async def test_watchdog_is_fed_while_the_daemon_stops(start_daemon, monkeypatch) -> None:
+    """systemd keeps a unit's watchdog armed while it stops: a stop longer than WatchdogSec (the fabric
+    finishing a frame on a loaded machine) ended in SIGABRT on the Zynq VM. The stop is held here until
+    the watchdog has been fed twice after STOPPING=1, then let go; the daemon then exits normally."""
+    sent: list = []
+    monkeypatch.setattr(app_module, "notify", lambda message: sent.append(message) or True)
+    monkeypatch.setenv("WATCHDOG_USEC", "300000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    daemon = await start_daemon()
+    release = threading.Event()
+    stop_overlay = daemon.overlay.stop
+
+    def held_stop() -> None:
+        assert release.wait(WAIT_S), "the test never let the fabric stop"
+        stop_overlay()
+
+    monkeypatch.setattr(daemon.overlay, "stop", held_stop)
+    stopping = asyncio.ensure_future(daemon.stop())
+
+    def fed_after_stopping() -> int:
+        return sent[sent.index("STOPPING=1"):].count("WATCHDOG=1") if "STOPPING=1" in sent else 0
+
+    deadline = time.monotonic() + WAIT_S
+    while fed_after_stopping() < 2:
+        assert not stopping.done(), f"the daemon stopped without waiting for its fabric: {sent}"
+        assert time.monotonic() < deadline, f"the watchdog was not fed while stopping: {sent}"
+        await asyncio.sleep(0.02)
+    release.set()
+    await stopping
+    fed = fed_after_stopping()
+    await asyncio.sleep(0.3)  # a third of the interval, twice over: a feeder left running would ping again
+    assert fed_after_stopping() == fed, "the watchdog is still fed after the daemon stopped"
 
 
 def test_pipeline_heartbeat_stops_when_the_thread_is_stuck() -> None:

@@ -321,6 +321,15 @@ async def _watchdog(pipeline: Pipeline, interval: float) -> None:
                       time.monotonic() - pipeline.heartbeat_at)
 
 
+async def _feed_while_stopping(interval: float) -> None:
+    """Ping systemd's watchdog while the app cleans up: systemd keeps the watchdog armed while a unit
+    stops, and the pipeline's heartbeat ends first, so a stop longer than ``WatchdogSec`` would end in
+    SIGABRT and a core dump instead of the exit it is making. The stop's own limit is TimeoutStopSec."""
+    while True:
+        notify("WATCHDOG=1")
+        await asyncio.sleep(interval / 3)
+
+
 # -- calibration at start -------------------------------------------------------------------
 
 def _calibration_id(prefix: str, left: Any, right: Any) -> str:
@@ -455,7 +464,15 @@ async def serve(app: web.Application, config: Settings, *, stop: Optional[asynci
         notify("STOPPING=1")
     finally:
         app[EXECUTORS].abandon()  # a long check (a calibration PUT's) stops now: it would hold the GIL
-        await runner.cleanup()
+        interval = watchdog_interval()
+        feeding = None if interval is None else loop.create_task(_feed_while_stopping(interval),
+                                                                 name="stereocam-watchdog-stopping")
+        try:
+            await runner.cleanup()
+        finally:
+            if feeding is not None:
+                feeding.cancel()
+                await asyncio.gather(feeding, return_exceptions=True)
 
 
 def run(config: Settings, *, extensions: Optional[Sequence[Setup]] = None) -> int:

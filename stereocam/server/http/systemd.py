@@ -265,7 +265,8 @@ ExecStart=/bin/bash -c '{script}'
 Environment=PYTHONUNBUFFERED=1
 # The daemon starts each log line with its priority (<3> error, <4> warning, <6> info, <7> debug).
 SyslogIdentifier=stereocam
-# The daemon pings the watchdog only while its frame pipeline runs: a stalled pipeline is restarted.
+# The daemon pings the watchdog while its frame pipeline runs (a stalled pipeline is restarted) and
+# while it stops (systemd keeps the watchdog armed then; TimeoutStopSec bounds the stop).
 WatchdogSec={watchdog_sec}
 Restart=on-failure
 RestartSec=2
