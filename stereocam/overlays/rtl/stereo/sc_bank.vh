@@ -18,13 +18,33 @@ function [1:0] bank_of;
     end
 endfunction
 
+function [31:0] base_of_bank;  // the first word of bank b
+    input [1:0] b;
+    begin
+        case (b)
+            2'd0: base_of_bank = 0;
+            2'd1: base_of_bank = MAX_WIDTH;
+            default: base_of_bank = 2 * MAX_WIDTH;
+        endcase
+    end
+endfunction
+
 function [31:0] bank_base;  // the first word of row y's bank
     input [10:0] y;
     begin
-        case (bank_of(y))
-            2'd0: bank_base = 0;
-            2'd1: bank_base = MAX_WIDTH;
-            default: bank_base = 2 * MAX_WIDTH;
-        endcase
+        bank_base = base_of_bank(bank_of(y));
+    end
+endfunction
+
+// The bank k rows after (k mod 3 given) a row in bank b: (b + k) mod 3. From the scheduler's
+// registered row bank, this is a LUT where bank_of on a computed row was an adder and a table
+// behind the row arithmetic (a path over the period).
+function [1:0] bank_plus;
+    input [1:0] b;
+    input [1:0] k;
+    reg [2:0] s;
+    begin
+        s = b + k;
+        bank_plus = (s >= 3'd3) ? s - 3'd3 : s[1:0];
     end
 endfunction

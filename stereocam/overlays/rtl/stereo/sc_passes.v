@@ -46,6 +46,7 @@ module sc_passes #
     input  wire [1:0]         phase,
     input  wire signed [11:0] row,
     input  wire signed [11:0] col,
+    input  wire [1:0]         row_bank,     // row mod 3 (where row >= 0)
 
     output wire               rec_re,
     output wire [AW-1:0]      rec_raddr,
@@ -66,6 +67,10 @@ module sc_passes #
 wire signed [11:0] row_b = row - 12'sd2;
 wire signed [11:0] row_c = row - 12'sd3;
 wire signed [11:0] x_c = col - LAG;
+// the banks of row_b (row - 2 = row + 1 mod 3) and of phase C's reads (row - 4 + phase = row + 2 +
+// phase mod 3); where those rows are negative nothing is read or written
+wire [1:0] bank_b = bank_plus(row_bank, 2'd1);
+wire [1:0] bank_c = bank_plus(row_bank, (phase == 2'd0) ? 2'd2 : (phase == 2'd1) ? 2'd0 : 2'd1);
 
 // the checked codes: phase B writes, phase C reads
 reg           code_we = 1'b0;
@@ -87,14 +92,14 @@ reg          a_real = 1'b0;
 reg [10:0]   a_x;
 reg [AW-1:0] a_base;
 assign rec_re = run && phase == 2'd0 && real_now;
-assign rec_raddr = bank_base(row_b[10:0]) + col[10:0];
+assign rec_raddr = base_of_bank(bank_b) + col[10:0];
 always @(posedge clk) begin
     if (rst) begin
         a_real <= 1'b0;
     end else if (run && phase == 2'd0) begin
         a_real <= real_now;
         a_x <= col[10:0];
-        a_base <= bank_base(row_b[10:0]);
+        a_base <= base_of_bank(bank_b);
     end
 end
 
@@ -157,7 +162,7 @@ wire signed [11:0] rcol = x_c + 12'sd1;
 wire        row_in = rrow >= 0 && rrow < $signed({1'b0, height});
 wire        col_in = rcol >= 0 && rcol < $signed({1'b0, width});
 assign code_re = run && phase != 2'd3 && row_in && col_in;
-assign code_raddr = bank_base(rrow[10:0]) + rcol[10:0];
+assign code_raddr = base_of_bank(bank_c) + rcol[10:0];
 
 // what each read brings, 2 run clocks later: phases 2, 3 and the next slot's 0
 reg [1:0] q_in;       // [0]: read 1 run clock ago, [1]: 2 run clocks ago

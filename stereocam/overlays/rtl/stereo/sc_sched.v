@@ -20,6 +20,7 @@
  * this clock's `rows_in` and `out_room`: `run` fans out to every register and RAM of the core, so
  * it is one gate from registers, and a slot may start a clock later than its rows arrived
  * (`rows_in` only grows within a frame; the caller's `out_room` leaves a beat for the clock).
+ * `engine_row` (phase A's row, or `height` between frames and after the last row) is a clock late.
  * Reset: synchronous, active high.
  */
 module sc_sched #
@@ -45,6 +46,7 @@ module sc_sched #
     output reg  [1:0]         phase = 2'd0,
     output reg  signed [11:0] row = 12'sd0,
     output reg  signed [11:0] col = 12'sd0,
+    output reg  [1:0]         row_bank = 2'd0,  // row mod 3, kept beside row
     output wire [10:0]        engine_row,
     output wire               busy,
     output reg                frame_done = 1'b0
@@ -55,20 +57,34 @@ reg        state = S_IDLE;
 reg signed [11:0] ncol;
 
 wire signed [11:0] h = $signed({1'b0, height});
+wire signed [11:0] r_in = $signed({1'b0, rows_in});
 wire sweep_end = phase == 2'd3 && col == ncol - 12'sd1;
-// the row of the next clock: 0 at a frame's start, the next sweep's after the last slot of a sweep
-wire signed [11:0] row_next = (state == S_IDLE) ? 12'sd0 : (run && sweep_end) ? row + 12'sd1 : row;
-wire signed [11:0] need = (row_next + 12'sd4 < h) ? row_next + 12'sd4 : h;   // rows phase A needs in
+// Phase A of row r may run when r >= height or rows min(r + 4, height) have arrived, that is
+// r >= h || rows_in >= r + 4 || rows_in >= h. The row of the next clock is 0 at a frame's start,
+// row + 1 after the last slot of a sweep, else row: the test is made for each and one is chosen
+// (choosing the row first put the comparisons behind the choice: a path over the period).
+wire all_in = r_in >= h;
+wire ready_stay = row >= h || r_in >= row + 12'sd4 || all_in;
+wire ready_next = row + 12'sd1 >= h || r_in >= row + 12'sd5 || all_in;
+wire ready_first = r_in >= 12'sd4 || all_in;
 reg ready_q = 1'b0;  // at phase 0: the rows have arrived and the output has room
 always @(posedge clk) begin
-    ready_q <= (row_next >= h || $signed({1'b0, rows_in}) >= need) && out_room;
+    ready_q <= ((state == S_IDLE) ? ready_first : (run && sweep_end) ? ready_next : ready_stay) && out_room;
 end
 wire go = state == S_RUN && phase == 2'd0 && ready_q;
 assign run = (state == S_RUN) && (phase != 2'd0 || go);
 assign accept_frame = state == S_IDLE && enable && !hold;
 assign busy = state == S_RUN;
 assign idle = state == S_IDLE;
-assign engine_row = (state == S_RUN && row < h) ? row[10:0] : height;
+// Registered: it gates the input's TREADY (sc_input's row test), and from `row` through that test to
+// the input's counters was the core's longest path. A clock late is safe: within a frame it only
+// grows, so the input waits a clock longer at most; at a frame's start it is `height` for one more
+// clock, when the input has at most one row.
+reg [10:0] engine_row_q = 11'd0;
+always @(posedge clk) begin
+    engine_row_q <= (state == S_RUN && row < h) ? row[10:0] : height;
+end
+assign engine_row = engine_row_q;
 
 wire signed [11:0] wide = $signed({1'b0, width}) + 12'sd8;
 wire signed [11:0] least = MAX_DISP + 32;
@@ -84,6 +100,7 @@ always @(posedge clk) begin
                 if (frame_begin) begin
                     state <= S_RUN;
                     row <= 12'sd0;
+                    row_bank <= 2'd0;
                     col <= -PRE;
                     phase <= 2'd0;
                     ncol <= (wide > least) ? wide : least;
@@ -100,6 +117,7 @@ always @(posedge clk) begin
                                 frame_done <= 1'b1;
                             end else begin
                                 row <= row + 12'sd1;
+                                row_bank <= (row_bank == 2'd2) ? 2'd0 : row_bank + 2'd1;
                             end
                         end else begin
                             col <= col + 12'sd1;

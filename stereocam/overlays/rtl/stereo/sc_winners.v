@@ -168,11 +168,15 @@ always @(posedge clk) begin
 end
 
 // tree levels 4.. (Q -> 1) and the running minimum over the groups
+// (a balanced tree: a chain of picks was a path over the period; the first lane still wins ties)
 reg [SW+LW-1:0] t3;
+reg [SW+LW-1:0] tq [0:2*Q-2];  // heap order: node n's children are 2n + 1 and 2n + 2, leaves last
 always @* begin
-    t3 = a1_lanes[0 +: SW+LW];
-    for (i5 = 1; i5 < Q; i5 = i5 + 1)
-        t3 = pick(t3, a1_lanes[i5*(SW+LW) +: SW+LW]);
+    for (i5 = 0; i5 < Q; i5 = i5 + 1)
+        tq[Q - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
+    for (i5 = Q - 2; i5 >= 0; i5 = i5 - 1)
+        tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
+    t3 = tq[0];
 end
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
@@ -199,6 +203,8 @@ end
 reg [2:0]             p_step = 3'd4;   // 0..3: group read now; 4: idle
 reg [SW-1:0]          p_s1;
 reg [6:0]             p_d1;
+reg                   p_a_ok, p_b_ok;  // d1 - 1 and d1 + 1 exist (0 <= d < MAX_DISP)
+reg [6:0]             p_a_at, p_b_at;  // d1 - 1, d1 + 1: the group above LW bits, the lane below
 reg [10:0]            p_x, p_y;
 reg                   p_buf;
 wire [PARALLEL*SW-1:0] p_row = p_buf ? buf1[p_step[1:0]] : buf0[p_step[1:0]];
@@ -220,14 +226,16 @@ always @(posedge clk) begin
             d = p_step[1:0] * PARALLEL + i7;
             b0_lanes[i7*SW +: SW] <= (d < num_disp && (d + 1 < p_d1 || d > p_d1 + 1)) ? p_row[i7*SW +: SW]
                                                                                       : BIG;
-            if (d + 1 == p_d1) begin
-                b0_a <= p_row[i7*SW +: SW];
-                b0_has_a <= 1'b1;
-            end
-            if (d == p_d1 + 1) begin
-                b0_b <= p_row[i7*SW +: SW];
-                b0_has_b <= 1'b1;
-            end
+        end
+        // S(d1 - 1) and S(d1 + 1): one lane each, chosen by registers (a search over the lanes
+        // here made a chain of multiplexers, the core's second longest path)
+        if (p_a_ok && p_step[1:0] == p_a_at[LW+1:LW]) begin
+            b0_a <= p_row[p_a_at[LW-1:0]*SW +: SW];
+            b0_has_a <= 1'b1;
+        end
+        if (p_b_ok && p_step[1:0] == p_b_at[LW+1:LW]) begin
+            b0_b <= p_row[p_b_at[LW-1:0]*SW +: SW];
+            b0_has_b <= 1'b1;
         end
     end
     if (rst) begin
@@ -236,6 +244,10 @@ always @(posedge clk) begin
         p_step <= 3'd0;
         p_s1 <= run_min;
         p_d1 <= run_d;
+        p_a_ok <= run_d != 7'd0;
+        p_a_at <= run_d - 7'd1;
+        p_b_ok <= run_d != MAX_DISP - 1;
+        p_b_at <= run_d + 7'd1;
         p_x <= d_x;
         p_y <= d_y;
         p_buf <= d_buf;
@@ -310,8 +322,15 @@ reg [10:0]   e_x, e_y;
 reg [SW-1:0] h_s1;
 reg [6:0]    h_d1;
 reg [10:0]   h_x, h_y;
+// The uniqueness test's product S1 (256 + uniqueness), made with h_s1 (`uniqueness` changes only
+// between frames): from the register through the multiplier and the comparison in one clock was
+// the core's third longest path.
+reg [8:0]    h_factor;
+reg [SW+8:0] h_prod;
 always @(posedge clk) begin
+    h_factor <= `SC_UNIQUENESS_ONE + uniqueness;
     if (p_step == 3'd3) begin
+        h_prod <= p_s1 * h_factor;
         h_s1 <= p_s1;
         h_d1 <= p_d1;
         h_x <= p_x;
@@ -330,7 +349,7 @@ always @(posedge clk) begin
     e_refine <= subpixel && h_d1 > 0 && h_d1 + 1 < num_disp;
     e_cnum <= {s2_run - h_s1, 8'b0};
     e_s2 <= s2_run;
-    e_unique <= {s2_run, 8'b0} > h_s1 * (`SC_UNIQUENESS_ONE + uniqueness);
+    e_unique <= {s2_run, 8'b0} > h_prod;
     e_d1 <= h_d1;
     e_x <= h_x;
     e_y <= h_y;

@@ -118,6 +118,7 @@ sc_regs #(
 wire        run, accept_frame, frame_begin, out_room;
 wire [1:0]  phase;
 wire signed [11:0] row, col;
+wire [1:0]  row_bank;
 wire [10:0] engine_row, rows_in;
 wire        lb_we;
 wire [10:0] lb_col, lb_row;
@@ -127,7 +128,7 @@ sc_sched #(.MAX_DISP(MAX_DISP), .PRE(PRE)) sched_inst (
     .clk(aclk), .rst(rst), .enable(enable), .width(width), .height(height), .rows_in(rows_in),
     .frame_begin(frame_begin), .out_room(out_room), .hold(apply_pending), .idle(idle),
     .accept_frame(accept_frame), .run(run), .phase(phase), .row(row), .col(col),
-    .engine_row(engine_row), .busy(busy), .frame_done(frame_done)
+    .row_bank(row_bank), .engine_row(engine_row), .busy(busy), .frame_done(frame_done)
 );
 
 sc_input input_inst (
@@ -175,9 +176,19 @@ sc_winners #(.MAX_WIDTH(MAX_WIDTH), .MAX_DISP(MAX_DISP), .PARALLEL(PARALLEL), .A
 wire          rec_re;
 wire [AW-1:0] rec_raddr;
 wire [27:0]   rec_rdata;
+// A record is written a clock after it leaves the winners (its row's bank and address registered:
+// from r_y through bank_base and the add into the RAM was a path over the period); phase B reads it
+// two sweeps later.
+reg           rec_we = 1'b0;
+reg [AW-1:0]  rec_waddr;
+reg [27:0]    rec_wdata;
+always @(posedge aclk) begin
+    rec_we <= r_valid && !rst;
+    rec_waddr <= bank_base(r_y) + r_x;
+    rec_wdata <= {r_border, r_unique, r_conf, r_code, r_d1};
+end
 rc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW)) rec_ram (
-    .clk(aclk), .we(r_valid), .waddr(bank_base(r_y) + r_x),
-    .wdata({r_border, r_unique, r_conf, r_code, r_d1}),
+    .clk(aclk), .we(rec_we), .waddr(rec_waddr), .wdata(rec_wdata),
     .re(rec_re), .raddr(rec_raddr), .rdata(rec_rdata)
 );
 
@@ -195,7 +206,7 @@ wire [31:0] o_data;
 sc_passes #(.MAX_WIDTH(MAX_WIDTH), .AW(AW), .LAG(LAG)) passes_inst (
     .clk(aclk), .rst(rst), .width(width), .height(height), .lr_check(lr_check), .lr_tol(lr_tol),
     .median(median), .frame_begin(frame_begin), .run(run), .phase(phase), .row(row), .col(col),
-    .rec_re(rec_re), .rec_raddr(rec_raddr), .rec_rdata(rec_rdata),
+    .row_bank(row_bank), .rec_re(rec_re), .rec_raddr(rec_raddr), .rec_rdata(rec_rdata),
     .dr_re(dr_re), .dr_raddr(dr_raddr), .dr_rdata(dr_rdata),
     .o_valid(o_valid), .o_data(o_data), .o_user(o_user), .o_last(o_last), .o_eof(o_eof)
 );
