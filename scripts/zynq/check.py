@@ -299,8 +299,8 @@ def steps() -> None:
     # The unit's stop timeout is a board's: here, where the daemon runs slower than on an A9 and the emulated
     # fabric finishes the frame it emulates before it stops (seconds), systemd would kill it on the way. A
     # drop-in (as `systemctl edit` makes) gives it that many times the time and EMULATION_STOP_S for the
-    # emulation;
-    # the stop check below judges the rest of the stop at the A9's pace against the unit's own timeout.
+    # emulation; the stop check below judges the rest of the stop at the A9's pace against the unit's own
+    # timeout.
     against_slow, against_quick, seconds = a9_slowdown()
     board_stop = board_stop_seconds()
     say("SPEED", f"the daemon's imports took {seconds:.1f} s here: {against_slow:.1f}-{against_quick:.1f} "

@@ -132,7 +132,7 @@ async def test_watchdog_is_fed_while_the_daemon_stops(start_daemon, monkeypatch)
     release.set()
     await stopping
     fed = fed_after_stopping()
-    await asyncio.sleep(0.3)  # a third of the interval, twice over: a feeder left running would ping again
+    await asyncio.sleep(0.3)  # three feeding periods (interval / 3): a feeder left running would ping again
     assert fed_after_stopping() == fed, "the watchdog is still fed after the daemon stopped"
 
 
