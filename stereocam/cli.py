@@ -210,6 +210,15 @@ def _add_lb_rows(parser: argparse.ArgumentParser, purpose: str) -> None:
                         help=f"line-buffer rows of the bitstream to {purpose} (default {DEFAULT_LB_ROWS})")
 
 
+def _add_calibration_output(parser: argparse.ArgumentParser, alpha_help: str) -> None:
+    """What a command that writes a calibration takes: the rectification's ``--alpha`` (``alpha_help``),
+    the ``--lb-rows`` it is checked against, and ``-o/--output FILE``."""
+    parser.add_argument("--alpha", type=_alpha, default=0.0, metavar="A", help=alpha_help)
+    _add_lb_rows(parser, "check against")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE",
+                        help="the calibration file to write (YAML)")
+
+
 def _output_file(path: str) -> Path:
     """Where a file will be written: its folder must exist (checked before any work)."""
     out = Path(path)
@@ -736,11 +745,7 @@ def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
                    help="inner corners of the checkerboard, e.g. 9x6 (a board of 10x7 squares)")
     c.add_argument("--square", required=True, metavar="LENGTH",
                    help="side of one square with its unit, e.g. 25mm")
-    c.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
-                   help="0 keeps only valid pixels (default), 1 keeps every source pixel")
-    _add_lb_rows(c, "check against")
-    c.add_argument("-o", "--output", required=True, metavar="FILE",
-                   help="the calibration file to write (YAML)")
+    _add_calibration_output(c, "0 keeps only valid pixels (default), 1 keeps every source pixel")
     c.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress display on stderr")
     c.add_argument("--left", nargs="+", metavar="FILE", help="left images, paired in order with --right")
@@ -760,13 +765,10 @@ def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
                     "after an edit.",
     )
     imp.add_argument("sources", nargs="+", metavar="SRC")
-    imp.add_argument("-o", "--output", required=True, metavar="FILE",
-                     help="the calibration file to write (YAML)")
     imp.add_argument("--size", type=_parse_size, metavar="WxH",
                      help="image size, for files that do not record it (OpenCV stereo_calib)")
-    imp.add_argument("--alpha", type=_alpha, default=0.0, metavar="A",
-                     help="rectification alpha for sources without a rectification (MATLAB); default 0")
-    _add_lb_rows(imp, "check against")
+    _add_calibration_output(imp,
+                            "rectification alpha for sources without a rectification (MATLAB); default 0")
     imp.set_defaults(func=cmd_calibration_import)
     exp = ksub.add_parser("export", help="write another tool's files from a stereocam calibration",
                           description="Write OpenCV stereo_calib files intrinsics.yml and extrinsics.yml, "

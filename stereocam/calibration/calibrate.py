@@ -443,16 +443,7 @@ class PairResult:
     row_error_max: Optional[float] = None
 
     def to_dict(self) -> Dict[str, Any]:
-        return {
-            "name": self.name,
-            "used": self.used,
-            "reason": self.reason,
-            "rms": self.rms,
-            "rms_left": self.rms_left,
-            "rms_right": self.rms_right,
-            "row_error_mean": self.row_error_mean,
-            "row_error_max": self.row_error_max,
-        }
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)

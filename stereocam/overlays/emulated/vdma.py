@@ -58,7 +58,7 @@ Thread-safe through the block's lock; the pixel copy happens under it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Set, Tuple
+from typing import Callable, Dict, List, Optional, Set, Tuple, TypeVar
 
 import numpy as np
 
@@ -78,6 +78,7 @@ from .ddr import DecodeError, EmulatedDDR
 from .regblock import EmulationError, RegisterBlock
 
 HANGS = ("reset", "halt", "run")  # what a test can make a channel never finish
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -415,37 +416,38 @@ class EmulatedVDMA(RegisterBlock):
             raise ValueError(
                 f"a stream frame is (H, W, {STREAM_BYTES}) uint8, got {frame.shape} {frame.dtype}"
             )
-        with self.lock:
-            ch = self.s2mm
-            begun = self._begin_frame(ch)
-            if begun is None:
-                return False
-            store, dst = begun
-            lines, line_bytes = frame.shape[0], frame.shape[1] * STREAM_BYTES
-            vsize, hsize = dst.shape
-            if lines < vsize:
-                self._error(ch, "SOFEarlyErr")
-            elif lines > vsize:
-                self._error(ch, "SOFLateErr")
-            if line_bytes < hsize:
-                self._error(ch, "EOLEarlyErr")
-            elif line_bytes > hsize:
-                self._error(ch, "EOLLateErr")
-            rows, cols = min(lines, vsize), min(line_bytes, hsize)
-            dst[:rows, :cols] = frame.reshape(lines, line_bytes)[:rows, :cols]
-            ch.inflight = store
-            ch.frames += 1
-            return True
+        return self._frame_tick(self.s2mm, lambda dst: self._s2mm_write(frame, dst)) is not None
+
+    def _s2mm_write(self, frame: np.ndarray, dst: np.ndarray) -> bool:
+        """Copy ``frame`` into the store's view ``dst``, flagging a frame or lines of another size."""
+        lines, line_bytes = frame.shape[0], frame.shape[1] * STREAM_BYTES
+        vsize, hsize = dst.shape
+        if lines < vsize:
+            self._error(self.s2mm, "SOFEarlyErr")
+        elif lines > vsize:
+            self._error(self.s2mm, "SOFLateErr")
+        if line_bytes < hsize:
+            self._error(self.s2mm, "EOLEarlyErr")
+        elif line_bytes > hsize:
+            self._error(self.s2mm, "EOLLateErr")
+        rows, cols = min(lines, vsize), min(line_bytes, hsize)
+        dst[:rows, :cols] = frame.reshape(lines, line_bytes)[:rows, :cols]
+        return True
 
     def mm2s_fetch(self) -> Optional[np.ndarray]:
         """Read the next outgoing frame as a ``(VSIZE, HSIZE // 8, 8)`` uint8 copy, or None if not running."""
+        return self._frame_tick(self.mm2s, lambda src: np.array(src).reshape(
+            src.shape[0], src.shape[1] // STREAM_BYTES, STREAM_BYTES))
+
+    def _frame_tick(self, ch: ChannelState, move: Callable[[np.ndarray], _T]) -> Optional[_T]:
+        """One frame of ``ch``: :meth:`_begin_frame` (None: the channel took no frame), ``move`` the
+        frame into or out of its store's DDR view, then that store is in flight."""
         with self.lock:
-            ch = self.mm2s
             begun = self._begin_frame(ch)
             if begun is None:
                 return None
-            store, src = begun
-            frame = np.array(src).reshape(src.shape[0], src.shape[1] // STREAM_BYTES, STREAM_BYTES)
+            store, view = begun
+            moved = move(view)
             ch.inflight = store
             ch.frames += 1
-            return frame
+            return moved

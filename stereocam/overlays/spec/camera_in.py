@@ -23,6 +23,7 @@ from __future__ import annotations
 from typing import Dict, Tuple
 
 from . import mt9v034 as _mt9v034
+from .pixel import stream_ports
 
 VLNV = "stereocam:user:camera_in:1.0"
 INSTANCE = "camera_in"  # cell name in the block design
@@ -43,11 +44,7 @@ PORTS: Dict[str, Tuple[str, int]] = {
        for sig, width in (("pclk", 1), ("data", DATA_BITS), ("line_valid", 1), ("frame_valid", 1))},
     "aclk": ("input", 1),
     "aresetn": ("input", 1),
-    "m_axis_tdata": ("output", STREAM_BITS),
-    "m_axis_tvalid": ("output", 1),
-    "m_axis_tready": ("input", 1),
-    "m_axis_tuser": ("output", 1),
-    "m_axis_tlast": ("output", 1),
+    **stream_ports("m_axis", master=True),
 }
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from .core_common import control_register, flags_register, progress_registers, size_registers
 from .regs import Access, Field, Register, RegisterMap
@@ -214,6 +214,17 @@ def words_to_i64(lo: int, hi: int) -> int:
     return bits - (1 << 64) if bits >> 63 else bits
 
 
+def _intrinsics(camera: Any) -> Dict[str, Any]:
+    """A camera's lens values by name, ``FX``..``P2`` (:data:`INTRINSIC_NAMES`), from its ``fx``..``p2``."""
+    return {name: getattr(camera, name.lower()) for name in INTRINSIC_NAMES}
+
+
+def _intrinsic_fields(values: Mapping[str, Any]) -> Dict[str, Any]:
+    """The keyword arguments ``fx``..``p2`` of :class:`CameraParams` and :class:`CameraRegs` from
+    lens values by name (``FX``..``P2``)."""
+    return {name.lower(): values[name] for name in INTRINSIC_NAMES}
+
+
 @dataclass(frozen=True)
 class CameraParams:
     """One camera's calibration as the core needs it, in real numbers (what calibration files hold).
@@ -234,8 +245,7 @@ class CameraParams:
     p2: float
 
     def lens(self) -> Dict[str, float]:
-        return dict(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy,
-                    K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
+        return _intrinsics(self)
 
     def values(self) -> Dict[str, float]:
         """``H00``..``H22`` then the lens values, by name (what calibration files store)."""
@@ -246,9 +256,7 @@ class CameraParams:
     @classmethod
     def from_values(cls, values: Dict[str, float]) -> "CameraParams":
         return cls(
-            hinv=tuple(float(values[n]) for n in HINV_NAMES),
-            fx=values["FX"], fy=values["FY"], cx=values["CX"], cy=values["CY"],
-            k1=values["K1"], k2=values["K2"], p1=values["P1"], p2=values["P2"],
+            hinv=tuple(float(values[n]) for n in HINV_NAMES), **_intrinsic_fields(values),
         )
 
 
@@ -268,16 +276,13 @@ class CameraRegs:
 
     def values(self) -> Dict[str, int]:
         out = {name: int(v) for name, v in zip(N_NAMES, self.n, strict=True)}
-        out.update(FX=self.fx, FY=self.fy, CX=self.cx, CY=self.cy,
-                   K1=self.k1, K2=self.k2, P1=self.p1, P2=self.p2)
+        out.update(_intrinsics(self))
         return out
 
     @classmethod
     def from_values(cls, values: Dict[str, int]) -> "CameraRegs":
         return cls(
-            n=tuple(int(values[name]) for name in N_NAMES),
-            fx=values["FX"], fy=values["FY"], cx=values["CX"], cy=values["CY"],
-            k1=values["K1"], k2=values["K2"], p1=values["P1"], p2=values["P2"],
+            n=tuple(int(values[name]) for name in N_NAMES), **_intrinsic_fields(values),
         )
 
     def problems(self) -> List[str]:

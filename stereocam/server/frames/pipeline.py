@@ -34,7 +34,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Deque, Dict, Hashable, Iterator, Optional, Tuple
+from typing import Any, Callable, ContextManager, Deque, Dict, Hashable, Iterator, Optional, Tuple
 
 import numpy as np
 
@@ -310,40 +310,30 @@ class Pipeline:
 
     # -- what consumers ask for ---------------------------------------------------------
     @contextlib.contextmanager
-    def raw_wanted(self) -> Iterator[None]:
+    def _wanted_while(self, counter: str) -> Iterator[None]:
+        """While inside, the consumer count ``counter`` (an attribute: ``_raw_wanted``, ...) is one higher."""
+        with self._lock:
+            setattr(self, counter, getattr(self, counter) + 1)
+        try:
+            yield
+        finally:
+            with self._lock:
+                setattr(self, counter, getattr(self, counter) - 1)
+
+    def raw_wanted(self) -> ContextManager[None]:
         """While inside, every frame set carries the raw pair (copying it costs memory bandwidth)."""
-        with self._lock:
-            self._raw_wanted += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._raw_wanted -= 1
+        return self._wanted_while("_raw_wanted")
 
-    @contextlib.contextmanager
-    def pairs_wanted(self) -> Iterator[None]:
+    def pairs_wanted(self) -> ContextManager[None]:
         """While inside, frame sets also carry the raw store before ``raw`` (``raw_previous``): captures."""
-        with self._lock:
-            self._pairs_wanted += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._pairs_wanted -= 1
+        return self._wanted_while("_pairs_wanted")
 
-    @contextlib.contextmanager
-    def depth_wanted(self) -> Iterator[None]:
+    def depth_wanted(self) -> ContextManager[None]:
         """While inside, frame sets carry the stereo core's output (``FrameSet.depth``) where there is one.
 
         Taking it costs a store copy on the board (the emulated core computes it only when read).
         """
-        with self._lock:
-            self._depth_wanted += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._depth_wanted -= 1
+        return self._wanted_while("_depth_wanted")
 
     @property
     def wants_depth(self) -> bool:

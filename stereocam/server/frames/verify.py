@@ -20,6 +20,7 @@ client's).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Tuple
@@ -56,12 +57,7 @@ class ChannelStats:
     psnr_db: Optional[float]
 
     def to_json(self) -> Dict[str, Any]:
-        return {
-            "differing": self.differing,
-            "share": self.share,
-            "max_diff": self.max_diff,
-            "psnr_db": self.psnr_db,
-        }
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,16 @@ const hidden = new Set();  // deleted here, DELETE not answered yet: never shown
 
 function captureUrl(id) { return "/api/captures/" + encodeURIComponent(id); }
 
+// One of a capture's action buttons: its label, its test id and what a click does.
+function actionButton(text, testid, onClick) {
+  const b = document.createElement("button");
+  b.type = "button";
+  b.textContent = text;
+  b.setAttribute("data-testid", testid);
+  b.addEventListener("click", onClick);
+  return b;
+}
+
 function captureItem(c) {
   const li = document.createElement("li");
   li.setAttribute("data-testid", "capture");
@@ -48,29 +58,17 @@ function captureItem(c) {
   info.append(idEl, meta);
   const actions = document.createElement("div");
   actions.className = "cap-actions";
-  const view = document.createElement("button");
-  view.type = "button";
-  view.textContent = "view";
-  view.setAttribute("data-testid", "capture-view");
-  view.addEventListener("click", () => openViewer(c.id));
-  const replay = document.createElement("button");
-  replay.type = "button";
-  replay.textContent = "replay";
+  const view = actionButton("view", "capture-view", () => openViewer(c.id));
+  const replay = actionButton("replay", "capture-replay", () => replayCapture(c.id, replay));
   replay.title = "send its raw pair through the fabric (virtual camera)";
-  replay.setAttribute("data-testid", "capture-replay");
-  replay.addEventListener("click", () => replayCapture(c.id, replay));
   const dl = document.createElement("a");
   dl.href = captureUrl(c.id) + ".zip";
   dl.textContent = "zip";
   dl.className = "btn";
   dl.setAttribute("download", c.id + ".zip");
   dl.setAttribute("data-testid", "capture-download");
-  const del = document.createElement("button");
-  del.type = "button";
-  del.textContent = "delete";
+  const del = actionButton("delete", "capture-delete", () => deleteCapture(c.id, li));
   del.className = "danger";
-  del.setAttribute("data-testid", "capture-delete");
-  del.addEventListener("click", () => deleteCapture(c.id, li));
   actions.append(view, replay, dl, del);
   li.append(thumb, info, actions);
   return li;
