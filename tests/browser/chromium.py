@@ -177,6 +177,14 @@ DESKTOP = {"width": 1440, "height": 900}
 PHONE = {"width": 375, "height": 812}
 
 
+def open_in_window(page: Page, base: str, views: Sequence[str], window: Dict[str, int] = DESKTOP) -> None:
+    """The daemon's page at ``base`` in a ``window``-sized viewport (:data:`DESKTOP` unless given), once
+    each of ``views`` has shown a frame (:func:`wait_frames`)."""
+    page.set_viewport_size(window)  # type: ignore[arg-type]
+    page.goto(base + "/")
+    wait_frames(page, views)
+
+
 def assert_no_sideways_scroll(page: Page, state: str) -> None:
     """The page is at most as wide as the window in ``state``: nothing pushes the views sideways.
 

@@ -37,7 +37,7 @@ from .chromium import (
     assert_messages_clear_of_views,
     assert_no_sideways_scroll,
     daemon_config,
-    wait_frames,
+    open_in_window,
     watched_page,
 )
 from .test_browser import DAEMON_FPS, _pattern_pair, _write_png
@@ -59,10 +59,8 @@ def _post(url: str, body: Optional[Dict[str, Any]] = None, method: str = "POST")
 
 
 def _open(page: Page, base: str, window: Dict[str, int]) -> None:
-    page.set_viewport_size(window)
-    page.goto(base + "/")
+    open_in_window(page, base, ["raw_left"], window)
     expect(page.get_by_test_id("conn")).to_have_text("live")
-    wait_frames(page, ["raw_left"])
     assert_no_sideways_scroll(page, "loaded")
 
 

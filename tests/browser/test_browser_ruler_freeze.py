@@ -28,7 +28,7 @@ from .chromium import (
     PHONE,
     assert_no_sideways_scroll,
     get_json,
-    wait_frames,
+    open_in_window,
     wait_new_frames,
     watched_page,
 )
@@ -71,9 +71,7 @@ def test_ruler_and_freeze(daemon: str, tmp_path: Path, artifacts_dir: Path) -> N
     w, h = get_json(daemon + "/api/status")["frame_size"]
     rect = get_json(daemon + "/api/calibration")["rectification"]
     with watched_page(tmp_path, artifacts_dir, "ruler-freeze.png") as page:
-        page.set_viewport_size(DESKTOP)
-        page.goto(daemon + "/")
-        wait_frames(page, ["disparity", "rect_left"])
+        open_in_window(page, daemon, ["disparity", "rect_left"])
         expect(page.get_by_test_id("disparity-legend")).to_have_attribute("data-ready", "1")
 
         # The ruler, from its shortcut; two clicks on the disparity thumbnail.

@@ -23,13 +23,13 @@ from stereocam.server.frames import views
 
 from .chromium import (
     BROWSER_TEST_TIMEOUT,
-    DESKTOP,
     PHONE,
     TIMEOUT_MS,
     assert_messages_clear_of_views,
     assert_no_sideways_scroll,
     daemon_serving,
     get_json,
+    open_in_window,
     wait_frames,
     watched_page,
 )
@@ -63,10 +63,8 @@ def _wait_encoded(base: str, view: str, watched: bool) -> None:
 def test_seven_views_fit_1440x900_and_are_sharp_at_dpr_2(daemon: str, tmp_path: Path,
                                                          artifacts_dir: Path) -> None:
     with watched_page(tmp_path, artifacts_dir, "views-layout-dpr2.png", device_scale_factor=2) as page:
-        page.set_viewport_size(DESKTOP)
-        page.goto(daemon + "/")
+        open_in_window(page, daemon, VIEWS)
         assert _shown_order(page) == VIEWS
-        wait_frames(page, VIEWS)
         boxes = page.evaluate("""() => [...document.querySelectorAll('#views figure.view')].map(f => {
             const r = f.getBoundingClientRect();
             return {view: f.dataset.view, left: r.left, top: r.top, right: r.right, bottom: r.bottom}; })""")
@@ -94,9 +92,7 @@ def test_views_the_cpu_budget_cannot_afford_at_full_size_say_so(tmp_path: Path, 
     with daemon_serving(tmp_path, artifacts_dir, fps=DAEMON_FPS, extra_args=["--cpu-budget", "0.05"]) as base:
         width, height = get_json(base + "/api/status")["frame_size"]
         with watched_page(tmp_path, artifacts_dir, "views-layout-budget.png", device_scale_factor=2) as page:
-            page.set_viewport_size(DESKTOP)
-            page.goto(base + "/")
-            wait_frames(page, VIEWS)
+            open_in_window(page, base, VIEWS)
             for view in VIEWS:
                 w = width * (2 if view == "sbs" else 1)
                 note = page.get_by_test_id(f"note-{view}")
@@ -115,9 +111,7 @@ def test_views_the_cpu_budget_cannot_afford_at_full_size_say_so(tmp_path: Path, 
 def test_hidden_and_reordered_views_are_remembered_and_hidden_ones_not_encoded(
         daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
     with watched_page(tmp_path, artifacts_dir, "views-layout-menu.png") as page:
-        page.set_viewport_size(DESKTOP)
-        page.goto(daemon + "/")
-        wait_frames(page, VIEWS)
+        open_in_window(page, daemon, VIEWS)
         assert _encoded_views(daemon) == sorted(VIEWS)
 
         # Hide the anaglyph with the keyboard: open the menu, tick its box off with Space.
@@ -168,9 +162,7 @@ def test_hidden_and_reordered_views_are_remembered_and_hidden_ones_not_encoded(
 
 def test_phone_has_no_sideways_scroll_with_the_menu(daemon: str, tmp_path: Path, artifacts_dir: Path) -> None:
     with watched_page(tmp_path, artifacts_dir, "views-layout-phone.png") as page:
-        page.set_viewport_size(PHONE)
-        page.goto(daemon + "/")
-        wait_frames(page, VIEWS)
+        open_in_window(page, daemon, VIEWS, PHONE)
         assert_no_sideways_scroll(page, "seven views at 375x812")
         page.get_by_test_id("views-menu-open").click()
         expect(page.get_by_test_id("views-menu-list")).to_be_visible()

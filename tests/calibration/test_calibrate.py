@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List, Tuple
+from typing import List, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -40,6 +40,13 @@ def run(capsys, argv: List[str]) -> Tuple[int, str, str]:
     return code, out, err
 
 
+def calibrate_argv(out: Path, *options: str, square: str = "25mm",
+                   inputs: Sequence[str] = ("--left", *LEFTS, "--right", *RIGHTS)) -> List[str]:
+    """``stereocam calibrate`` of the 9x6 pattern with ``options``, writing ``out``, from ``inputs``
+    (by default OpenCV's sample pairs)."""
+    return ["calibrate", "--pattern", "9x6", "--square", square, *options, "-o", str(out), *inputs]
+
+
 def error_line(capsys, argv: List[str]) -> str:
     code, out, err = run(capsys, argv)
     assert code == 2, (out, err)
@@ -54,23 +61,7 @@ def error_line(capsys, argv: List[str]) -> str:
 
 def test_sample_meets_the_floor_and_reports_as_one_json_object(tmp_path, capsys) -> None:
     out = tmp_path / "calibration.yaml"
-    code, stdout, stderr = run(
-        capsys,
-        [
-            "calibrate",
-            "--pattern",
-            "9x6",
-            "--square",
-            "25mm",
-            "--json",
-            "-o",
-            str(out),
-            "--left",
-            *LEFTS,
-            "--right",
-            *RIGHTS,
-        ],
-    )
+    code, stdout, stderr = run(capsys, calibrate_argv(out, "--json"))
     assert code == 0, stderr
     assert stdout.count("\n") == 1, "--json prints exactly one line: the report"
     report = json.loads(stdout)
@@ -157,9 +148,7 @@ def test_pairs_that_fail_are_rejected_with_reasons(tmp_path, capsys) -> None:
     unfinished.mkdir()
     cv2.imwrite(str(unfinished / "raw_left.png"), np.zeros((480, 640), np.uint8))
     out = tmp_path / "cal.yaml"
-    code, stdout, stderr = run(
-        capsys, ["calibrate", "--pattern", "9x6", "--square", "2.5cm", "-o", str(out), str(root)]
-    )
+    code, stdout, stderr = run(capsys, calibrate_argv(out, square="2.5cm", inputs=[str(root)]))
     assert code == 0, stderr
     assert "pairs: 11 used, 2 rejected" in stdout
     assert "capture-004: rejected, the 9x6 pattern was not found in the right image" in stdout
@@ -211,19 +200,7 @@ def test_synthetic_rig_calibrates_back_to_its_known_model(tmp_path, capsys) -> N
         cv2.imwrite(str(cap / "raw_right.png"), right)
     out = tmp_path / "synthetic.yaml"
     code, stdout, stderr = run(
-        capsys,
-        [
-            "calibrate",
-            "--pattern",
-            "9x6",
-            "--square",
-            f"{SYNTH_SQUARE * 1000:g}mm",
-            "--json",
-            "-q",
-            "-o",
-            str(out),
-            str(root),
-        ],
+        capsys, calibrate_argv(out, "--json", "-q", square=f"{SYNTH_SQUARE * 1000:g}mm", inputs=[str(root)])
     )
     assert code == 0, stderr
     assert stderr == "", "-q: no progress"
@@ -264,7 +241,7 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
     half = tmp_path / "half" / "c0"
     half.mkdir(parents=True)
     cv2.imwrite(str(half / "raw_left.png"), np.zeros((8, 8), np.uint8))
-    base = ["calibrate", "--pattern", "9x6", "--square", "25mm", "-o", str(out)]
+    base = calibrate_argv(out, inputs=())
     cases = [
         (
             ["--left", *LEFTS[:3], "--right", *RIGHTS[:3]],
@@ -308,8 +285,7 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
     for rows, message in (("0", "at least 1, not 0"),
                           ("2048", "below 2048 (the core counts rows in 11 bits)")):
         with pytest.raises(SystemExit) as exited:  # argparse's usage error
-            main(["calibrate", "--pattern", "9x6", "--square", "1in", "--lb-rows", rows, "-o", str(out),
-                  str(blank)])
+            main(calibrate_argv(out, "--lb-rows", rows, square="1in", inputs=[str(blank)]))
         assert exited.value.code == 2
         assert f"error: argument --lb-rows: line-buffer rows must be {message}" in capsys.readouterr().err
     assert out.read_text() == "previous calibration\n"
@@ -317,26 +293,7 @@ def test_bad_inputs_exit_2_and_leave_the_output_alone(tmp_path, capsys) -> None:
 
 def test_calibration_needing_more_rows_than_the_line_buffer_is_refused(tmp_path, capsys) -> None:
     out = tmp_path / "calibration.yaml"
-    code, stdout, stderr = run(
-        capsys,
-        [
-            "calibrate",
-            "--pattern",
-            "9x6",
-            "--square",
-            "25mm",
-            "--lb-rows",
-            "40",
-            "--json",
-            "-q",
-            "-o",
-            str(out),
-            "--left",
-            *LEFTS,
-            "--right",
-            *RIGHTS,
-        ],
-    )
+    code, stdout, stderr = run(capsys, calibrate_argv(out, "--lb-rows", "40", "--json", "-q"))
     assert code == 2
     assert stderr.splitlines() == [
         "stereocam calibrate: error: this calibration needs 63 line-buffer rows but the core buffers 40: "
@@ -349,19 +306,7 @@ def test_calibration_needing_more_rows_than_the_line_buffer_is_refused(tmp_path,
 
 
 def test_output_folder_must_exist_before_the_work_starts(tmp_path, capsys) -> None:
-    line = error_line(
-        capsys,
-        [
-            "calibrate",
-            "--pattern",
-            "9x6",
-            "--square",
-            "25mm",
-            "-o",
-            str(tmp_path / "no" / "cal.yaml"),
-            str(DATA),
-        ],
-    )
+    line = error_line(capsys, calibrate_argv(tmp_path / "no" / "cal.yaml", inputs=[str(DATA)]))
     assert "folder" in line and "does not exist" in line
 
 

@@ -255,6 +255,21 @@ async def run_case(tb: Bench, left: Sequence[Optional[Lines]], right: Sequence[O
     tb.dut._log.info("BEATS %s %d", label, beats)
 
 
+def random_pairs(rng: np.random.Generator, sizes: Sequence[Tuple[int, int]]
+                 ) -> Tuple[List[Lines], List[Lines]]:
+    """A left and a right :func:`random_frame` of each (width, height) in ``sizes``: the left ones first."""
+    left = [random_frame(rng, w, h) for w, h in sizes]
+    right = [random_frame(rng, w, h) for w, h in sizes]
+    return left, right
+
+
+async def run_random_case(tb: Bench, rng: np.random.Generator, sizes: Sequence[Tuple[int, int]], label: str,
+                          timing: model.BusTiming) -> None:
+    """:func:`run_case` of :func:`random_pairs` of ``sizes``, each pair expected as the model makes it."""
+    left, right = random_pairs(rng, sizes)
+    await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), label, timing=timing)
+
+
 # ---- tests ------------------------------------------------------------------------------------------
 
 SIZES = [(64, 16), (17, 9), (2, 2), (3, 5), (40, 7)]
@@ -268,9 +283,7 @@ async def random_frames(dut: SimHandleBase) -> None:
     for seed in range(3 if FULL else 1):
         rng = np.random.default_rng(100 + seed)
         tb.ready_p = 0.3
-        sizes = [(min(w, MAX_WIDTH), h) for w, h in SIZES]
-        left = [random_frame(rng, w, h) for w, h in sizes]
-        right = [random_frame(rng, w, h) for w, h in sizes]
+        left, right = random_pairs(rng, [(min(w, MAX_WIDTH), h) for w, h in SIZES])
         timing = model.BusTiming(hblank=int(rng.integers(1, 9)), vblank=0, fv_lead=int(rng.integers(0, 4)),
                                  fv_trail=int(rng.integers(0, 4)))
         await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), f"seed {seed}",
@@ -284,11 +297,8 @@ async def unrelated_clocks(dut: SimHandleBase) -> None:
     rng = np.random.default_rng(7)
     await tb.reset()
     tb.ready_p = 0.1
-    w = min(48, MAX_WIDTH)
-    left = [random_frame(rng, w, 12) for _ in range(3)]
-    right = [random_frame(rng, w, 12) for _ in range(3)]
-    await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), "unrelated clocks",
-                   timing=model.BusTiming(hblank=12, vblank=0))
+    await run_random_case(tb, rng, [(min(48, MAX_WIDTH), 12)] * 3, "unrelated clocks",
+                          model.BusTiming(hblank=12, vblank=0))
 
 
 @cocotb.test()
@@ -297,11 +307,8 @@ async def slow_aclk(dut: SimHandleBase) -> None:
     tb = Bench(dut, Clocks(aclk=23_000, pclk0=37_000, pclk1=37_000, phase1=3_000), seed=6)
     rng = np.random.default_rng(8)
     await tb.reset()
-    w = min(48, MAX_WIDTH)
-    left = [random_frame(rng, w, 10) for _ in range(2)]
-    right = [random_frame(rng, w, 10) for _ in range(2)]
-    await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), "slow aclk",
-                   timing=model.BusTiming(hblank=4, vblank=0))
+    await run_random_case(tb, rng, [(min(48, MAX_WIDTH), 10)] * 2, "slow aclk",
+                          model.BusTiming(hblank=4, vblank=0))
 
 
 @cocotb.test()
@@ -312,11 +319,8 @@ async def backpressure_within_the_fifos(dut: SimHandleBase) -> None:
     await tb.reset()
     tb.ready_p = 0.5
     w = MAX_WIDTH
-    left = [random_frame(rng, w, 8) for _ in range(3)]
-    right = [random_frame(rng, w, 8) for _ in range(3)]
     tb.stall = (w * 2 + 5, int(w * 2.2))  # about 0.8 line times of the pixel clock
-    await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), "backpressure",
-                   timing=model.BusTiming(hblank=20, vblank=0))
+    await run_random_case(tb, rng, [(w, 8)] * 3, "backpressure", model.BusTiming(hblank=20, vblank=0))
 
 
 @cocotb.test()
@@ -328,8 +332,7 @@ async def backpressure_overflow_cuts_frames(dut: SimHandleBase) -> None:
     await tb.reset()
     w = MAX_WIDTH
     n = 4
-    left = [random_frame(rng, w, 10) for _ in range(n)]
-    right = [random_frame(rng, w, 10) for _ in range(n)]
+    left, right = random_pairs(rng, [(w, 10)] * n)
     tb.stall = (w * 2, 40 * w)  # ~15 line times at 37 ns pixels, 10 ns aclk
     before = len(tb.beats)
     out0, cut0 = counters(dut)
@@ -438,8 +441,7 @@ async def reset_in_mid_frame(dut: SimHandleBase) -> None:
     rng = np.random.default_rng(12)
     await tb.reset()
     w = min(40, MAX_WIDTH)
-    left = [random_frame(rng, w, 12) for _ in range(3)]
-    right = [random_frame(rng, w, 12) for _ in range(3)]
+    left, right = random_pairs(rng, [(w, 12)] * 3)
     sender = cocotb.start_soon(tb.send(left, right))
     await Timer(37_000 * (w + 6) * 5, unit="ps")  # five rows into frame 0
     await FallingEdge(dut.aclk)  # between edges: a beat that leaves at this edge is before the reset
@@ -464,7 +466,4 @@ async def full_size(dut: SimHandleBase) -> None:
     await tb.reset()
     tb.ready_p = 0.05
     height = 480 if FULL else 6
-    left = [random_frame(rng, 752, height)]
-    right = [random_frame(rng, 752, height)]
-    await run_case(tb, left, right, model.expected_frames(left, right, MAX_WIDTH), f"752x{height}",
-                   timing=model.BusTiming(hblank=94, vblank=0))
+    await run_random_case(tb, rng, [(752, height)], f"752x{height}", model.BusTiming(hblank=94, vblank=0))

@@ -75,6 +75,13 @@ class Builder:
             if not line_period:
                 self.idle(self.rng.randint(*hblank))
 
+    def frames(self, frames: Sequence[Frame], idle: int, *, pause: float = 0.0,
+               hblank: Tuple[int, int] = (0, 0), line_period: int = 0) -> None:
+        """Each of ``frames`` as :meth:`frame` makes it, with ``idle`` idle clocks after each."""
+        for f in frames:
+            self.frame(f, pause=pause, hblank=hblank, line_period=line_period)
+            self.idle(idle)
+
 
 # ---- the bench ------------------------------------------------------------------------------------
 
@@ -218,9 +225,7 @@ async def always_ready(dut: SimHandleBase) -> None:
     rng = random.Random(1)
     b = Builder(rng)
     frames = [random_frame(rng, w, h) for w, h in SIZES]
-    for f in frames:
-        b.frame(f, pause=0.3, hblank=(0, 4))
-        b.idle(spec.LATENCY + 30)
+    b.frames(frames, spec.LATENCY + 30, pause=0.3, hblank=(0, 4))
     want = await run_case(tb, "always ready", b.beats, [True] * (len(b.beats) + 40), frames,
                           (len(frames), 0, 0))
     first = want.beats[0][0]
@@ -251,9 +256,7 @@ async def never_ready(dut: SimHandleBase) -> None:
     rng = random.Random(3)
     b = Builder(rng)
     frames = [random_frame(rng, 20, 6) for _ in range(5)]
-    for f in frames:
-        b.frame(f, pause=0.2, hblank=(2, 6))
-        b.idle(30)
+    b.frames(frames, 30, pause=0.2, hblank=(2, 6))
     assert 20 * 6 > DEPTH
     await run_case(tb, "never ready", b.beats, [False] * len(b.beats), [], (1, 4, 1))
 
@@ -289,9 +292,7 @@ async def overflow_mid_frame(dut: SimHandleBase) -> None:
     rng = random.Random(4)
     b = Builder(rng)
     frames = [random_frame(rng, 20, 6) for _ in range(4)]
-    for f in frames:
-        b.frame(f, hblank=(10, 10))
-        b.idle(60)
+    b.frames(frames, 60, hblank=(10, 10))
     stall_from = b.line_end[1][1] + 2  # frame 1's first two lines are in, the first has left
     stall_to = b.line_end[1][5] + 1  # until frame 1's last TLAST: frame 1 overflows before it
     tready = [not (stall_from <= c < stall_to) for c in range(len(b.beats) + 60)]
@@ -313,9 +314,7 @@ async def ready_again_mid_frame(dut: SimHandleBase) -> None:
     rng = random.Random(5)
     b = Builder(rng)
     frames = [random_frame(rng, 20, 6) for _ in range(6)]
-    for f in frames:
-        b.frame(f, pause=0.1, hblank=(8, 12))
-        b.idle(40)
+    b.frames(frames, 40, pause=0.1, hblank=(8, 12))
     ready_from = b.line_end[3][1]
     tready = [c >= ready_from for c in range(len(b.beats) + 60)]
     held_lines = DEPTH // 20
@@ -387,9 +386,7 @@ async def reset_mid_frame(dut: SimHandleBase) -> None:
     rng = random.Random(7)
     b = Builder(rng)
     frames = [random_frame(rng, 10, 4) for _ in range(2)]
-    for f in frames:
-        b.frame(f)
-        b.idle(20)
+    b.frames(frames, 20)
     cut_at = b.line_end[0][2]
     tready = [c < b.line_end[0][1] for c in range(cut_at + 1)]
     before = model.run(b.beats[:cut_at + 1], tready)
@@ -420,9 +417,7 @@ async def camera_rate(dut: SimHandleBase) -> None:
     rng = random.Random(8)
     b = Builder(rng)
     frames = [random_frame(rng, 752, 3) for _ in range(5)]
-    for f in frames:
-        b.frame(f, line_period=LINE_CLOCKS)
-        b.idle(LINE_CLOCKS)
+    b.frames(frames, LINE_CLOCKS, line_period=LINE_CLOCKS)
     vdma_from = b.frame_start[2]
     tready = [c % 2 == 0 or c >= vdma_from for c in range(len(b.beats) + 2000)]
     stalls = (spec.STALL_CLOCKS_RECTIFY, spec.STALL_CLOCKS_RECTIFY + 1, spec.STALL_CLOCKS_VDMA,

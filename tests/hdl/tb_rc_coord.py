@@ -22,16 +22,14 @@ from dataclasses import dataclass
 
 import cocotb
 import numpy as np
-from cocotb.clock import Clock
 from cocotb.handle import SimHandleBase
 from cocotb.triggers import ClockCycles, RisingEdge
 
 from stereocam.overlays.model.fixed import positions
 from stereocam.overlays.spec.rectify import PARAM_NAMES, CameraRegs
 
-from .unit_bench import add_to_report
+from .unit_bench import add_to_report, drive, mismatches, start_clock
 
-CLOCK_NS = 10
 MASK64 = (1 << 64) - 1
 # Clocks the engine may take to produce its first word after start (pipeline plus FIFO).
 FIRST_WORD_LIMIT = 80
@@ -87,13 +85,8 @@ class Expected:
 class TB:
     def __init__(self, dut: SimHandleBase) -> None:
         self.dut = dut
-        Clock(dut.clk, CLOCK_NS, unit="ns").start()
-        dut.start.value = 0
-        dut.out_ready.value = 0
-        dut.width.value = 1
-        dut.height.value = 1
-        dut.par_l.value = 0
-        dut.par_r.value = 0
+        start_clock(dut.clk)
+        drive(dut, start=0, out_ready=0, width=1, height=1, par_l=0, par_r=0)
         self.outputs = (dut.iu_l, dut.iv_l, dut.ok_l, dut.iu_r, dut.iv_r, dut.ok_r)
 
     async def reset(self) -> None:
@@ -103,10 +96,7 @@ class TB:
         await RisingEdge(self.dut.clk)
 
     def program(self, left: dict, right: dict, width: int, height: int) -> None:
-        self.dut.par_l.value = pack(left)
-        self.dut.par_r.value = pack(right)
-        self.dut.width.value = width
-        self.dut.height.value = height
+        drive(self.dut, par_l=pack(left), par_r=pack(right), width=width, height=height)
 
     async def pulse_start(self) -> None:
         self.dut.start.value = 1
@@ -167,18 +157,10 @@ class TB:
 
 
 def compare(name: str, got: list[tuple], exp: Expected, width: int) -> list[str]:
-    problems = []
-    bad = 0
-    for k, word in enumerate(got):
-        want = exp.word(k)
-        if word != want:
-            bad += 1
-            if len(problems) < 8:
-                problems.append(f"{name}: pixel ({k % width}, {k // width}): "
-                                f"rtl (iu_l, iv_l, ok_l, iu_r, iv_r, ok_r) = {word}, model {want}")
-    if bad:
-        problems.append(f"{name}: {bad} of {len(exp)} words differ")
-    return problems
+    """How many of the frame's words differ from the model's and the first few, each named by its pixel
+    (the words are (iu_l, iv_l, ok_l, iu_r, iv_r, ok_r))."""
+    want = [exp.word(k) for k in range(len(exp))]
+    return [f"{name}: {m}" for m in mismatches(got, want, lambda k: f"pixel ({k % width}, {k // width})")]
 
 
 @cocotb.test()
@@ -356,8 +338,7 @@ async def _stream(dut: SimHandleBase, vectors: list[dict], read, latency: int) -
     await ClockCycles(dut.clk, 2)  # the clock is running: a write after an edge is in place by the next
     for k in range(len(vectors) + latency):
         if k < len(vectors):
-            for name, value in vectors[k].items():
-                getattr(dut, name).value = value
+            drive(dut, **vectors[k])
         await edge  # edge k samples vector k
         if k >= latency:
             out.append(read())
@@ -369,7 +350,7 @@ async def div_exact(dut: SimHandleBase) -> None:
     """rc_div: floor(num * 2**SH / den) for extreme and random operands, latency QB."""
     p = _unit()
     lanes, nw, dw, qb, sh = p["LANES"], p["NW"], p["DW"], p["QB"], p["SH"]
-    Clock(dut.clk, CLOCK_NS, unit="ns").start()
+    start_clock(dut.clk)
     rng = random.Random(p.get("seed", 5))
     dens = sorted({d for d in (1, 2, 3, 5, (1 << dw) - 1, 1 << (dw - 1), (1 << (dw - 1)) + 1, (1 << 30) + 7)
                    if d < 1 << dw})
@@ -400,7 +381,7 @@ async def mul_exact(dut: SimHandleBase) -> None:
     """rc_coord_mul: ((a*b >>> LO) + c) >>> SH in OW bits for extreme and random operands, latency 5."""
     p = _unit()
     aw, bw, lo, cw, sh, ow = p["AW"], p["BW"], p["LO"], p["CW"], p["SH"], p["OW"]
-    Clock(dut.clk, CLOCK_NS, unit="ns").start()
+    start_clock(dut.clk)
     rng = random.Random(p.get("seed", 6))
 
     def specials(bits: int) -> list[int]:
@@ -438,7 +419,7 @@ async def fifo_order(dut: SimHandleBase) -> None:
     """rc_fifo: random pushes and pops, words in order, count, s_ready, m_valid, reset empties it."""
     p = _unit()
     depth, show_ahead, width = p["DEPTH"], p["SHOW_AHEAD"], p["WIDTH"]
-    Clock(dut.clk, CLOCK_NS, unit="ns").start()
+    start_clock(dut.clk)
     rng = random.Random(p.get("seed", 7))
     dut.s_valid.value = 0
     dut.m_ready.value = 0

@@ -6,21 +6,18 @@ a chain of registers) the parameters select.
 """
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import cocotb
 
-from .unit_bench import mismatches, params, pipeline, start_clock
+from .unit_bench import mismatches, pipeline, start_unit
 
 
 @cocotb.test()
 async def delays(dut: Any) -> None:
     """3,000 random words (all zeros and all ones among them): each leaves exactly N clocks later."""
-    p = params()
+    p, rng = start_unit(dut)
     width, n = p["W"], p["N"]
-    start_clock(dut.clk)
-    rng = random.Random(1)
     words = [rng.getrandbits(width) for _ in range(3000)]
     words[10:16] = [0, (1 << width) - 1, 0, (1 << width) - 1, (1 << width) - 1, 0]
     # no reset: the N clocks before the first word leaves hold power-up values, so compare from there

@@ -6,12 +6,11 @@ clock), and with RESET 1 a clock with ``rst`` high clears every stage (with RESE
 """
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import cocotb
 
-from .unit_bench import mismatches, params, pipeline, start_clock
+from .unit_bench import mismatches, pipeline, start_unit
 
 
 def model(words: list[int], rst: list[int], latency: int, reset: bool) -> list[int]:
@@ -30,10 +29,8 @@ def model(words: list[int], rst: list[int], latency: int, reset: bool) -> list[i
 @cocotb.test()
 async def delays_and_resets(dut: Any) -> None:
     """3,000 random words with a reset pulse now and then: out is the model's in every clock."""
-    p = params()
+    p, rng = start_unit(dut)
     width, latency, reset = p["WIDTH"], p["LATENCY"], bool(p["RESET"])
-    start_clock(dut.clk)
-    rng = random.Random(1)
     n = 3000
     words = [rng.getrandbits(width) for _ in range(n)]
     # all-ones and all-zeros words, and reset pulses of 1 to LATENCY + 2 clocks

@@ -7,22 +7,19 @@ address, held until the next read.
 """
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import cocotb
 from cocotb.triggers import FallingEdge
 
-from .unit_bench import RamModel, params, start_clock
+from .unit_bench import RamModel, start_unit
 
 
 @cocotb.test()
 async def four_banks_by_parity(dut: Any) -> None:
     """Fill every word of every bank, then 4,000 clocks of random writes and four-bank reads."""
-    p = params()
+    p, rng = start_unit(dut)
     width, depth, aw = p["WIDTH"], p["DEPTH"], p["AW"]
-    start_clock(dut.clk)
-    rng = random.Random(1)
     banks = [RamModel() for _ in range(4)]
     dut.we.value = 0
     dut.re.value = 0

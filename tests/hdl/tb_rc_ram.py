@@ -7,22 +7,19 @@ no power of two and an AW wider than needed.
 """
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import cocotb
 from cocotb.triggers import FallingEdge
 
-from .unit_bench import RamModel, params, start_clock
+from .unit_bench import RamModel, start_unit
 
 
 @cocotb.test()
 async def reads_what_was_written(dut: Any) -> None:
     """Fill every word, then 4,000 clocks of random writes and reads, some of one address in one clock."""
-    p = params()
+    p, rng = start_unit(dut)
     width, depth = p["WIDTH"], p["DEPTH"]
-    start_clock(dut.clk)
-    rng = random.Random(1)
     model = RamModel()
     dut.we.value = 0
     dut.re.value = 0

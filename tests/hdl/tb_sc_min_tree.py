@@ -7,22 +7,19 @@ after each enabled clock, ``out`` must be the minimum of the words taken STAGES 
 """
 from __future__ import annotations
 
-import random
 from typing import Any
 
 import cocotb
 from cocotb.triggers import FallingEdge
 
-from .unit_bench import params, start_clock
+from .unit_bench import start_unit
 
 
 @cocotb.test()
 async def minimum_after_stages(dut: Any) -> None:
     """3,000 clocks of random words (a third of them with runs of equal words or all ones)."""
-    p = params()
+    p, rng = start_unit(dut, 2)
     n, w, stages = p["N"], p["W"], p["STAGES"]
-    start_clock(dut.clk)
-    rng = random.Random(2)
     taken: list[int] = []
     problems: list[str] = []
     dut.en.value = 0

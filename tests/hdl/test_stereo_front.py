@@ -12,7 +12,6 @@ lower P2). Every case runs under Icarus, the first under Verilator too (every ca
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,12 +21,12 @@ import pytest
 from stereocam.overlays.rtl import toolchain as hdl
 
 from .cocotb_run import run_cocotb
+from .sim_cases import sim_cases
 
 RTL = hdl.rtl_dir()
 STEREO = RTL / "stereo"
 SOURCES = (*(STEREO / f"{m}.v" for m in ("sc_linebuf", "sc_census", "sc_cost", "sc_min_tree", "sc_path_left",
                                           "sc_path_up", "sc_front")), RTL / "rc_ram.v")
-FULL = os.environ.get("STEREOCAM_COSIM_FULL", "") not in ("", "0")
 
 
 def frame(kind: str, width: int, height: int, seed: int, **params: int) -> dict[str, Any]:
@@ -70,16 +69,7 @@ CASES = [
 ]
 
 
-def cases() -> list[object]:
-    out: list[object] = []
-    for case in CASES:
-        for sim in hdl.SIMULATORS:
-            if sim == "icarus" or case.verilator or FULL:
-                out.append(pytest.param(sim, case, id=f"{sim}-{case.name}"))
-    return out
-
-
-@pytest.mark.parametrize(("sim", "case"), cases())
+@pytest.mark.parametrize(("sim", "case"), sim_cases(CASES, lambda c: c.name, lambda c: c.verilator))
 def test_front_sums(sim: str, case: Case, cocotb_dir: Path) -> None:
     """Every real pixel's sums equal the model's, with the header's timing, through gaps in ``run``."""
     env = {"STEREOCAM_UNIT_PARAMS": json.dumps(case.build), "COCOTB_RANDOM_SEED": "1",

@@ -1,5 +1,5 @@
 """Shared pieces of the cocotb benches: the one-module ones (``tb_rc_*.py``, ``tb_ci_*.py``;
-test_rtl_units.py) and what the larger ones (tb_axis_reg, tb_frame_gate, tb_rc_coord, tb_rc_datapath,
+test_rtl_units.py) and what the larger ones (tb_frame_gate, tb_rc_coord, tb_rc_datapath,
 tb_rectify_core) do alike: reset, the AXI4-Stream hold check, ready patterns, the JSON report.
 
 Every bench drives inputs and reads outputs at the falling edge of the clock, half a clock from the
@@ -29,6 +29,18 @@ def params() -> dict[str, int]:
 
 def start_clock(signal: Any, period_ns: float = CLOCK_NS) -> None:
     Clock(signal, period_ns, unit="ns").start()
+
+
+def start_unit(dut: Any, seed: int = 1) -> tuple[dict[str, int], random.Random]:
+    """Start ``dut.clk``; the build's parameters (:func:`params`) and a random generator seeded ``seed``."""
+    start_clock(dut.clk)
+    return params(), random.Random(seed)
+
+
+def drive(dut: Any, **values: int) -> None:
+    """Set each named input of ``dut`` to its value, in the order given."""
+    for name, value in values.items():
+        getattr(dut, name).value = value
 
 
 async def pulse_reset(dut: Any, clocks: int) -> None:
@@ -108,8 +120,7 @@ async def pipeline(clk: Any, dut: Any, vectors: Sequence[dict[str, int]],
     for k in range(len(vectors) + latency):
         await FallingEdge(clk)
         if k < len(vectors):
-            for name, value in vectors[k].items():
-                getattr(dut, name).value = value
+            drive(dut, **vectors[k])
         await Timer(1, unit="ns")
         if k >= latency:
             out.append(read())

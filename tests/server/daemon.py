@@ -26,15 +26,17 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import io
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, AsyncIterator, Awaitable, Callable, Iterator, List, Optional, Tuple
+from typing import Any, AsyncIterator, Awaitable, Callable, Dict, Iterator, List, Optional, Tuple
 
 import aiohttp
 import numpy as np
 import pytest
-from aiohttp import web
+from aiohttp import FormData, web
+from PIL import Image
 
 from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.emulated.render import SyntheticRig
@@ -46,6 +48,7 @@ from stereocam.server.http.state import CALIBRATION
 from ..slowness import SLOWNESS
 
 SMALL = (376, 240)
+W, H = SMALL  # the width and height of a test daemon's frames unless a test gives another size
 FULL = (752, 480)
 TEST_FPS = 25.0
 # The last-resort bound of a wait for something that does happen (start, stop, frames, parts).
@@ -146,6 +149,11 @@ class Daemon:
         if close_overlay:
             close_overlay_when_idle(self.overlay)
         return took
+
+    async def json(self, method: str, path: str, **kwargs: Any) -> Tuple[int, Any]:
+        """``method path`` (``kwargs`` as ``aiohttp`` takes them): the answer's status and JSON body."""
+        async with self.http.request(method, path, **kwargs) as resp:
+            return resp.status, await resp.json()
 
     async def close_sessions(self) -> None:
         for s in [self.http, *self.extra_sessions]:
@@ -277,6 +285,31 @@ async def read_parts(resp: aiohttp.ClientResponse, n: int, timeout: float = WAIT
         if not chunk:
             raise AssertionError(f"the stream ended after {len(parts)} parts")
         buf += chunk
+
+
+def png(array: np.ndarray) -> bytes:
+    """``array`` (gray, or RGB in that order) as a PNG file."""
+    buf = io.BytesIO()
+    Image.fromarray(array).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def pair_form(left: np.ndarray, right: np.ndarray, fit: "str | None" = None) -> FormData:
+    """A pair (PNG files ``left`` and ``right``) to upload to the virtual camera, with ``fit`` if given."""
+    out = FormData()
+    out.add_field("left", png(left), filename="left.png", content_type="image/png")
+    out.add_field("right", png(right), filename="right.png", content_type="image/png")
+    if fit is not None:
+        out.add_field("fit", fit)
+    return out
+
+
+async def show_pair(daemon: Daemon, left: np.ndarray, right: np.ndarray) -> Dict[str, Any]:
+    """Put a pair on the virtual camera (the raw frames the daemon works on from now on): its answer."""
+    async with daemon.http.post("/api/virtual-camera", data=pair_form(left, right)) as resp:
+        assert resp.status == 200, await resp.text()
+        answer: Dict[str, Any] = await resp.json()
+        return answer
 
 
 def bad_id_status(bad: str, path: str) -> int:

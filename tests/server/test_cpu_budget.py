@@ -35,12 +35,10 @@ from stereocam.server.frames.cpu_budget import (
 from stereocam.server.frames.pipeline import Pipeline
 from stereocam.server.http.state import BUDGET, PIPELINE
 
-from .daemon import SMALL, WAIT_S, make_overlay
+from .daemon import WAIT_S, H, W, make_overlay
 from .test_metrics import _promtool
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
 
 
 async def until(what: str, condition: Callable[[], Any], timeout: float = WAIT_S) -> None:

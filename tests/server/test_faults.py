@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, Iterator, List, Tuple
 
 import numpy as np
 import pytest
 
 from stereocam.bench.faults import KINDS, ON_THE_PROCESSED_PATH
 from stereocam.overlays.emulated.faults import FaultError, FaultInjector
+from stereocam.overlays.emulated.overlay import EmulatedOverlay
 from stereocam.overlays.fabric import SOURCES
 from stereocam.server.http import routes_cameras
 from stereocam.server.http.app import ServeError, create_app
@@ -48,88 +49,86 @@ async def until(what: str, check: Any, *, timeout: float = DEADLINE_S, pause: fl
 
 # -- the injector on the emulated fabric, without the daemon ------------------------------------
 
-def test_a_dma_fault_halts_the_channel_on_every_restart_until_it_ends() -> None:
+Stepped = Tuple[EmulatedOverlay, FaultInjector]
+
+
+@pytest.fixture
+def stepped() -> Iterator[Stepped]:
+    """An emulated overlay that moves only on ``overlay.step()`` (not started), and its fault injector;
+    closed after the test."""
     overlay = make_overlay(clock="stepped")
     try:
-        overlay.start()
-        faults = FaultInjector(overlay.emulation)
-        s2mm = overlay.fabric.raw_vdma.s2mm
-        overlay.step(2)
-        assert s2mm.errors() == () and s2mm.running
-        fault = faults.inject("dma_slave", "vdma_raw.s2mm")
-        overlay.step(1)
-        assert s2mm.errors() == ("VDMASlvErr",) and not s2mm.running
-        s2mm.recover()
-        overlay.step(1)
-        assert s2mm.errors() == ("VDMASlvErr",), "a persisting fault halts the restarted channel again"
-        faults.end(fault.id)
-        s2mm.recover()
-        overlay.step(2)
-        assert s2mm.errors() == () and s2mm.running
-        assert overlay.emulation.vdma_proc.s2mm.frames > 0  # the other channels never noticed
+        yield overlay, FaultInjector(overlay.emulation)
     finally:
         overlay.close()
 
 
-def test_a_hung_reset_finishes_when_the_fault_ends() -> None:
+def test_a_dma_fault_halts_the_channel_on_every_restart_until_it_ends(stepped: Stepped) -> None:
+    overlay, faults = stepped
+    overlay.start()
+    s2mm = overlay.fabric.raw_vdma.s2mm
+    overlay.step(2)
+    assert s2mm.errors() == () and s2mm.running
+    fault = faults.inject("dma_slave", "vdma_raw.s2mm")
+    overlay.step(1)
+    assert s2mm.errors() == ("VDMASlvErr",) and not s2mm.running
+    s2mm.recover()
+    overlay.step(1)
+    assert s2mm.errors() == ("VDMASlvErr",), "a persisting fault halts the restarted channel again"
+    faults.end(fault.id)
+    s2mm.recover()
+    overlay.step(2)
+    assert s2mm.errors() == () and s2mm.running
+    assert overlay.emulation.vdma_proc.s2mm.frames > 0  # the other channels never noticed
+
+
+def test_a_hung_reset_finishes_when_the_fault_ends(stepped: Stepped) -> None:
     from stereocam.drivers.mmio import RegisterTimeout
 
-    overlay = make_overlay(clock="stepped")
-    try:
-        overlay.start()
-        faults = FaultInjector(overlay.emulation)
-        mm2s = overlay.fabric.proc_vdma.mm2s
-        fault = faults.inject("reset_hang", "vdma_proc.mm2s")
-        overlay.step(1)
-        assert "VDMAIntErr" in mm2s.errors()
-        with pytest.raises(RegisterTimeout, match="soft reset never completed"):
-            mm2s.recover(timeout=0.05)
-        faults.end(fault.id)
-        mm2s.recover(timeout=5.0)
-        overlay.step(2)
-        assert mm2s.errors() == () and mm2s.running
-    finally:
-        overlay.close()
+    overlay, faults = stepped
+    overlay.start()
+    mm2s = overlay.fabric.proc_vdma.mm2s
+    fault = faults.inject("reset_hang", "vdma_proc.mm2s")
+    overlay.step(1)
+    assert "VDMAIntErr" in mm2s.errors()
+    with pytest.raises(RegisterTimeout, match="soft reset never completed"):
+        mm2s.recover(timeout=0.05)
+    faults.end(fault.id)
+    mm2s.recover(timeout=5.0)
+    overlay.step(2)
+    assert mm2s.errors() == () and mm2s.running
 
 
-def test_the_mux_refuses_commits_while_the_fault_lasts() -> None:
+def test_the_mux_refuses_commits_while_the_fault_lasts(stepped: Stepped) -> None:
     from stereocam.drivers.mmio import RegisterTimeout
 
-    overlay = make_overlay(clock="stepped")
-    try:
-        overlay.start()
-        faults = FaultInjector(overlay.emulation)
-        fault = faults.inject("mux_refuse")
-        with pytest.raises(RegisterTimeout, match="commit never finished"):
-            overlay.fabric.select("virtual", timeout=0.05)
-        assert overlay.emulation.mux.selected == SOURCES["live"]
-        faults.end(fault.id)
-        overlay.fabric.select("live", timeout=5.0)
-        assert overlay.emulation.mux.selected == SOURCES["live"]
-    finally:
-        overlay.close()
+    overlay, faults = stepped
+    overlay.start()
+    fault = faults.inject("mux_refuse")
+    with pytest.raises(RegisterTimeout, match="commit never finished"):
+        overlay.fabric.select("virtual", timeout=0.05)
+    assert overlay.emulation.mux.selected == SOURCES["live"]
+    faults.end(fault.id)
+    overlay.fabric.select("live", timeout=5.0)
+    assert overlay.emulation.mux.selected == SOURCES["live"]
 
 
-def test_bad_injections_are_refused_with_what_to_give() -> None:
-    overlay = make_overlay(clock="stepped")
-    try:
-        faults = FaultInjector(overlay.emulation)
-        with pytest.raises(FaultError, match="unknown fault kind 'meltdown'; known: camera_stall"):
-            faults.inject("meltdown")
-        with pytest.raises(FaultError, match="needs a target, one of: vdma_raw.s2mm"):
-            faults.inject("dma_decode", "vdma_raw.mm2s")
-        with pytest.raises(FaultError, match="takes no target"):
-            faults.inject("camera_stall", "left")
-        with pytest.raises(FaultError, match="no camera sensors"):
-            faults.inject("sensor_silent", "left")
-        first = faults.inject("dma_decode", "vdma_proc.s2mm")
-        with pytest.raises(FaultError, match="already has fault"):
-            faults.inject("reset_hang", "vdma_proc.s2mm")
-        assert [f.id for f in faults.active()] == [first.id]
-        with pytest.raises(KeyError):
-            faults.end(first.id + 1)
-    finally:
-        overlay.close()
+def test_bad_injections_are_refused_with_what_to_give(stepped: Stepped) -> None:
+    _, faults = stepped
+    with pytest.raises(FaultError, match="unknown fault kind 'meltdown'; known: camera_stall"):
+        faults.inject("meltdown")
+    with pytest.raises(FaultError, match="needs a target, one of: vdma_raw.s2mm"):
+        faults.inject("dma_decode", "vdma_raw.mm2s")
+    with pytest.raises(FaultError, match="takes no target"):
+        faults.inject("camera_stall", "left")
+    with pytest.raises(FaultError, match="no camera sensors"):
+        faults.inject("sensor_silent", "left")
+    first = faults.inject("dma_decode", "vdma_proc.s2mm")
+    with pytest.raises(FaultError, match="already has fault"):
+        faults.inject("reset_hang", "vdma_proc.s2mm")
+    assert [f.id for f in faults.active()] == [first.id]
+    with pytest.raises(KeyError):
+        faults.end(first.id + 1)
 
 
 # -- the switch: only the flag, only on the emulated fabric -------------------------------------

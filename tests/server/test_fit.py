@@ -1,14 +1,11 @@
 """Fit on upload: exact, crop, pad and scale, in the upload code and over HTTP."""
 from __future__ import annotations
 
-import io
 import json
 
 import cv2
 import numpy as np
 import pytest
-from aiohttp import FormData
-from PIL import Image
 
 from stereocam.overlays.spec import pixel
 from stereocam.server.http.metrics import METRICS
@@ -22,32 +19,15 @@ from stereocam.server.http.uploads import (
     plan_fit,
 )
 
-from .daemon import FULL, SMALL, make_overlay  # noqa: F401
+from .daemon import FULL, H, W, make_overlay, pair_form, png  # noqa: F401
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
 
 
 def rgb(seed: int, w: int, h: int) -> np.ndarray:
     """A smooth colour image (JPEG-free tests need no smoothness, resizing does: INTER_AREA averages)."""
     coarse = np.random.default_rng(seed).integers(0, 256, (max(2, h // 8), max(2, w // 8), 3), dtype=np.uint8)
     return np.ascontiguousarray(cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC))
-
-
-def png(array: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    Image.fromarray(array).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def pair_form(left: np.ndarray, right: np.ndarray, fit: "str | None" = None) -> FormData:
-    out = FormData()
-    out.add_field("left", png(left), filename="left.png", content_type="image/png")
-    out.add_field("right", png(right), filename="right.png", content_type="image/png")
-    if fit is not None:
-        out.add_field("fit", fit)
-    return out
 
 
 def centred(image: np.ndarray, w: int, h: int) -> np.ndarray:

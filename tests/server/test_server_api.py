@@ -24,7 +24,9 @@ from .daemon import (
     FULL,
     SMALL,
     TEST_FPS,
+    H,
     StillSource,
+    W,
     bad_id_status,
     read_parts,  # noqa: F401
     until,
@@ -32,8 +34,6 @@ from .daemon import (
 )
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
 
 
 def pattern_pair(seed: int = 1) -> "tuple[np.ndarray, np.ndarray]":
@@ -77,9 +77,8 @@ def model_output(daemon, frame: np.ndarray) -> np.ndarray:
 async def test_status_reports_the_daemon(start_daemon) -> None:
     d = await start_daemon()
     await wait_for_frames(d, 3)
-    async with d.http.get("/api/status") as resp:
-        assert resp.status == 200
-        s = await resp.json()
+    status, s = await d.json("GET", "/api/status")
+    assert status == 200
     assert s["backend"] == "emulated" and s["source"] == "live" and s["mux"] == "live"
     assert s["frame_size"] == [W, H] and s["signal"] is True
     # Nobody watches: the pipeline sees the frames and copies none (the CPU budget).
@@ -213,9 +212,8 @@ async def test_virtual_camera_round_trip_is_returned_shown_and_verified_bit_exac
         np.testing.assert_array_equal(decode_png(await resp.read()), expected[..., [6, 5, 4]])
     async with d.http.get("/snapshot/raw_left.png") as resp:  # and the raw views its input
         np.testing.assert_array_equal(decode_png(await resp.read()), left[..., ::-1])
-    async with d.http.post("/api/verify") as resp:
-        assert resp.status == 200
-        report = await resp.json()
+    status, report = await d.json("POST", "/api/verify")
+    assert status == 200
     assert report["identical"] is True
     assert report["differing"] == 0 and report["share"] == 0 and report["max_diff"] == 0
     assert report["psnr_db"] is None

@@ -16,7 +16,6 @@ from typing import Callable
 import cv2
 import numpy as np
 import pytest
-from aiohttp import FormData
 
 from stereocam.calibration.calibrate import CalibrationReport, Pattern, detect_corners
 from stereocam.calibration.file import Calibration, load_calibration
@@ -29,18 +28,12 @@ from stereocam.server.http.settings import Settings
 from stereocam.server.stores.calibration_pairs import SETTINGS_FILE
 
 from ..sample import SYNTH_SQUARE, synthetic_views
-from .daemon import FULL, WAIT_S, make_overlay  # noqa: F401
+from .daemon import FULL, WAIT_S, make_overlay, show_pair  # noqa: F401
 
 pytestmark = pytest.mark.slow
 
 EXT = (routes_calibration.setup, routes_calibration_panel.setup)
 PATTERN = Pattern(9, 6, SYNTH_SQUARE)
-
-
-def png(gray: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", gray)
-    assert ok
-    return buf.tobytes()
 
 
 # Full-size frames at 20 fps: on a busy machine the emulated fabric may take over a second for one,
@@ -53,15 +46,6 @@ async def start(start_daemon, **settings):
     settings.setdefault("no_signal_s", NO_SIGNAL_S)
     return await start_daemon(overlay=make_overlay(size=FULL, fps=20.0, calibrate=False), extensions=EXT,
                               **settings)
-
-
-async def show(daemon, left: np.ndarray, right: np.ndarray) -> None:
-    """Put a gray pair on the virtual camera: the raw frames the panel sees from now on."""
-    form = FormData()
-    form.add_field("left", png(left), filename="left.png", content_type="image/png")
-    form.add_field("right", png(right), filename="right.png", content_type="image/png")
-    async with daemon.http.post("/api/virtual-camera", data=form) as r:
-        assert r.status == 200, await r.text()
 
 
 async def show_nothing(daemon) -> None:
@@ -169,7 +153,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
 
     _, views = synthetic_views()
     left, right = views[0]
-    await show(daemon, left, right)
+    await show_pair(daemon, left, right)
     body = await corners_when(daemon, lambda b: b["source"] == "virtual")  # the scene's answer has expired
     assert body["found"] is True and body["source"] == "virtual"
     got = np.asarray(body["left"])
@@ -188,7 +172,7 @@ async def test_live_corners_on_the_scene_and_on_a_board(start_daemon) -> None:
         assert r.status == 503 and "no signal" in (await r.json())["error"]
     assert asyncio.get_running_loop().time() - t0 < capture_wait, "the poll waited for a frame"
     daemon.overlay.emulation.cameras_running = True
-    await show(daemon, left, right)
+    await show_pair(daemon, left, right)
 
     # Many pollers at once share one detection.
     await corners_when(daemon, lambda b: b.get("found") is True)  # the signal is back
@@ -210,11 +194,11 @@ async def test_pairs_are_refused_without_the_board_and_when_the_view_repeats(sta
 
     _, views = synthetic_views()
     blank = np.full_like(views[0][1], 128)
-    await show(daemon, views[0][0], blank)
+    await show_pair(daemon, views[0][0], blank)
     status, err = await capture_pair(daemon)
     assert status == 422 and "the right image" in err["error"]
 
-    await show(daemon, *views[0])
+    await show_pair(daemon, *views[0])
     status, body = await capture_pair(daemon)
     assert status == 201, body
     assert body["count"] == 1 and body["pair"]["pattern"] == "9x6"
@@ -230,7 +214,7 @@ async def test_pairs_are_refused_without_the_board_and_when_the_view_repeats(sta
 
     status, err = await capture_pair(daemon)  # the board has not moved
     assert status == 409 and pid in err["error"]
-    await show(daemon, *views[1])
+    await show_pair(daemon, *views[1])
     status, body = await capture_pair(daemon)
     assert status == 201 and body["count"] == 2
     assert body["coverage"]["left"] > first_cover["left"] and body["coverage"]["right"] > first_cover["right"]
@@ -253,7 +237,7 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
     assert status == 200
 
     for left, right in views[:3]:
-        await show(daemon, left, right)
+        await show_pair(daemon, left, right)
         assert (await capture_pair(daemon))[0] == 201
     async with daemon.http.post("/api/calibration/compute") as r:
         assert r.status == 422
@@ -264,7 +248,7 @@ async def test_compute_review_apply_and_restart(start_daemon, tmp_path) -> None:
         assert r.status == 404
 
     for left, right in views[3:8]:
-        await show(daemon, left, right)
+        await show_pair(daemon, left, right)
         assert (await capture_pair(daemon))[0] == 201
     cover = (await session(daemon))["coverage"]
     # Two computes at once, their bodies arriving late (both handlers wait in the read): one runs,

@@ -19,7 +19,7 @@ from stereocam.server.frames.feed import BroadcastClosed, FrameFeed, Latest
 from stereocam.server.frames.pipeline import FrameSet, NoSignal, OnceCache, Pipeline, SourceState
 from stereocam.server.frames.views import VIEWS, ViewUnavailable, render, view_size
 
-from .daemon import SMALL, make_overlay
+from .daemon import SMALL, H, W, make_overlay
 
 WAIT_S = 60.0  # last-resort bound of a wait for something that does happen (a busy machine is slow)
 
@@ -30,8 +30,6 @@ def wait_until(condition: Callable[[], bool], what: str) -> None:
     while not condition():
         assert time.monotonic() < deadline, f"no {what} within {WAIT_S} s"
         time.sleep(0.01)
-
-W, H = SMALL
 
 
 @pytest.fixture

@@ -24,17 +24,16 @@ from stereocam.server.http.state import ENCODERS, FEED, PIPELINE
 from stereocam.server.http.streams import STREAMS
 
 from .daemon import (
-    SMALL,
     TEST_FPS,
     WAIT_S,
+    H,
+    W,
     read_parts,  # noqa: F401
     until,
     wait_for_frames,
 )
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
 
 
 def jpeg_size(data: bytes) -> tuple:

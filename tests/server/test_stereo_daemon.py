@@ -6,7 +6,7 @@ fabric without the core falls back to OpenCV's StereoBM on the ARM, and status s
 """
 from __future__ import annotations
 
-from typing import Any, Dict, Tuple
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,17 +19,9 @@ from stereocam.server.frames.depth import BY_ARM, BY_CORE, LEFT_Y, RIGHT_Y
 from stereocam.server.frames.views import colour_depth, colour_disparity, depth_metres, disparity_map
 from stereocam.server.http.state import CALIBRATION, FEED
 
-from .daemon import SMALL, WAIT_S, make_overlay, wait_for_frames
-from .test_fit import pair_form
+from .daemon import WAIT_S, H, W, make_overlay, show_pair, wait_for_frames
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
-
-
-async def _json(d: Any, method: str, path: str, **kwargs: Any) -> Tuple[int, Dict[str, Any]]:
-    async with d.http.request(method, path, **kwargs) as resp:
-        return resp.status, await resp.json()
 
 
 async def _png(d: Any, path: str) -> np.ndarray:
@@ -63,7 +55,7 @@ async def test_status_and_the_views_come_from_the_stereo_core(start_daemon) -> N
     await wait_for_frames(d)
     stereo = d.overlay.emulation.stereo
     assert stereo is not None
-    status, body = await _json(d, "GET", "/api/status")
+    status, body = await d.json("GET", "/api/status")
     assert status == 200 and body["disparity"]["by"] == BY_CORE == "stereo core"
     core = body["disparity"]["stereo"]
     assert core["frame_count"] > 0 and core["enabled"] and core["params"] == DEFAULT_PARAMS.as_json()
@@ -92,19 +84,19 @@ async def test_the_point_readout_reads_the_cores_disparity(start_daemon) -> None
     disp = await _core_disparity(d)
     ys, xs = np.nonzero(disp != INVALID)
     x, y = int(xs[len(xs) // 2]), int(ys[len(ys) // 2])
-    status, p = await _json(d, "GET", f"/api/point?x={x}&y={y}")
+    status, p = await d.json("GET", f"/api/point?x={x}&y={y}")
     assert status == 200, p
     assert p["disparity_px"] == disp[y, x] / 16
     assert p["depth_m"] == pytest.approx(p["focal_px"] * p["baseline_m"] / p["disparity_px"], rel=1e-6)
     ys, xs = np.nonzero(disp == INVALID)
-    status, p = await _json(d, "GET", f"/api/point?x={int(xs[0])}&y={int(ys[0])}")
+    status, p = await d.json("GET", f"/api/point?x={int(xs[0])}&y={int(ys[0])}")
     assert status == 200 and p["disparity_px"] is None and p["depth_m"] is None
 
 
 async def test_get_and_put_the_matchers_registers(start_daemon) -> None:
     d = await start_daemon()
     await wait_for_frames(d)
-    status, state = await _json(d, "GET", "/api/stereo")
+    status, state = await d.json("GET", "/api/stereo")
     assert status == 200 and state["present"] and state["by"] == BY_CORE
     assert state["params"] == state["defaults"] == DEFAULT_PARAMS.as_json()
     assert state["limits"]["num_disp"] == {"min": 32, "max": 128, "multiple_of": 32}
@@ -113,7 +105,7 @@ async def test_get_and_put_the_matchers_registers(start_daemon) -> None:
     assert state["build"]["max_disp"] == 128 and state["status"]["enabled"]
 
     change = {"num_disp": 64, "uniqueness": 30, "median": False}
-    status, body = await _json(d, "PUT", "/api/stereo", json=change)
+    status, body = await d.json("PUT", "/api/stereo", json=change)
     assert status == 200 and body["applied"], body
     wanted = DEFAULT_PARAMS.with_values(num_disp=64, uniqueness=30, median=False)
     assert body["params"] == wanted.as_json() and not body["status"]["apply_pending"]
@@ -129,13 +121,13 @@ async def test_get_and_put_the_matchers_registers(start_daemon) -> None:
                           ({"p1": 70}, "p1 = 70: the core takes a whole number in 0 .. 63"),
                           ({"p2_edge": 150}, "p1 <= p2_edge <= p2"),
                           ({"median": 1}, "median = 1: the core takes true or false")):
-        status, body = await _json(d, "PUT", "/api/stereo", json=change)
+        status, body = await d.json("PUT", "/api/stereo", json=change)
         assert status == 422 and words in body["error"] and "previous parameters stay active" in body["error"]
-    status, body = await _json(d, "PUT", "/api/stereo", json={"p3": 1})
+    status, body = await d.json("PUT", "/api/stereo", json={"p3": 1})
     assert status == 400 and "unknown parameter 'p3'" in body["error"]
-    status, body = await _json(d, "PUT", "/api/stereo", json=[1])
+    status, body = await d.json("PUT", "/api/stereo", json=[1])
     assert status == 400 and "JSON object" in body["error"]
-    status, state = await _json(d, "GET", "/api/stereo")
+    status, state = await d.json("GET", "/api/stereo")
     assert state["params"] == wanted.as_json() and stereo.active == wanted  # the refusals changed nothing
     assert not state["status"]["flags"]["CONFIG_ERROR"]
 
@@ -147,9 +139,8 @@ async def test_verify_compares_the_cores_disparity_with_the_model(start_daemon) 
     coarse = rng.integers(0, 256, (H // 8, W // 8, 3), dtype=np.uint8)
     left = cv2.resize(coarse, (W, H), interpolation=cv2.INTER_CUBIC)
     right = np.ascontiguousarray(np.roll(left, -9, axis=1))
-    async with d.http.post("/api/virtual-camera", data=pair_form(left, right)) as resp:
-        assert resp.status == 200, await resp.text()
-    status, report = await _json(d, "POST", "/api/verify")
+    await show_pair(d, left, right)
+    status, report = await d.json("POST", "/api/verify")
     assert status == 200, report
     stereo = report["stereo"]
     assert stereo["compared"] and stereo["identical"] and stereo["differing"] == 0, stereo
@@ -160,15 +151,15 @@ async def test_verify_compares_the_cores_disparity_with_the_model(start_daemon) 
 async def test_without_a_stereo_core_the_arm_computes_the_disparity(start_daemon) -> None:
     d = await start_daemon(overlay=make_overlay(calibrate=False, stereo=False))
     await wait_for_frames(d)
-    status, body = await _json(d, "GET", "/api/status")
+    status, body = await d.json("GET", "/api/status")
     arm = body["disparity"].pop("arm")
     assert body["disparity"] == {"by": BY_ARM, "stereo": None} and BY_ARM == "ARM, OpenCV StereoBM"
     # off the board StereoBM runs at full size, at the default disparity rate, and status says so
     assert arm == {"scale": 1.0, "size": [W, H], "num_disparities": 128, "block_size": 19, "max_fps": 10.0,
                    "text": "StereoBM at full size, 128 disparities, block 19, at most 10 fps"}
-    status, state = await _json(d, "GET", "/api/stereo")
+    status, state = await d.json("GET", "/api/stereo")
     assert status == 200 and state == {"present": False, "by": BY_ARM}
-    status, body = await _json(d, "PUT", "/api/stereo", json={"p1": 8})
+    status, body = await d.json("PUT", "/api/stereo", json={"p1": 8})
     assert status == 409 and "no stereo core" in body["error"] and "StereoBM" in body["error"]
 
     p = await _rectified(d)
@@ -179,9 +170,8 @@ async def test_without_a_stereo_core_the_arm_computes_the_disparity(start_daemon
     assert depth.shape == (H, W, 3) and (depth[bm < 0] == 0).all() and depth.any()
 
     flat = np.full((H, W, 3), 90, np.uint8)
-    async with d.http.post("/api/virtual-camera", data=pair_form(flat, flat)) as resp:
-        assert resp.status == 200, await resp.text()
-    status, report = await _json(d, "POST", "/api/verify")
+    await show_pair(d, flat, flat)
+    status, report = await d.json("POST", "/api/verify")
     assert status == 200 and report["stereo"]["compared"] is False and report["stereo"]["by"] == BY_ARM
 
 
@@ -192,7 +182,7 @@ async def test_within_the_boards_budget_the_arm_matches_at_half_size_and_status_
     d = await start_daemon(overlay=make_overlay(calibrate=False, stereo=False), arm_disparity="half",
                            disparity_fps=2)
     await wait_for_frames(d)
-    status, body = await _json(d, "GET", "/api/status")
+    status, body = await d.json("GET", "/api/status")
     arm = body["disparity"]["arm"]
     assert (arm["scale"], arm["size"], arm["num_disparities"], arm["block_size"], arm["max_fps"]) == (
         0.5, [W // 2, H // 2], 64, 9, 2.0)

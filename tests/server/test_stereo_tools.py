@@ -7,16 +7,13 @@ from typing import Tuple
 import cv2
 import numpy as np
 import pytest
-from aiohttp import FormData
 
 from stereocam.overlays.spec import pixel
 from stereocam.server.frames.tools import MAX_REPORTED, MIN_MATCHES, alignment, alignment_of, histogram
 from stereocam.server.frames.views import render
 from stereocam.server.http.state import FEED, VIRTUAL
 
-from .daemon import SMALL
-
-W, H = SMALL
+from .daemon import H, W, show_pair
 
 
 def textured(w: int, h: int, seed: int = 1) -> np.ndarray:
@@ -95,21 +92,6 @@ def test_histogram_is_bincount_and_clipping_is_exact() -> None:
 
 # -- over HTTP ------------------------------------------------------------------------------------
 
-def _png(gray: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", gray)
-    assert ok
-    return buf.tobytes()
-
-
-async def _upload(d, left: np.ndarray, right: np.ndarray) -> int:
-    form = FormData()
-    form.add_field("left", _png(left), filename="left.png", content_type="image/png")
-    form.add_field("right", _png(right), filename="right.png", content_type="image/png")
-    async with d.http.post("/api/virtual-camera", data=form) as resp:
-        assert resp.status == 200, await resp.text()
-        return int((await resp.json())["frame"])
-
-
 async def _get_after(d, path: str, frame: int):
     """``GET path`` until it answers about a frame at or after ``frame`` (the uploaded pair)."""
     while True:
@@ -124,7 +106,7 @@ async def test_api_alignment_of_a_shifted_pair(start_daemon) -> None:
     the uploaded pair, so its 2 rows become other offsets: the exact 2 px is tested above)."""
     d = await start_daemon()
     left, right = rectified_pair(2, W, H)
-    frame = await _upload(d, left, right)
+    frame = (await show_pair(d, left, right))["frame"]
     status, body = await _get_after(d, "/api/alignment", frame)
     assert status == 200, body
     fs = d.app[FEED].last_frame  # the same still input: the same rectified pair as the answer's frame
@@ -143,7 +125,7 @@ async def test_api_alignment_of_a_shifted_pair(start_daemon) -> None:
 async def test_api_alignment_of_a_featureless_pair_is_422(start_daemon) -> None:
     d = await start_daemon()
     flat = np.full((H, W), 128, np.uint8)
-    frame = await _upload(d, flat, flat)
+    frame = (await show_pair(d, flat, flat))["frame"]
     status, body = await _get_after(d, "/api/alignment", frame)
     assert status == 422
     assert body["error"].startswith("too few features") and "textured" in body["error"]
@@ -156,7 +138,7 @@ async def test_api_histogram_of_the_raw_frame(start_daemon) -> None:
     left[:5] = 255  # 5 rows clipped high
     left[5:8] = 0   # 3 rows black
     right = textured(W, H, 8)
-    frame = await _upload(d, left, right)
+    frame = (await show_pair(d, left, right))["frame"]
     status, body = await _get_after(d, "/api/histogram", frame)
     assert status == 200
     raw = d.app[VIRTUAL].input

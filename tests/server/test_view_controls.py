@@ -18,12 +18,10 @@ from stereocam.server.http.routes_recordings import RECORDINGS
 from stereocam.server.http.state import SETTINGS
 from stereocam.server.stores.recordings import frame_names
 
-from .daemon import SMALL, WAIT_S, wait_for_frames
+from .daemon import WAIT_S, H, W, wait_for_frames
 from .test_recordings import finished, record
 
 pytestmark = pytest.mark.slow
-
-W, H = SMALL
 
 
 async def _frames(ws: Any, n_each: int, views: List[str]) -> Dict[str, List[Tuple[Dict[str, Any], float]]]:
