@@ -148,7 +148,7 @@ def run_cocotb(
 
     ``sim`` is ``"verilator"`` or ``"icarus"``. ``parameters`` override the top module's
     Verilog parameters, ``defines`` are `` `define``s, ``includes`` are include folders,
-    searched before the sources' own folders (neither simulator looks beside the
+    searched before the sources' own folders and the RTL root (neither simulator looks beside the
     including file by itself). ``build_args`` go to the compiler (e.g. ``["-Wall"]`` for
     Verilator). ``timescale`` applies to modules without a `` `timescale``. ``extra_env``
     reaches the cocotb tests (``os.environ`` inside them), e.g. ``{"COCOTB_RANDOM_SEED":
@@ -158,7 +158,10 @@ def run_cocotb(
     """
     sim_exe = hdl.check_tools(sim)
     source_paths = [Path(s).resolve() for s in sources]
-    include_paths = [Path(i).resolve() for i in includes]
+    given_includes = [Path(i).resolve() for i in includes]
+    # Then the sources' folders, and the RTL's root folder last: every RTL file includes its prelude.vh.
+    include_paths = list(dict.fromkeys([*given_includes, *(s.parent for s in source_paths),
+                                        hdl.rtl_dir().resolve()]))
     for path in source_paths:
         if not path.is_file():
             raise FileNotFoundError(f"HDL source {path} does not exist")
@@ -174,9 +177,9 @@ def run_cocotb(
         "python": sys.executable,
         "toplevel": toplevel,
         "sources": source_paths,
-        # The sources' folders are include folders too; their headers count as sources.
-        "headers": sorted({h for s in source_paths for ext in HEADERS for h in s.parent.glob(ext)}),
-        "includes": include_paths,
+        # The include folders' headers count as sources.
+        "headers": sorted({h for folder in include_paths for ext in HEADERS for h in folder.glob(ext)}),
+        "includes": given_includes,
         "parameters": {k: str(v) for k, v in parameters.items()},
         "defines": {k: str(v) for k, v in defines.items()},
         "build_args": list(build_args),
@@ -202,7 +205,7 @@ def run_cocotb(
                 try:
                     runner.build(
                         sources=source_paths,
-                        includes=list(dict.fromkeys([*include_paths, *(s.parent for s in source_paths)])),
+                        includes=include_paths,
                         defines=defines,
                         parameters=parameters,
                         build_args=list(build_args),

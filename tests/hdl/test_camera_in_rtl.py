@@ -33,7 +33,8 @@ def camera_dir() -> Path:
 
 
 def camera_sources() -> list[Path]:
-    names = ["camera_in", "ci_rx", "ci_lfifo", "ci_sync", "ci_demosaic", "../rc_ram", "../rc_fifo"]
+    names = ["camera_in", "ci_rx", "ci_lfifo", "ci_sync", "ci_demosaic",
+             "../rc_ram", "../rc_fifo", "../rc_gray"]
     return [camera_dir() / f"{n}.v" for n in names]
 
 
@@ -73,7 +74,7 @@ def test_camera_in_lints_clean() -> None:
     exe = hdl.verilator_bin()
     for width in (spec.PARAMETERS["MAX_WIDTH"], 17):
         out = subprocess.run(
-            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{camera_dir()}",
+            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{camera_dir()}", f"-I{hdl.rtl_dir()}",
              "--top-module", spec.TOP,
              f"-GMAX_WIDTH={width}", *map(str, camera_sources())],
             capture_output=True, text=True, timeout=120, check=False,
@@ -124,7 +125,8 @@ def test_camera_in_resources() -> None:
     hdl.check_tools("yosys")
     with tempfile.TemporaryDirectory() as tmp:
         stat = Path(tmp) / "stat.txt"
-        script = (f"read_verilog -sv -I {camera_dir()} {' '.join(map(str, camera_sources()))}; "
+        reads = " ".join(map(str, camera_sources()))
+        script = (f"read_verilog -sv -I {camera_dir()} -I {hdl.rtl_dir()} {reads}; "
                   f"synth_xilinx -family xc7 -top {spec.TOP}; tee -q -o {stat} stat")
         subprocess.run(["yosys", "-q", "-p", script], capture_output=True, text=True, timeout=1500,
                        check=True)

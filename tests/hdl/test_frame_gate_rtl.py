@@ -32,7 +32,8 @@ def camera_dir() -> Path:
 
 
 def sources() -> list[Path]:
-    return [camera_dir() / name for name in spec.SOURCES]
+    """The IP's Verilog files (spec.SOURCES without the prelude they include)."""
+    return [camera_dir() / name for name in spec.SOURCES if name.endswith(".v")]
 
 
 def test_sources_hold_every_module_the_gate_uses() -> None:
@@ -65,7 +66,8 @@ def test_frame_gate_lints_clean() -> None:
     exe = hdl.verilator_bin()
     for depth in (spec.PARAMETERS["DEPTH"], *spec.DEPTH_RANGE, 100):
         out = subprocess.run(
-            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", "--top-module", spec.TOP,
+            [str(exe), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}",
+             "--top-module", spec.TOP,
              f"-GDEPTH={depth}", *map(str, sources())],
             capture_output=True, text=True, timeout=120, check=False,
         )

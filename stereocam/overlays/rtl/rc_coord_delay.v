@@ -5,7 +5,7 @@
 // nothing of frames or lines. Its content after reset is undefined: use it for data whose
 // validity travels in a reset register beside it. Parameters are checked at elaboration: W >= 1,
 // N >= 0.
-`timescale 1ns / 1ps
+`include "prelude.vh"
 
 module rc_coord_delay #(
     parameter W = 1,
@@ -16,14 +16,13 @@ module rc_coord_delay #(
     output wire [W-1:0] q
 );
     genvar i;
-    // parameter checks: an instance that breaks one fails to elaborate, naming the rule
+    // parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+    // unnamed block: it holds nothing in a build that passes)
     generate
-        if (W < 1) begin : check_w
-            rc_coord_delay_parameter_W_must_be_at_least_1 w_too_small ();
-        end
-        if (N < 0) begin : check_n
-            rc_coord_delay_parameter_N_must_be_at_least_0 n_negative ();
-        end
+        // verilator lint_off GENUNNAMED
+        if (W < 1) rc_coord_delay_parameter_W_must_be_at_least_1 w_too_small();
+        if (N < 0) rc_coord_delay_parameter_N_must_be_at_least_0 n_negative();
+        // verilator lint_on GENUNNAMED
     endgenerate
 
     generate
@@ -53,3 +52,5 @@ module rc_coord_delay #(
         end
     endgenerate
 endmodule
+
+`resetall

@@ -25,7 +25,7 @@
 // stages after each multiply, MREG and PREG, then p); c is taken 4 clocks after a, b (it
 // must come from a register then). Throughput one product per clock, no handshake, no
 // reset: it knows nothing of frames or lines.
-`timescale 1ns / 1ps
+`include "prelude.vh"
 
 module rc_coord_mul #(
     parameter AW = 34,      // signed width of a, 18..42
@@ -130,3 +130,5 @@ module rc_coord_mul #(
         p <= sum[SW-1:SH];
     end
 endmodule
+
+`resetall

@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * rc_delay: a fixed delay line of LATENCY registers (LATENCY >= 0; 0 is a
@@ -26,17 +24,14 @@ module rc_delay #
     output wire [WIDTH-1:0] out
 );
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 generate
-    if (WIDTH < 1) begin : g_check_width
-        rc_delay_parameter_WIDTH_must_be_at_least_1 width_too_small();
-    end
-    if (LATENCY < 0) begin : g_check_latency
-        rc_delay_parameter_LATENCY_must_be_at_least_0 latency_negative();
-    end
-    if (RESET != 0 && RESET != 1) begin : g_check_reset
-        rc_delay_parameter_RESET_must_be_0_or_1 reset_invalid();
-    end
+    // verilator lint_off GENUNNAMED
+    if (WIDTH < 1) rc_delay_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    if (LATENCY < 0) rc_delay_parameter_LATENCY_must_be_at_least_0 latency_negative();
+    if (RESET != 0 && RESET != 1) rc_delay_parameter_RESET_must_be_0_or_1 reset_invalid();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 generate

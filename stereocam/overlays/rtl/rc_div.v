@@ -18,7 +18,7 @@
 // the result fits DW + 1 bits, so the arithmetic is modulo 2**(DW+1). The quotient bits
 // already found only travel down the stages (shift-register chains: SRLs on Xilinx).
 // Parameters are checked at elaboration: LANES, QB, DW >= 1, 0 <= SH <= QB, NW > QB - SH.
-`timescale 1ns / 1ps
+`include "prelude.vh"
 
 module rc_div #(
     parameter LANES = 2,   // numerators sharing the divisor
@@ -36,23 +36,16 @@ module rc_div #(
     localparam IB = QB - SH;         // integer quotient bits: numerator bits fed in by stages 1..IB
     localparam IBW = (IB > 0) ? IB : 1;
 
-    // parameter checks: an instance that breaks one fails to elaborate, naming the rule
+    // parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+    // unnamed block: it holds nothing in a build that passes)
     generate
-        if (LANES < 1) begin : check_lanes
-            rc_div_parameter_LANES_must_be_at_least_1 lanes_too_small ();
-        end
-        if (QB < 1) begin : check_qb
-            rc_div_parameter_QB_must_be_at_least_1 qb_too_small ();
-        end
-        if (SH < 0 || SH > QB) begin : check_sh
-            rc_div_parameter_SH_must_be_0_to_QB sh_invalid ();
-        end
-        if (NW <= QB - SH) begin : check_nw
-            rc_div_parameter_NW_must_exceed_QB_minus_SH nw_too_small ();
-        end
-        if (DW < 1) begin : check_dw
-            rc_div_parameter_DW_must_be_at_least_1 dw_too_small ();
-        end
+        // verilator lint_off GENUNNAMED
+        if (LANES < 1) rc_div_parameter_LANES_must_be_at_least_1 lanes_too_small();
+        if (QB < 1) rc_div_parameter_QB_must_be_at_least_1 qb_too_small();
+        if (SH < 0 || SH > QB) rc_div_parameter_SH_must_be_0_to_QB sh_invalid();
+        if (NW <= QB - SH) rc_div_parameter_NW_must_exceed_QB_minus_SH nw_too_small();
+        if (DW < 1) rc_div_parameter_DW_must_be_at_least_1 dw_too_small();
+        // verilator lint_on GENUNNAMED
     endgenerate
 
     genvar l, j;
@@ -140,3 +133,5 @@ module rc_div #(
         end
     endgenerate
 endmodule
+
+`resetall

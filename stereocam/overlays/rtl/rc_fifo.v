@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * rc_fifo: synchronous FIFO, valid/ready on both sides, distributed-RAM storage: the one FIFO
@@ -54,20 +52,18 @@ module rc_fifo #(
     localparam integer  FULL_I = DEPTH;
     localparam [CW-1:0] FULL = FULL_I[CW-1:0];
 
-    // parameter checks: an instance that breaks one fails to elaborate, naming the rule
+    // parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+    // unnamed block: it holds nothing in a build that passes)
     generate
-        if (DEPTH < 2) begin : g_check_depth
-            rc_fifo_parameter_DEPTH_must_be_at_least_2 depth_too_small();
-        end
-        if (SHOW_AHEAD != 0 && SHOW_AHEAD != 1) begin : g_check_show_ahead
+        // verilator lint_off GENUNNAMED
+        if (DEPTH < 2) rc_fifo_parameter_DEPTH_must_be_at_least_2 depth_too_small();
+        if (SHOW_AHEAD != 0 && SHOW_AHEAD != 1)
             rc_fifo_parameter_SHOW_AHEAD_must_be_0_or_1 show_ahead_invalid();
-        end
-        if (OUTPUT_REG != 0 && OUTPUT_REG != 1) begin : g_check_output_reg
+        if (OUTPUT_REG != 0 && OUTPUT_REG != 1)
             rc_fifo_parameter_OUTPUT_REG_must_be_0_or_1 output_reg_invalid();
-        end
-        if (OUTPUT_REG == 1 && SHOW_AHEAD != 1) begin : g_check_output_reg_mode
+        if (OUTPUT_REG == 1 && SHOW_AHEAD != 1)
             rc_fifo_parameter_OUTPUT_REG_needs_SHOW_AHEAD_1 output_reg_needs_show_ahead();
-        end
+        // verilator lint_on GENUNNAMED
     endgenerate
 
     (* ram_style = "distributed" *)  // LUT RAM in every mode (the OUTPUT_REG read is registered)

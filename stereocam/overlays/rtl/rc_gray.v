@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * rc_gray: the gray value of one RGB tap, (77 R + 150 G + 29 B + 128) >> 8

@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * rc_linebuf: one camera's line buffer, four block-RAM banks by row parity
@@ -40,18 +38,15 @@ module rc_linebuf #
 
 genvar b;
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 // (rc_ram checks the same; here they name the line buffer, whose parameters rc_datapath computes)
 generate
-    if (WIDTH < 1) begin : g_check_width
-        rc_linebuf_parameter_WIDTH_must_be_at_least_1 width_too_small();
-    end
-    if (DEPTH < 2) begin : g_check_depth
-        rc_linebuf_parameter_DEPTH_must_be_at_least_2 depth_too_small();
-    end
-    if ((1 << AW) < DEPTH) begin : g_check_aw
-        rc_linebuf_parameter_AW_too_small_for_DEPTH aw_too_small();
-    end
+    // verilator lint_off GENUNNAMED
+    if (WIDTH < 1) rc_linebuf_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    if (DEPTH < 2) rc_linebuf_parameter_DEPTH_must_be_at_least_2 depth_too_small();
+    if ((1 << AW) < DEPTH) rc_linebuf_parameter_AW_too_small_for_DEPTH aw_too_small();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 generate

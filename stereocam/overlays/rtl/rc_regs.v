@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "rectify_spec.vh"
 
@@ -250,9 +248,10 @@ genvar c, k, p;
 // The decode below takes a block's words from addr[BLK_LSB-1:2] and the block from the
 // bits above: each block must start on a multiple of 2^BLK_LSB bytes.
 generate
-    if ((`RC_BLOCK_L % (1 << BLK_LSB)) != 0 || (`RC_BLOCK_R % (1 << BLK_LSB)) != 0) begin : g_check
+    // verilator lint_off GENUNNAMED
+    if ((`RC_BLOCK_L % (1 << BLK_LSB)) != 0 || (`RC_BLOCK_R % (1 << BLK_LSB)) != 0)
         rc_regs_parameter_block_not_aligned_to_its_size block_not_aligned();
-    end
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 /*

@@ -41,10 +41,12 @@ assert _MAP.size == RECTIFY_MAP.size and _CONTROL.offset == RECTIFY_MAP["CONTROL
 
 
 def stereo_sources() -> List[Path]:
-    """The stereo core's Verilog and headers, and the two rectify-core parts it instantiates."""
+    """The stereo core's Verilog and headers, the two rectify-core parts it instantiates and the
+    prelude every RTL file includes."""
     rtl = hdl.rtl_dir()
     stereo = rtl / "stereo"
-    return sorted([*stereo.glob("*.v"), *stereo.glob("*.vh")]) + [rtl / "rc_ram.v", rtl / "rc_fifo.v"]
+    shared = ["rc_ram.v", "rc_fifo.v", "prelude.vh"]
+    return sorted([*stereo.glob("*.v"), *stereo.glob("*.vh")]) + [rtl / name for name in shared]
 
 
 def stereo_parameters(build: spec.Build) -> Dict[str, int]:

@@ -266,13 +266,20 @@ def find_yosys() -> str:
     return path
 
 
-def yosys_script(sources: Sequence[Path], include_dir: Path, top: str, parameters: Mapping[str, int],
+def include_dirs(sources_dir: Path, extra_sources: Sequence[Path] = ()) -> List[Path]:
+    """The folders whose headers the sources may include: their own, then those of the shared
+    modules (the RTL root, whose ``prelude.vh`` every RTL file includes)."""
+    return list(dict.fromkeys([Path(sources_dir), *(Path(p).parent for p in extra_sources)]))
+
+
+def yosys_script(sources: Sequence[Path], includes: Sequence[Path], top: str, parameters: Mapping[str, int],
                  stat_json: str, defines: Mapping[str, str], netlist_json: Optional[str] = None) -> str:
     """The yosys script: read, set the build's parameters on the top, synthesise, count."""
     def q(p: Path) -> str:
         return '"' + str(p) + '"'
 
-    read = ["read_verilog", "-sv", "-I", q(include_dir)]
+    # yosys 0.23 takes an -I folder's quotes literally (it finds a file's own folder by itself)
+    read = ["read_verilog", "-sv", *(arg for folder in includes for arg in ("-I", str(folder)))]
     read += [f"-D{k}={v}" if v else f"-D{k}" for k, v in defines.items()]
     lines = [" ".join(read + [q(p) for p in sources])]
     if parameters:
@@ -293,7 +300,9 @@ def cache_key(sources_dir: Path, top: str, parameters: Mapping[str, int], define
         head["netlist"] = True
     h.update(json.dumps(head, sort_keys=True).encode())
     hashed = [p for p in sorted(sources_dir.iterdir()) if p.suffix in HASHED_SUFFIXES and p.is_file()]
-    for p in [*hashed, *map(Path, extra_sources)]:
+    shared_dirs = include_dirs(sources_dir, extra_sources)[1:]
+    headers = [h for folder in shared_dirs for h in sorted(folder.glob("*.vh"))]
+    for p in [*hashed, *map(Path, extra_sources), *headers]:
         h.update(b"\0" + p.name.encode() + b"\0" + hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()[:20]
 
@@ -359,8 +368,8 @@ def synthesize(sources_dir: Path, *, top: str = TOP, parameters: Optional[Mappin
             pass  # a damaged cache entry: run again
     cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=cache, prefix=f".{key}-") as work:
-        script = yosys_script(sources, sources_dir, top, parameters, "stat.json", defines,
-                              "netlist.json" if netlist else None)
+        script = yosys_script(sources, include_dirs(sources_dir, extra_sources), top, parameters, "stat.json",
+                              defines, "netlist.json" if netlist else None)
         (Path(work) / "synth.ys").write_text(script, encoding="utf-8")
         start = time.monotonic()
         try:
@@ -659,7 +668,8 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
     """
     cells = list(cells) if cells is not None else block_design_cells(build=build.name)
     camera = camera_dir or rtl_dir() / "camera"
-    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]
+    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]  # the frame gate's; camera_in's also:
+    camera_shared = [*shared, camera.parent / "rc_gray.v"]
     parts: List[Part] = []
     gates: Dict[Tuple[Tuple[str, str], ...], List[str]] = {}
     for cell in cells:
@@ -668,8 +678,8 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
         elif cell.ip == CAMERA_VLNV_NAME:
             params = {"MAX_WIDTH": int(cell.config.get("MAX_WIDTH", ci.PARAMETERS["MAX_WIDTH"])),
                       "BAYER_PHASE": int(cell.config.get("BAYER_PHASE", ci.CFA_PHASES.index(ci.BAYER_PHASE)))}
-            r = synthesize(camera, top=ci.TOP, parameters=params, extra_sources=shared, timeout=timeout,
-                           use_cache=use_cache)
+            r = synthesize(camera, top=ci.TOP, parameters=params, extra_sources=camera_shared,
+                           timeout=timeout, use_cache=use_cache)
             parts.append(_rtl_part("camera_in", [cell.name], r))
         elif cell.ip == GATE_VLNV_NAME:
             gates.setdefault(tuple(sorted(cell.config.items())), []).append(cell.name)

@@ -171,7 +171,7 @@ def build_key(key: object) -> str:
 def build_dir(kind: str, key: object, *, root: Path | None = None) -> Path:
     """The cache folder for one build: ``<root>/<kind>/<hash of key>``, created if missing.
 
-    ``kind`` names the tool and design (e.g. ``"verilator/axis_reg"``); ``key`` holds
+    ``kind`` names the tool and design (e.g. ``"verilator/rc_skid"``); ``key`` holds
     everything the build depends on: source and include ``Path``s (hashed by content),
     parameters, defines, tool versions. Equal keys share a folder, so a build is redone
     only when the RTL or its parameters change. ``root`` defaults to :func:`build_root`.

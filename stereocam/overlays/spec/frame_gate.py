@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from typing import Dict, Tuple
 
-from .pixel import BYTES_PER_PIXEL
+from .pixel import BYTES_PER_PIXEL, stream_ports
 
 VLNV = "stereocam:user:frame_gate:1.0"
 TOP = "frame_gate"  # Verilog top module
@@ -33,9 +33,9 @@ GATE_LIVE = "gate_live"  # cell between the broadcaster's M01 and the mux's live
 INSTANCES: Tuple[str, str] = (GATE_RAW, GATE_LIVE)  # in the broadcaster's output order, M00 first
 STREAM_BITS = BYTES_PER_PIXEL * 8
 
-#: The IP's Verilog files (it shares the camera input's RAM and FIFO).
-# Paths from rtl/camera/: the RAM and the FIFO are the rectify core's (rtl/), shared.
-SOURCES: Tuple[str, ...] = ("frame_gate.v", "../rc_ram.v", "../rc_fifo.v")
+#: The IP's Verilog files (it shares the camera input's RAM and FIFO) and the prelude they include.
+# Paths from rtl/camera/: the RAM, the FIFO and the prelude are the rectify core's (rtl/), shared.
+SOURCES: Tuple[str, ...] = ("frame_gate.v", "../rc_ram.v", "../rc_fifo.v", "../prelude.vh")
 
 # Verilog parameters of the top module and their defaults.
 PARAMETERS: Dict[str, int] = {
@@ -49,16 +49,8 @@ DEPTH_RANGE: Tuple[int, int] = (16, 32768)
 PORTS: Dict[str, Tuple[str, int]] = {
     "aclk": ("input", 1),
     "aresetn": ("input", 1),
-    "s_axis_tdata": ("input", STREAM_BITS),
-    "s_axis_tvalid": ("input", 1),
-    "s_axis_tready": ("output", 1),
-    "s_axis_tuser": ("input", 1),
-    "s_axis_tlast": ("input", 1),
-    "m_axis_tdata": ("output", STREAM_BITS),
-    "m_axis_tvalid": ("output", 1),
-    "m_axis_tready": ("input", 1),
-    "m_axis_tuser": ("output", 1),
-    "m_axis_tlast": ("output", 1),
+    **stream_ports("s_axis", master=False),
+    **stream_ports("m_axis", master=True),
 }
 
 # =====================================================================================================

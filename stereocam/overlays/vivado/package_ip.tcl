@@ -1,13 +1,17 @@
 # package_ip.tcl: package the stereocam RTL as Vivado IP (IP-XACT, with the ipx:: commands of UG1118).
 #
 #   stereocam:user:rectify:2.0     stereocam/overlays/rtl/rectify_core.v, rc_*.v, *.vh (rectify_spec.vh,
-#                                  rc_regs_decode.vh) (stereocam/overlays/spec/rectify.py: VLNV, DEFAULT_BUILD)
+#                                  rc_regs_decode.vh, prelude.vh) (stereocam/overlays/spec/rectify.py: VLNV,
+#                                  DEFAULT_BUILD)
 #   stereocam:user:camera_in:1.0   stereocam/overlays/rtl/camera/camera_in.v, ci_*.v, *.vh, ../rc_ram.v,
-#                                  ../rc_fifo.v (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
-#   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ../rc_ram.v, ../rc_fifo.v
-#                                  (stereocam/overlays/spec/frame_gate.py: VLNV, TOP, SOURCES, PORTS, PARAMETERS)
+#                                  ../rc_fifo.v, ../rc_gray.v, ../prelude.vh
+#                                  (stereocam/overlays/spec/camera_in.py: VLNV, TOP, PORTS, PARAMETERS)
+#   stereocam:user:frame_gate:1.0  stereocam/overlays/rtl/camera/frame_gate.v, ../rc_ram.v, ../rc_fifo.v,
+#                                  ../prelude.vh (stereocam/overlays/spec/frame_gate.py: VLNV, TOP, SOURCES,
+#                                  PORTS, PARAMETERS)
 #   stereocam:user:stereo:1.0      stereocam/overlays/rtl/stereo/stereo_core.v, sc_*.v, *.vh, ../rc_ram.v,
-#                                  ../rc_fifo.v (stereocam/overlays/spec/stereo.py: VLNV, DEFAULT_BUILD);
+#                                  ../rc_fifo.v, ../prelude.vh (stereocam/overlays/spec/stereo.py: VLNV,
+#                                  DEFAULT_BUILD);
 #                                  only the depth build's block design instantiates it
 #
 # Each IP is packaged from a throw-away project of its own (Vivado holds one project at a time, so
@@ -175,7 +179,8 @@ if {![file exists [file join $camera_dir camera_in.v]]} {
 set camera_sources [concat \
     [list [file join $camera_dir camera_in.v]] \
     [lsort [glob -nocomplain -directory $camera_dir ci_*.v]] \
-    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v]] \
+    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v] \
+          [file join $STEREOCAM_RTL_DIR rc_gray.v] [file join $STEREOCAM_RTL_DIR prelude.vh]] \
     [lsort [glob -nocomplain -directory $camera_dir *.vh]]]
 
 stereocam_packaging_project pkg_camera_in camera_in $camera_sources
@@ -202,7 +207,7 @@ stereocam_save_core $core
 # a master that forwards whole frames through a block RAM FIFO of DEPTH beats.
 
 set gate_sources {}
-foreach name {frame_gate.v ../rc_ram.v ../rc_fifo.v} {
+foreach name {frame_gate.v ../rc_ram.v ../rc_fifo.v ../prelude.vh} {
     set path [file join $camera_dir $name]
     if {![file exists $path]} {
         error "stereocam: no $name in $camera_dir: the frame_gate IP cannot be packaged"
@@ -237,7 +242,8 @@ if {![file exists [file join $stereo_dir stereo_core.v]]} {
 set stereo_sources [concat \
     [list [file join $stereo_dir stereo_core.v]] \
     [lsort [glob -nocomplain -directory $stereo_dir sc_*.v]] \
-    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v]] \
+    [list [file join $STEREOCAM_RTL_DIR rc_ram.v] [file join $STEREOCAM_RTL_DIR rc_fifo.v] \
+          [file join $STEREOCAM_RTL_DIR prelude.vh]] \
     [lsort [glob -nocomplain -directory $stereo_dir *.vh]]]
 
 stereocam_packaging_project pkg_stereo stereo_core $stereo_sources

@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "camera_in_spec.vh"
 

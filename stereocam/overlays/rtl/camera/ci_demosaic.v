@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "camera_in_spec.vh"
 
@@ -91,31 +89,12 @@ always @(posedge clk) begin
     b_reg <= to8(s_b);
 end
 
-// stages 3 and 4: gray, 77 R + 150 G + 29 B + 128 >> 8, as shifts and adds
-reg [14:0] r77_reg;
-reg [15:0] g150_reg;
-reg [12:0] b29_reg;
-reg [23:0] rgb_3_reg;
-reg [7:0]  y_reg;
-reg [23:0] rgb_4_reg;
-
-wire [16:0] sum = {2'b00, r77_reg} + {1'b0, g150_reg} + {4'b0000, b29_reg} + 17'd128;
-
-always @(posedge clk) begin
-    r77_reg <= ({1'b0, r_reg, 6'd0} + {4'd0, r_reg, 3'd0}) + ({5'd0, r_reg, 2'd0} + {7'd0, r_reg});
-    g150_reg <= ({1'b0, g_reg, 7'd0} + {4'd0, g_reg, 4'd0}) + ({6'd0, g_reg, 2'd0} + {7'd0, g_reg, 1'd0});
-    b29_reg <= ({1'b0, b_reg, 4'd0} + {2'd0, b_reg, 3'd0}) + ({3'd0, b_reg, 2'd0} + {5'd0, b_reg});
-    rgb_3_reg <= {b_reg, g_reg, r_reg};
-    y_reg <= sum[15:8];
-    rgb_4_reg <= rgb_3_reg;
-end
-
-assign rgby = {y_reg, rgb_4_reg};
-
-// the sum is below 2^16; its low byte is the dropped fraction
-// verilator lint_off UNUSEDSIGNAL
-wire unused_ok = &{1'b0, sum};
-// verilator lint_on UNUSEDSIGNAL
+// stages 3 and 4: gray, (77 R + 150 G + 29 B + 128) >> 8: the rectify core's rc_gray, the same formula
+rc_gray gray_inst (
+    .clk(clk),
+    .rgb({b_reg, g_reg, r_reg}),
+    .rgby(rgby)
+);
 
 endmodule
 

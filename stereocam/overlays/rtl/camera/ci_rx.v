@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "camera_in_spec.vh"
 
@@ -65,15 +63,15 @@ localparam integer MAX_LEN_I = MAX_WIDTH;
 localparam [LW-1:0] MAX_LEN = MAX_LEN_I[LW-1:0];
 localparam integer PAD = `CI_REC_W - `CI_REC_KIND_W - `CI_RAW_W;
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 // (a line's length must fit the header's field; the FIFO must hold a longest line, its header and an EOF)
 generate
-    if (MAX_WIDTH < 1 || MAX_WIDTH >= (1 << LW)) begin : g_check_max_width
+    // verilator lint_off GENUNNAMED
+    if (MAX_WIDTH < 1 || MAX_WIDTH >= (1 << LW))
         ci_rx_parameter_MAX_WIDTH_must_fit_the_length_field max_width_invalid();
-    end
-    if ((1 << AW) < MAX_WIDTH + 2) begin : g_check_aw
-        ci_rx_parameter_AW_too_small_for_MAX_WIDTH aw_too_small();
-    end
+    if ((1 << AW) < MAX_WIDTH + 2) ci_rx_parameter_AW_too_small_for_MAX_WIDTH aw_too_small();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 /*

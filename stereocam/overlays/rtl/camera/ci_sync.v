@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * ci_sync: two-flop synchroniser of a WIDTH-bit value into clk's domain.
@@ -29,11 +27,12 @@ module ci_sync #
     output wire [WIDTH-1:0] out
 );
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 generate
-    if (WIDTH < 1) begin : g_check_width
-        ci_sync_parameter_WIDTH_must_be_at_least_1 width_too_small();
-    end
+    // verilator lint_off GENUNNAMED
+    if (WIDTH < 1) ci_sync_parameter_WIDTH_must_be_at_least_1 width_too_small();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 (* ASYNC_REG = "TRUE" *) reg [WIDTH-1:0] meta_reg = INIT;

@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * frame_gate: an AXI4-Stream stage that never holds its input and forwards whole frames, or none

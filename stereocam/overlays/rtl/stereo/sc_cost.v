@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * sc_cost: the matching costs (STEREO_CORE.md step 2), PARALLEL lanes a clock.
@@ -42,11 +40,13 @@ localparam NC = 21;  // full adders on 3 bits each (the last has 2)
 localparam [31:0] PAR32 = PARALLEL;
 localparam [10:0] PAR = PAR32[10:0];
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 generate
-    if (MAX_DISP != 4 * PARALLEL || PARALLEL < 1) begin : g_check_groups
+    // verilator lint_off GENUNNAMED
+    if (MAX_DISP != 4 * PARALLEL || PARALLEL < 1)
         sc_cost_parameter_MAX_DISP_must_be_4_times_PARALLEL groups_not_4();
-    end
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 // right census words of the last MAX_DISP pixels: element k at [NB*k +: NB]; element 0 is cr

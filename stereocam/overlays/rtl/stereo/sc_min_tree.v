@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * sc_min_tree: the minimum of N unsigned W-bit words, a binary tree of
@@ -38,20 +36,16 @@ module sc_min_tree #
 localparam K = $clog2(N);
 localparam P = 1 << K;  // leaves
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 generate
-    if (N < 2) begin : g_check_n
-        sc_min_tree_parameter_N_must_be_at_least_2 n_too_small();
-    end
-    if (W < 1) begin : g_check_w
-        sc_min_tree_parameter_W_must_be_at_least_1 w_too_small();
-    end
-    if (STAGES < 1 || STAGES > K || (OUT_REG == 0 && STAGES >= K)) begin : g_check_stages
+    // verilator lint_off GENUNNAMED
+    if (N < 2) sc_min_tree_parameter_N_must_be_at_least_2 n_too_small();
+    if (W < 1) sc_min_tree_parameter_W_must_be_at_least_1 w_too_small();
+    if (STAGES < 1 || STAGES > K || (OUT_REG == 0 && STAGES >= K))
         sc_min_tree_parameter_STAGES_must_be_1_to_clog2_N stages_out_of_range();
-    end
-    if (OUT_REG != 0 && OUT_REG != 1) begin : g_check_out_reg
-        sc_min_tree_parameter_OUT_REG_must_be_0_or_1 out_reg_invalid();
-    end
+    if (OUT_REG != 0 && OUT_REG != 1) sc_min_tree_parameter_OUT_REG_must_be_0_or_1 out_reg_invalid();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 // tree level of heap node i (the root, node 1, is level 0)

@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * sc_path_up: one path from the row above (STEREO_CORE.md step 3: from above,
@@ -77,14 +75,14 @@ module sc_path_up #
 
 localparam LW = PARALLEL * 8;
 
-// parameter checks: an instance that breaks one fails to elaborate, naming the rule
+// parameter checks: an instance that breaks one fails to elaborate, naming the rule (in an
+// unnamed block: it holds nothing in a build that passes)
 generate
-    if (MAX_DISP != 4 * PARALLEL || PARALLEL < 4) begin : g_check_groups
+    // verilator lint_off GENUNNAMED
+    if (MAX_DISP != 4 * PARALLEL || PARALLEL < 4)
         sc_path_up_parameter_MAX_DISP_must_be_4_times_PARALLEL_at_least_4 groups_wrong();
-    end
-    if (MAX_WIDTH < 2) begin : g_check_width
-        sc_path_up_parameter_MAX_WIDTH_must_be_at_least_2 width_too_small();
-    end
+    if (MAX_WIDTH < 2) sc_path_up_parameter_MAX_WIDTH_must_be_at_least_2 width_too_small();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 `include "sc_lane.vh"

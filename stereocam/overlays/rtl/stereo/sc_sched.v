@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 /*
  * sc_sched: paces the stereo core (STEREO_CORE.md, "RTL structure") in slots of 4 clocks and

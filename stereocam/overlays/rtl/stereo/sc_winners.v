@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "stereo_spec.vh"
 
@@ -85,9 +83,7 @@ localparam G = MAX_DISP / PARALLEL;
 localparam [SW-1:0] BIG = {SW{1'b1}};
 
 generate
-    if (G != 4) begin : g_check_groups
-        sc_winners_needs_MAX_DISP_equal_4_PARALLEL groups_not_4();
-    end
+    if (G != 4) sc_winners_needs_MAX_DISP_equal_4_PARALLEL groups_not_4();
 endgenerate
 
 // ---- a 32-way (PARALLEL-way) minimum with its lane, lowest lane on ties, in two registered halves

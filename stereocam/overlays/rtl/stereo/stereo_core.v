@@ -1,8 +1,6 @@
 // Language: Verilog 2005
 
-`resetall
-`timescale 1ns / 1ps
-`default_nettype none
+`include "prelude.vh"
 
 `include "stereo_spec.vh"
 
@@ -79,9 +77,9 @@ localparam LAG = 4;
 // parameter checks: a build that breaks one fails to elaborate, naming the rule (the packaged IP's
 // user parameters allow each value alone; this is the rule between them)
 generate
-    if (MAX_DISP != 4 * PARALLEL) begin : g_check_slots
-        stereo_core_parameter_MAX_DISP_must_be_4_x_PARALLEL max_disp_not_4_slots();
-    end
+    // verilator lint_off GENUNNAMED
+    if (MAX_DISP != 4 * PARALLEL) stereo_core_parameter_MAX_DISP_must_be_4_x_PARALLEL max_disp_not_4_slots();
+    // verilator lint_on GENUNNAMED
 endgenerate
 
 reg rst = 1'b1;
