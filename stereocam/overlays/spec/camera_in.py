@@ -23,13 +23,12 @@ from __future__ import annotations
 from typing import Dict, Tuple
 
 from . import mt9v034 as _mt9v034
-from .pixel import stream_ports
+from .stream import stream_ports
 
 VLNV = "stereocam:user:camera_in:1.0"
 INSTANCE = "camera_in"  # cell name in the block design
 TOP = "camera_in"  # Verilog top module
 DATA_BITS = 10  # MT9V034 DOUT width
-STREAM_BITS = 64
 CAMERAS: Tuple[str, str] = ("cam0", "cam1")  # left, right
 
 # Verilog parameters of the top module and their defaults.

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 from typing import Dict, Tuple
 
-from .pixel import BYTES_PER_PIXEL, stream_ports
+from .stream import STREAM_BITS as STREAM_BITS  # the gate's TDATA width (its FIFO holds TUSER and TLAST too)
+from .stream import stream_ports
 
 VLNV = "stereocam:user:frame_gate:1.0"
 TOP = "frame_gate"  # Verilog top module
 GATE_RAW = "gate_raw"  # cell between the broadcaster's M00 and vdma_raw's S2MM
 GATE_LIVE = "gate_live"  # cell between the broadcaster's M01 and the mux's live input (SI0)
 INSTANCES: Tuple[str, str] = (GATE_RAW, GATE_LIVE)  # in the broadcaster's output order, M00 first
-STREAM_BITS = BYTES_PER_PIXEL * 8
 
 #: The IP's Verilog files (it shares the camera input's RAM and FIFO) and the prelude they include.
 # Paths from rtl/camera/: the RAM, the FIFO and the prelude are the rectify core's (rtl/), shared.

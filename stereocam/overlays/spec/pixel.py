@@ -20,31 +20,14 @@ by the demosaic stage.
 """
 from __future__ import annotations
 
-from typing import Dict, Tuple
-
 import numpy as np
 
 BYTES_PER_PIXEL = 8
-STREAM_BITS = BYTES_PER_PIXEL * 8  # TDATA of the AXI4-Stream: one beat, one pixel
 CHANNELS = ("L_R", "L_G", "L_B", "L_Y", "R_R", "R_G", "R_B", "R_Y")
 LEFT = slice(0, 4)
 RIGHT = slice(4, 8)
 R, G, B, Y = 0, 1, 2, 3  # index inside one camera's 4 channels
 GRAY_WEIGHTS = (77, 150, 29)  # sum 256
-
-
-def stream_ports(prefix: str, *, master: bool) -> Dict[str, Tuple[str, int]]:
-    """A top module's ports of one AXI4-Stream of this pixel, ``<prefix>_tdata`` .. ``<prefix>_tlast``,
-    as name -> (direction, width): the master drives TDATA, TVALID, TUSER (start of frame) and TLAST
-    (end of line), the slave TREADY."""
-    drive, take = ("output", "input") if master else ("input", "output")
-    return {
-        f"{prefix}_tdata": (drive, STREAM_BITS),
-        f"{prefix}_tvalid": (drive, 1),
-        f"{prefix}_tready": (take, 1),
-        f"{prefix}_tuser": (drive, 1),
-        f"{prefix}_tlast": (drive, 1),
-    }
 
 
 def gray_of(rgb: np.ndarray) -> np.ndarray:
