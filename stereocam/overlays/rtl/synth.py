@@ -668,8 +668,8 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
     """
     cells = list(cells) if cells is not None else block_design_cells(build=build.name)
     camera = camera_dir or rtl_dir() / "camera"
-    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]  # the frame gate's; camera_in's also:
-    camera_shared = [*shared, camera.parent / "rc_gray.v"]
+    shared = [camera.parent / "rc_ram.v", camera.parent / "rc_fifo.v"]  # the rectify core's, in the gates
+    camera_shared = [*shared, camera.parent / "rc_gray.v"]  # and in camera_in, with its gray
     parts: List[Part] = []
     gates: Dict[Tuple[Tuple[str, str], ...], List[str]] = {}
     for cell in cells:
