@@ -27,12 +27,14 @@
  * xr + d < width, from the same sums as the left winners (no second pass over the images).
  *
  * A systolic array of MAX_DISP cells: after pixel x of a row, cell k holds the best (sum, d) so
- * far of the right image's column x - k. A pixel's group 0 shifts the array by one (a new row
- * starts it empty) and each group g updates cells PARALLEL*g .. PARALLEL*g + PARALLEL-1 with its
- * lanes (cell k takes S(x, k) when x - k >= 0, k < num_disp and it is strictly lower: d grows with
- * x, so the lowest d wins ties). The cell shifted out of the last place is final (it has seen
- * every d); so is every cell once a row's last pixel is in (`width - 1`): those are copied to a
- * flush buffer and written one a clock.
+ * far of the right image's column x - k. Each pixel shifts the array by one (a new row starts it
+ * empty) and updates cell k with its lane for d = k (cell k takes S(x, k) when x - k >= 0,
+ * k < num_disp and it is strictly lower: d grows with x, so the lowest d wins ties). The cells
+ * are kept as G words of PARALLEL, one per group, and each group as it arrives shifts and updates
+ * its own word through one set of PARALLEL comparators (a comparator a cell was 2.7k LUT more).
+ * The cell shifted out of the last place is final (it has seen every d); so is every cell once a
+ * row's last pixel is in (`width - 1`): those are copied to a flush buffer and written one a
+ * clock.
  * Out: a write port for the winners' RAM: address (row mod 3) * MAX_WIDTH + xr, 7-bit d.
  * Free running (no enable), from the front's groups in order. A row's winners are all written at
  * most `width` + 2 clocks after its last group.
@@ -428,57 +430,77 @@ always @(posedge clk) begin
 end
 
 // ---------------------------------------------------------------- the right winners
-reg [SW-1:0] val [0:MAX_DISP-1];
-reg [6:0]    dd  [0:MAX_DISP-1];
-reg [10:0]   x_now;          // the column of the pixel in the array's place 0
+// The cells, a group's PARALLEL at a time: cell k = PARALLEL g + j is lane j of group g's word.
+// The words turn round a ring of G registers, one place per group that arrives, so the group a
+// pixel brings always meets its own word in cw[0] (no multiplexer over the groups): the group is
+// shifted by one cell as it is updated (cell k takes cell k - 1 as it was after the previous
+// pixel: lane j takes lane j - 1 of the same word, lane 0 the last lane of the word before, kept
+// from the clock that group passed) and written back at the ring's end. So one set of PARALLEL
+// comparators does what a cell each did.
+localparam CW = SW + 7;  // a cell: {sum, d}
+localparam [CW-1:0] EMPTY = {BIG, 7'd0};
+reg [PARALLEL*CW-1:0] cw [0:G-1];  // cw[0]: the word of the group arriving next
+reg [CW-1:0]          carry;       // the last cell of the word before, as it was
+reg [10:0]   x_now;          // the column of the pixel whose groups arrive
 reg [AW-1:0] base_now;       // its row's bank
 
+// the arriving group registered, with what its lanes' tests need (a clock for timing: the column
+// tests and the comparison behind them were one long path from the front's registers)
+reg                   q_valid = 1'b0;
+reg [1:0]             q_group;
+reg [PARALLEL*SW-1:0] q_sum;
+reg                   q_row_start;      // the pixel is a row's first: its cells start empty
+reg [PARALLEL-1:0]    q_lane_ok;        // lane j's cell takes part: k <= x and k < num_disp
+reg [10:0]            q_x, q_y;
+integer k1;
+always @(posedge clk) begin
+    q_valid <= s_valid && !rst;
+    q_group <= s_group;
+    q_sum <= s_sum;
+    q_row_start <= s_x == 11'd0;
+    q_x <= s_x;
+    q_y <= s_y;
+    for (k1 = 0; k1 < PARALLEL; k1 = k1 + 1)
+        q_lane_ok[k1] <= (s_group * PARALLEL + k1) <= s_x && (s_group * PARALLEL + k1) < num_disp;
+end
 
-// the flush buffer: a finished row's winners, written out one a clock
-reg [6:0]    fl_d [0:MAX_DISP-1];
-reg [10:0]   fl_left = 11'd0;   // entries still to write (cell index fl_left - 1 next)
-reg [10:0]   fl_x0;             // the column of cell 0 when copied
-reg [AW-1:0] fl_base;
+reg [PARALLEL*CW-1:0] upd;
+reg [CW-1:0]          shifted_in;
+reg [6:0]             lane_d;
+integer k2;
+always @* begin
+    for (k2 = 0; k2 < PARALLEL; k2 = k2 + 1) begin
+        shifted_in = q_row_start ? EMPTY
+                   : k2 == 0 ? (q_group == 2'd0 ? EMPTY : carry)
+                   : cw[0][(k2-1)*CW +: CW];
+        lane_d = q_group * PARALLEL + k2;
+        upd[k2*CW +: CW] = (q_lane_ok[k2] && q_sum[k2*SW +: SW] < shifted_in[CW-1:7])
+                         ? {q_sum[k2*SW +: SW], lane_d} : shifted_in;
+    end
+end
 
-// the cell leaving the array at a shift
+// the cell leaving the array at a shift: the last cell of the last group's word, column x - MAX_DISP
 reg          ex_en = 1'b0;
 reg [10:0]   ex_xr;
 reg [AW-1:0] ex_base;
 reg [6:0]    ex_d;
 
-integer k1;
-integer k3;
+integer k4;
 always @(posedge clk) begin
     ex_en <= 1'b0;
-    if (s_valid) begin
-        if (s_group == 0) begin
-            // leaving: the last place's cell, column x - MAX_DISP of the same row
-            ex_en <= s_x != 0 && s_x >= MAX_DISP;
-            ex_xr <= s_x - MAX_DISP;
+    if (q_valid) begin
+        for (k4 = 0; k4 < G - 1; k4 = k4 + 1) cw[k4] <= cw[k4+1];
+        cw[G-1] <= upd;
+        carry <= cw[0][(PARALLEL-1)*CW +: CW];
+        if (q_group == 2'd0) begin
+            x_now <= q_x;
+            base_now <= bank_base(q_y);
+        end
+        if (q_group == G - 1) begin
+            ex_en <= q_x >= MAX_DISP;
+            ex_xr <= q_x - MAX_DISP;
             ex_base <= base_now;
-            ex_d <= dd[MAX_DISP-1];
-            for (k1 = 0; k1 < MAX_DISP; k1 = k1 + 1) begin
-                // place k1 takes the cell shifted in (empty at place 0 and on a new row), or this
-                // pixel's lane k1 where that is lower (lanes exist for places below PARALLEL)
-                if (k1 < PARALLEL && k1 <= s_x && k1 < num_disp
-                    && s_sum[(k1 % PARALLEL)*SW +: SW] < ((k1 == 0 || s_x == 0) ? BIG : val[k1-1])) begin
-                    val[k1] <= s_sum[(k1 % PARALLEL)*SW +: SW];
-                    dd[k1] <= k1;
-                end else begin
-                    val[k1] <= (k1 == 0 || s_x == 0) ? BIG : val[k1-1];
-                    dd[k1] <= (k1 == 0 || s_x == 0) ? 7'd0 : dd[k1-1];
-                end
-            end
-            x_now <= s_x;
-            base_now <= bank_base(s_y);
-        end else begin
-            for (k1 = 0; k1 < MAX_DISP; k1 = k1 + 1) begin
-                if (k1 / PARALLEL == s_group && k1 <= x_now && k1 < num_disp
-                    && s_sum[(k1 % PARALLEL)*SW +: SW] < val[k1]) begin
-                    val[k1] <= s_sum[(k1 % PARALLEL)*SW +: SW];
-                    dd[k1] <= k1;
-                end
-            end
+            ex_d <= cw[0][(PARALLEL-1)*CW +: 7];
         end
     end
     if (rst) begin
@@ -486,10 +508,17 @@ always @(posedge clk) begin
     end
 end
 
+// the flush buffer: a finished row's winners, written out one a clock
+reg [6:0]    fl_d [0:MAX_DISP-1];
+reg [10:0]   fl_left = 11'd0;   // entries still to write (cell index fl_left - 1 next)
+reg [10:0]   fl_x0;             // the column of cell 0 when copied
+reg [AW-1:0] fl_base;
+
 // a row's last group: every cell of the row is final; copy them the clock after (updates done)
 reg last_in = 1'b0;
+integer k3;
 always @(posedge clk) begin
-    last_in <= s_valid && s_group == (MAX_DISP / PARALLEL) - 1 && x_now == width - 1 && !rst;
+    last_in <= q_valid && q_group == G - 1 && q_x == width - 1 && !rst;
 end
 
 always @(posedge clk) begin
@@ -497,7 +526,7 @@ always @(posedge clk) begin
     if (rst) begin
         fl_left <= 11'd0;
     end else if (last_in) begin
-        for (k3 = 0; k3 < MAX_DISP; k3 = k3 + 1) fl_d[k3] <= dd[k3];
+        for (k3 = 0; k3 < MAX_DISP; k3 = k3 + 1) fl_d[k3] <= cw[k3 / PARALLEL][(k3 % PARALLEL)*CW +: 7];
         fl_left <= (x_now + 1 < MAX_DISP) ? x_now + 11'd1 : MAX_DISP;
         fl_x0 <= x_now;
         fl_base <= base_now;
