@@ -5,19 +5,17 @@
 /*
  * sc_cost: the matching costs (STEREO_CORE.md step 2), PARALLEL lanes a clock.
  *
- * A shift register holds the right census words of the last MAX_DISP pixels:
- * element k is `cr` of k slots ago (element 0 is `cr` itself), shifted at the
- * end of each slot's phase 3, when sc_census loads the next pixel's words.
- * So during a slot, with `cl` and `cr` those of pixel x (x: `x`, held for the
- * slot), element k is censusR(x - k). In phase g lane j takes element
- * d = PARALLEL * g + j: cost = popcount(cl ^ element d), or 62 when x < d,
- * in two pipeline stages (full adders and 6:3 counters, then their sum),
- * after the element itself is picked a run clock ahead.
+ * With `cl` and `cr` the census words of the slot's pixel x (`x`, held for the
+ * slot; sc_census loads the next pixel's at the end of phase 3), lane j in
+ * phase g computes the cost of d = PARALLEL * g + j: popcount(cl ^
+ * censusR(x - d)), or 62 when x < d, in two pipeline stages (full adders and
+ * 6:3 counters, then their sum). The right words reach the lanes through a
+ * delay line (below): lane j reads it at a fixed stage.
  *
  * Latency: group g of the slot's pixel is in `cost` (lane j at [6*j +: 6])
  * during the run clock 2 after its phase g, i.e. phase g + 2 (the next slot's
  * phase g - 2 for g >= 2). Throughput: one group of PARALLEL costs per run
- * clock. Every register is enabled by `run`. No reset (data only).
+ * clock. Every register is enabled by `run`. Reset: the delay line only (see there).
  * Parameters are checked at elaboration: MAX_DISP = 4 * PARALLEL, PARALLEL >= 1.
  */
 module sc_cost #
@@ -27,6 +25,7 @@ module sc_cost #
 )
 (
     input  wire                    clk,
+    input  wire                    rst,
     input  wire                    run,
     input  wire [1:0]              phase,
     input  wire [10:0]             x,
@@ -49,15 +48,35 @@ generate
     // verilator lint_on GENUNNAMED
 endgenerate
 
-// right census words of the last MAX_DISP pixels: element k at [NB*k +: NB]; element 0 is cr
-reg [NB*(MAX_DISP-1)-1:0] sr;
-wire [NB*MAX_DISP-1:0] elems = {sr, cr};
-
+// The right census words reach the lanes through a delay line instead of a multiplexer per lane.
+// A stream gives, at run clock g of the slot of pixel x, the word of pixel x - PARALLEL g:
+// cr itself at phase 0, else a tap of a shift register of the last 3 PARALLEL pixels' words
+// (shifted once a slot, at the end of phase 3, when sc_census loads the next pixel's). The line
+// delays the stream by one run clock a stage, and lane j reads stage 4 j: the stream of the slot
+// j pixels back, so at phase g it holds the word of pixel x - j - PARALLEL g, its disparity's.
+// (Four 62-bit words a lane to choose from, in a multiplexer, were 2k LUT; the line is flip-flops.
+// Its stages have a reset so that no tool folds the untapped ones into shift-register LUTs.)
+localparam HIST = 3 * PARALLEL;
+reg [NB*HIST-1:0] hist;  // element k at [NB*k +: NB]: cr of pixel x - 1 - k
 always @(posedge clk) begin
     if (run && phase == 2'd3) begin
-        sr <= elems[NB*(MAX_DISP-1)-1:0];
+        hist <= {hist[NB*(HIST-1)-1:0], cr};
     end
 end
+wire [NB-1:0] stream = phase == 2'd0 ? cr
+                     : phase == 2'd1 ? hist[NB*(PARALLEL-1) +: NB]
+                     : phase == 2'd2 ? hist[NB*(2*PARALLEL-1) +: NB]
+                     : hist[NB*(3*PARALLEL-1) +: NB];
+localparam LINE = 4 * (PARALLEL - 1);  // stages 1 .. LINE; stage 0 is the stream itself
+reg [NB*LINE-1:0] line;  // stage i at [NB*(i-1) +: NB]
+always @(posedge clk) begin
+    if (rst) begin
+        line <= {NB*LINE{1'b0}};
+    end else if (run) begin
+        line <= {line[NB*(LINE-1)-1:0], stream};
+    end
+end
+wire [NB*(LINE+1)-1:0] stages = {line, stream};
 
 // the lanes' disparities this run clock are PARALLEL * phase + j: x < PARALLEL * phase + j
 // iff xs = x - PARALLEL * phase < j (one subtraction for all lanes, then compares with constants)
@@ -77,21 +96,9 @@ generate
     for (j = 0; j < PARALLEL; j = j + 1) begin : g_lane
         localparam [31:0] LANE32 = j;
         localparam [12:0] LANE = LANE32[12:0];
-        // stage 0, a clock ahead: the element of the next phase's group (phase 3: the next slot's
-        // group 0, element j - 1 before the shift; lane 0 takes cr itself at phase 0), registered
-        // apart from the XOR so that neither makes the other's LUTs wider
-        reg [NB-1:0] word_reg;
-        always @(posedge clk) begin
-            if (run) begin
-                word_reg <= phase == 2'd0 ? elems[NB*(PARALLEL + j) +: NB]
-                          : phase == 2'd1 ? elems[NB*(2*PARALLEL + j) +: NB]
-                          : phase == 2'd2 ? elems[NB*(3*PARALLEL + j) +: NB]
-                          : elems[NB*(j == 0 ? 0 : j - 1) +: NB];
-            end
-        end
         // stage 1: XOR, a full adder on each 3 bits (as logic, so the XORs merge into its LUTs),
         // then 6:3 counters on the sums (weight 1) and carries (weight 2)
-        wire [NB-1:0] word = (j == 0 && phase == 2'd0) ? cr : word_reg;
+        wire [NB-1:0] word = stages[NB*4*j +: NB];
         wire [NB:0] diff = {1'b0, cl ^ word};
         wire [NC-1:0] fa_s;
         wire [NC-1:0] fa_c;

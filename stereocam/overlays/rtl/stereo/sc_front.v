@@ -229,6 +229,7 @@ sc_cost #(
 )
 cost_inst (
     .clk(clk),
+    .rst(rst),
     .run(run),
     .phase(phase),
     .x(x1),
