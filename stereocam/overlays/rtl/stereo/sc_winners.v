@@ -83,6 +83,8 @@ localparam SW = `SC_SUM_W;
 localparam LW = $clog2(PARALLEL);      // lane index bits
 localparam G = MAX_DISP / PARALLEL;
 localparam [SW-1:0] BIG = {SW{1'b1}};
+localparam [31:0] PAR32 = PARALLEL;
+localparam [10:0] PAR11 = PAR32[10:0];
 
 generate
     if (G != 4) sc_winners_needs_MAX_DISP_equal_4_PARALLEL groups_not_4();
@@ -128,6 +130,9 @@ integer i5;
 integer i7;
 integer i8;
 integer i9;
+// A group takes part iff its first disparity is below num_disp (a multiple of PARALLEL: sc_regs
+// refuses any other), so one test a group serves all its lanes.
+wire s_group_ok = {9'd0, s_group} * PAR11 < {3'd0, num_disp};
 always @(posedge clk) begin
     a0_valid <= s_valid && !rst;
     a0_group <= s_group;
@@ -136,7 +141,7 @@ always @(posedge clk) begin
     a0_buf <= wbuf;
     for (i2 = 0; i2 < PARALLEL; i2 = i2 + 1) begin
         a0_lanes[i2*(SW+LW) +: SW+LW] <=
-            {((s_group * PARALLEL + i2) < num_disp) ? s_sum[i2*SW +: SW] : BIG, i2[LW-1:0]};
+            {s_group_ok ? s_sum[i2*SW +: SW] : BIG, i2[LW-1:0]};
     end
 end
 
@@ -206,12 +211,12 @@ reg [6:0]             p_a_at, p_b_at;  // d1 - 1, d1 + 1: the group above LW bit
 reg [10:0]            p_x, p_y;
 reg                   p_buf;
 wire [PARALLEL*SW-1:0] p_row = p_buf ? buf1[p_step[1:0]] : buf0[p_step[1:0]];
+wire                  p_group_ok = {9'd0, p_step[1:0]} * PAR11 < {3'd0, num_disp};
 
 reg                   b0_valid = 1'b0, b0_last = 1'b0;
 reg [PARALLEL*SW-1:0] b0_lanes;          // masked
 reg [SW-1:0]          b0_a, b0_b;        // S(d1 - 1), S(d1 + 1) when in this group
 reg                   b0_has_a, b0_has_b;
-integer d;
 always @(posedge clk) begin
     b0_valid <= 1'b0;
     b0_last <= 1'b0;
@@ -220,10 +225,15 @@ always @(posedge clk) begin
         b0_last <= p_step == 3'd3;
         b0_has_a <= 1'b0;
         b0_has_b <= 1'b0;
+        // the lanes of d1 - 1, d1 and d1 + 1 in this group are left out, and a group at or above
+        // num_disp whole (lane tests for equality: comparing each lane's d with d1 +- 1 was two
+        // magnitude comparators a lane)
         for (i7 = 0; i7 < PARALLEL; i7 = i7 + 1) begin
-            d = p_step[1:0] * PARALLEL + i7;
-            b0_lanes[i7*SW +: SW] <= (d < num_disp && (d + 1 < p_d1 || d > p_d1 + 1)) ? p_row[i7*SW +: SW]
-                                                                                      : BIG;
+            b0_lanes[i7*SW +: SW] <= (p_group_ok
+                                      && !(p_step[1:0] == p_d1[LW+1:LW] && i7 == p_d1[LW-1:0])
+                                      && !(p_a_ok && p_step[1:0] == p_a_at[LW+1:LW] && i7 == p_a_at[LW-1:0])
+                                      && !(p_b_ok && p_step[1:0] == p_b_at[LW+1:LW] && i7 == p_b_at[LW-1:0]))
+                                     ? p_row[i7*SW +: SW] : BIG;
         end
         // S(d1 - 1) and S(d1 + 1): one lane each, chosen by registers (a search over the lanes
         // here made a chain of multiplexers, the core's second longest path)
@@ -453,6 +463,8 @@ reg                   q_row_start;      // the pixel is a row's first: its cells
 reg [PARALLEL-1:0]    q_lane_ok;        // lane j's cell takes part: k <= x and k < num_disp
 reg [10:0]            q_x, q_y;
 integer k1;
+// lane j's d = PARALLEL g + j is at most x iff j <= x - PARALLEL g: one subtraction for all lanes
+wire signed [12:0] s_xs = $signed({2'b00, s_x}) - $signed({2'b00, {9'd0, s_group} * PAR11});
 always @(posedge clk) begin
     q_valid <= s_valid && !rst;
     q_group <= s_group;
@@ -461,7 +473,7 @@ always @(posedge clk) begin
     q_x <= s_x;
     q_y <= s_y;
     for (k1 = 0; k1 < PARALLEL; k1 = k1 + 1)
-        q_lane_ok[k1] <= (s_group * PARALLEL + k1) <= s_x && (s_group * PARALLEL + k1) < num_disp;
+        q_lane_ok[k1] <= s_group_ok && s_xs >= k1;
 end
 
 reg [PARALLEL*CW-1:0] upd;
