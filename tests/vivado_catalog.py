@@ -14,13 +14,12 @@ Sources (the product guide and the table or section each figure comes from):
 * PG082 Processing System 7 v5.5, ch. 4 (the ``PCW_*`` parameters of the Zynq-7000 configuration
   wizard: only those these scripts may set are listed; any other is an error until it is added here
   with its source) and ch. 2 "Port Descriptions" (FCLK_CLK0, FCLK_RESET0_N, IRQ_F2P, M_AXI_GP0,
-  S_AXI_HP0, IIC_0 over EMIO);
-* PG247 SmartConnect v1.0, "Design Parameters" table "AXI SmartConnect Core Global Parameters"
-  (NUM_SI, NUM_MI 1..16, NUM_CLKS 1..33, HAS_ARESETN) and "Global Port Signals" (aclk, aclk1..,
-  aresetn);
+  S_AXI_HP0..S_AXI_HP3 with their S_AXI_HPn_ACLK and the HPn_DDR_LOWOCM segment, IIC_0 over EMIO);
+  PCW_S_AXI_HPn_DATA_WIDTH is 32 or 64 (the HP ports' AXI3 data width);
 * PG164 Processor System Reset v5.0, ch. 4 "User Parameters" and ch. 2 "Port Descriptions";
 * PG059 AXI Interconnect v2.1, "AXI Interconnect Core Parameters" (NUM_SI 1..16, NUM_MI 1..64) and
-  its port naming (Snn_AXI, Mnn_AXI, ACLK/ARESETN and one ACLK/ARESETN per slot);
+  its port naming (Snn_AXI, Mnn_AXI, ACLK/ARESETN and one ACLK/ARESETN per slot); NUM_SI 1 with
+  NUM_MI 1 is its conversion-only use (no crossbar), as in PYNQ's board designs;
 * Concat v2.1 (xlconcat, documented in Vivado's IP catalog only): NUM_PORTS, In<i>, dout.
 
 Where a range here is narrower than the guide's (xlconcat's NUM_PORTS, the broadcaster's TUSER), it
@@ -38,7 +37,6 @@ RELEASES: Dict[str, Dict[str, str]] = {
         "xilinx.com:ip:processing_system7": "5.5",
         "xilinx.com:ip:proc_sys_reset": "5.0",
         "xilinx.com:ip:axi_interconnect": "2.1",
-        "xilinx.com:ip:smartconnect": "1.0",
         "xilinx.com:ip:axi_vdma": "6.3",
         "xilinx.com:ip:axis_switch": "1.1",
         "xilinx.com:ip:axis_broadcaster": "1.1",
@@ -279,7 +277,7 @@ _PS7_PARAMS: Dict[str, Param] = {
     "PCW_USE_M_AXI_GP0": OneOf(1, 0, 1), "PCW_USE_M_AXI_GP1": BOOL,
     "PCW_USE_S_AXI_HP0": BOOL, "PCW_USE_S_AXI_HP1": BOOL, "PCW_USE_S_AXI_HP2": BOOL,
     "PCW_USE_S_AXI_HP3": BOOL,
-    "PCW_S_AXI_HP0_DATA_WIDTH": OneOf(64, 32, 64),
+    **{f"PCW_S_AXI_HP{i}_DATA_WIDTH": OneOf(64, 32, 64) for i in range(4)},
     "PCW_EN_CLK0_PORT": OneOf(1, 0, 1), "PCW_EN_CLK1_PORT": BOOL,
     "PCW_EN_RST0_PORT": OneOf(1, 0, 1), "PCW_EN_RST1_PORT": BOOL,
     "PCW_FPGA_FCLK0_ENABLE": OneOf(1, 0, 1), "PCW_FPGA_FCLK1_ENABLE": BOOL,
@@ -334,20 +332,7 @@ PS7 = CatalogIP(
     outputs=frozenset({"FCLK_CLK0", "FCLK_CLK1", "FCLK_RESET0_N", "FCLK_RESET1_N"}),
 )
 
-# ---- PG247 SmartConnect, PG059 AXI Interconnect -----------------------------------------------------
-
-SMARTCONNECT = CatalogIP(
-    doc="PG247 (SmartConnect v1.0)",
-    params={"NUM_SI": Int(2, 1, 16), "NUM_MI": Int(1, 1, 16), "NUM_CLKS": Int(1, 1, 33),
-            "HAS_ARESETN": OneOf(1, 0, 1), "ADVANCED_PROPERTIES": Text()},
-    interfaces=lambda c: ([f"S{i:02d}_AXI" for i in range(_n(c, "NUM_SI"))]
-                          + [f"M{i:02d}_AXI" for i in range(_n(c, "NUM_MI"))]),
-    pins=lambda c: (["aclk"] + [f"aclk{i}" for i in range(1, _n(c, "NUM_CLKS"))]
-                    + (["aresetn"] if _on(c, "HAS_ARESETN") else [])),
-    intf_types=lambda c: {**{f"S{i:02d}_AXI": (AXIMM, "SLAVE") for i in range(_n(c, "NUM_SI"))},
-                          **{f"M{i:02d}_AXI": (AXIMM, "MASTER") for i in range(_n(c, "NUM_MI"))}},
-    iptype="BUS",
-)
+# ---- PG059 AXI Interconnect ---------------------------------------------------------------------------
 
 
 def _slots(c: Config) -> List[str]:
@@ -393,7 +378,6 @@ CATALOG: Dict[str, CatalogIP] = {
     "xilinx.com:ip:processing_system7": PS7,
     "xilinx.com:ip:proc_sys_reset": RESET,
     "xilinx.com:ip:axi_interconnect": INTERCONNECT,
-    "xilinx.com:ip:smartconnect": SMARTCONNECT,
     "xilinx.com:ip:axi_vdma": VDMA,
     "xilinx.com:ip:axis_switch": SWITCH,
     "xilinx.com:ip:axis_broadcaster": BROADCASTER,

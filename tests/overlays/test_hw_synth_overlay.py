@@ -100,15 +100,17 @@ def test_without_the_camera_path_and_gates_the_total_drops(cells: List[BdCell], 
     assert full["BRAM36"] - cut["BRAM36"] >= 3.5 + 2 * 2
 
 
-def test_every_ip_row_cites_its_product_guide(parts: List[Part]) -> None:
+def test_every_ip_row_cites_its_product_guide(parts: List[Part], cells: List[BdCell]) -> None:
     guides = {"axi_vdma": "PG020", "axis_switch": "PG085", "axis_broadcaster": "PG085",
-              "smartconnect": "PG247", "axi_interconnect": "PG059", "proc_sys_reset": "PG164",
-              "processing_system7": "PG082"}
+              "axi_interconnect": "PG059", "proc_sys_reset": "PG164", "processing_system7": "PG082"}
+    by_name = {c.name: c for c in cells}
     estimates = [p for p in parts if p.kind == "estimate"]
-    assert len(estimates) == 9
+    assert len(estimates) == 11
     for p in estimates:
         ip = p.name.split()[0]
-        est = ip_estimates.ESTIMATES[ip]
+        (cell,) = (by_name[name] for name in p.cells)
+        est = ip_estimates.rule(cell.vlnv, cell.config)
+        assert est.ip == ip
         assert "(estimate)" in p.name and p.to_dict()["estimate"] is True
         assert p.source.startswith(est.citation) and est.table and est.basis
         if ip in guides:
@@ -131,6 +133,39 @@ def test_an_ip_without_an_estimate_is_refused_by_name(cells: List[BdCell]) -> No
     with pytest.raises(hw_synth.HwSynthError, match=r"cell fifo0 \(xilinx.com:ip:axis_data_fifo:2.0\) has no "
                                                     r"resource estimate"):
         parts_of([*cells, odd])
+
+
+@pytest.mark.parametrize("build", ["gray", "colour", "depth"])
+def test_each_interconnect_is_estimated_by_its_own_use(build: str) -> None:
+    """GP0's register interconnect by its crossbar and AXI4-Lite converter, per MI; each HP port's 1:1
+    interconnect as one AXI4 -> AXI3 protocol converter and nothing else."""
+    design = hw_synth.block_design_cells(build=build)
+    hubs = [c for c in design if c.ip == "axi_interconnect"]
+    memory = [c for c in hubs if (c.config["NUM_SI"], c.config["NUM_MI"]) == ("1", "1")]
+    (registers,) = [c for c in hubs if c not in memory]
+    channels = sum(c.config.get(f"c_include_{ch}") == "1" for c in design if c.ip == "axi_vdma"
+                   for ch in ("mm2s", "s2mm"))
+    assert len(memory) == channels == (4 if build == "depth" else 3), "one per VDMA channel"
+    for cell in memory:
+        est, fig = ip_estimates.estimate(cell.vlnv, cell.config)
+        assert fig == ip_estimates.AXI3_CONVERTER
+        assert est.table == "AXI Protocol Converter Resource Utilization" and not est.read_from_table
+        assert "conversion only" in est.basis and "high side" in est.basis
+    est, fig = ip_estimates.estimate(registers.vlnv, registers.config)
+    mi = int(registers.config["NUM_MI"])
+    assert mi > 1 and "AXI Crossbar" in est.table
+    assert (fig.lut, fig.ff) == (300 + 100 * mi, 400 + 100 * mi)
+
+
+def test_an_interconnect_configuration_without_a_rule_is_refused(cells: List[BdCell]) -> None:
+    """A crossbar of several masters is neither use the table covers: refused, not estimated as one."""
+    shared = BdCell("axi_mem", "xilinx.com:ip:axi_interconnect:2.1", {"NUM_SI": "3", "NUM_MI": "1"})
+    with pytest.raises(KeyError):
+        ip_estimates.estimate(shared.vlnv, shared.config)
+    with pytest.raises(hw_synth.HwSynthError, match=r"cell axi_mem \(xilinx.com:ip:axi_interconnect:2.1\) "
+                                                    r"has no resource estimate .* for its configuration "
+                                                    r"\(NUM_SI 3, NUM_MI 1\)"):
+        parts_of([*cells, shared])
 
 
 def test_text_table_has_a_row_per_part_and_the_total(parts: List[Part]) -> None:
@@ -183,7 +218,8 @@ def test_the_depth_build_adds_the_stereo_core_and_its_vdma(cells: List[BdCell]) 
                                          "PARALLEL": 32}
     depth_cells = hw_synth.block_design_cells(build="depth")
     by_cell = {c.name: c for c in depth_cells}
-    assert set(by_cell) - {c.name for c in cells} == {"stereo", "vdma_depth", "rectified_split"}
+    assert set(by_cell) - {c.name for c in cells} == {"stereo", "vdma_depth", "rectified_split",
+                                                     "axi_mem_depth"}
     assert by_cell["rectify"].config["COLOUR"] == "0", "the depth build's block design has the gray core"
     assert by_cell["axi_ctrl"].config["NUM_MI"] == "6" and by_cell["irq_concat"].config["NUM_PORTS"] == "4"
     small = dataclasses.replace(depth, stereo=hw_synth.StereoBuild("small", 64, 64, 32, 8))
@@ -197,6 +233,9 @@ def test_the_depth_build_adds_the_stereo_core_and_its_vdma(cells: List[BdCell]) 
     assert vdma.kind == "estimate" and "PG020" in vdma.source
     (split,) = [p for p in parts if p.cells == ("rectified_split",)]
     assert split.kind == "estimate" and "PG085" in split.source
+    (memory,) = [p for p in parts if p.cells == ("axi_mem_depth",)]
+    assert memory.kind == "estimate" and "AXI Protocol Converter" in memory.source
+    assert (memory.lut, memory.ff) == (ip_estimates.AXI3_CONVERTER.lut, ip_estimates.AXI3_CONVERTER.ff)
     with pytest.raises(hw_synth.HwSynthError, match="no stereo core"):
         hw_synth.overlay_parts(small, fake_core(), cells=cells)
     totals = hw_synth.overlay_totals(parts)

@@ -51,7 +51,8 @@ SCRIPTS = ("settings.tcl", "package_ip.tcl", "block_design.tcl", "build.tcl")
 PS7 = "processing_system7_0"
 PS7_DATA = f"{PS7}/Data"  # the PS7's address space: GP0's register windows
 GP0_RANGE = (0x4000_0000, 0x8000_0000)  # Zynq-7000 M_AXI_GP0 (UG585, "System Address Map")
-HP0_DDR = f"{PS7}/S_AXI_HP0/HP0_DDR_LOWOCM"
+HP_PORT = re.compile(rf"{PS7}/S_AXI_HP(\d)")  # the PS7's four AXI3 high-performance ports (UG585)
+INTERCONNECT = "xilinx.com:ip:axi_interconnect:"
 CHANNELS = {  # VDMA channel -> (include parameter, stream interface, memory interface, address space)
     "S2MM": ("c_include_s2mm", "S_AXIS_S2MM", "M_AXI_S2MM", "Data_S2MM"),
     "MM2S": ("c_include_mm2s", "M_AXIS_MM2S", "M_AXI_MM2S", "Data_MM2S"),
@@ -315,6 +316,40 @@ def vdma_channels(bd: BlockDesign, name: str) -> List[str]:
     return [ch for ch, (include, *_) in CHANNELS.items() if bd.config[name].get(include) == "1"]
 
 
+def vdmas(bd: BlockDesign) -> List[str]:
+    """The design's VDMA cells."""
+    return [name for name, vlnv in bd.cells.items() if vlnv in overlay.VDMA_VLNVS]
+
+
+def hp_port(bd: BlockDesign, master: str) -> Tuple[str, int]:
+    """(interconnect, n): a VDMA master reaches S_AXI_HP<n> through one AXI interconnect of one SI and
+    one MI (PG059's conversion-only use: the AXI4 -> AXI3 protocol converter the HP port needs)."""
+    (slave,) = bd.connected(master)
+    hub, slot = slave.split("/")
+    assert bd.cells[hub].startswith(INTERCONNECT) and slot == "S00_AXI", slave
+    assert (bd.config[hub]["NUM_SI"], bd.config[hub]["NUM_MI"]) == ("1", "1"), hub
+    (port,) = bd.connected(f"{hub}/M00_AXI")
+    match = HP_PORT.fullmatch(port)
+    assert match is not None, f"{hub}/M00_AXI -> {port}"
+    return hub, int(match.group(1))
+
+
+def hp_ddr(n: int) -> str:
+    """The DDR segment the PS7 gives S_AXI_HP<n> (PG082)."""
+    return f"{PS7}/S_AXI_HP{n}/HP{n}_DDR_LOWOCM"
+
+
+def memory_ports(bd: BlockDesign) -> Dict[Tuple[str, str], Tuple[str, int]]:
+    """(VDMA, channel) -> (interconnect, HP port n), for every VDMA channel of the design."""
+    return {(name, ch): hp_port(bd, f"{name}/{CHANNELS[ch][2]}") for name in vdmas(bd)
+            for ch in vdma_channels(bd, name)}
+
+
+def hp_enabled(bd: BlockDesign) -> List[int]:
+    """The HP ports the PS7 is configured with."""
+    return [n for n in range(4) if bd.config[PS7].get(f"PCW_USE_S_AXI_HP{n}") == "1"]
+
+
 # ---- identities ---------------------------------------------------------------------------------------
 
 def test_every_instance_the_drivers_bind_is_in_the_design_with_an_accepted_vlnv(bd: BlockDesign) -> None:
@@ -468,7 +503,7 @@ def test_the_packaged_rtl_is_every_file_of_the_core() -> None:
 # ---- VDMAs, mux, broadcaster ------------------------------------------------------------------------------
 
 def test_vdma_frame_stores_stream_widths_and_start_of_frame(bd: BlockDesign) -> None:
-    hp_width = bd.config[PS7]["PCW_S_AXI_HP0_DATA_WIDTH"]
+    ports = memory_ports(bd)
     for name in ("vdma_raw", "vdma_proc"):
         cfg = bd.config[name]
         assert int(cfg["c_num_fstores"]) == overlay.NUM_FSTORES
@@ -476,7 +511,9 @@ def test_vdma_frame_stores_stream_widths_and_start_of_frame(bd: BlockDesign) -> 
         assert cfg["c_include_sg"] == "0", "the drivers use register direct mode"
         for ch in vdma_channels(bd, name):
             low = ch.lower()
+            _, n = ports[name, ch]
             assert int(cfg[STREAM_WIDTH[ch]]) == pixel.BYTES_PER_PIXEL * 8, (name, ch)
+            hp_width = bd.config[PS7][f"PCW_S_AXI_HP{n}_DATA_WIDTH"]
             assert cfg[f"c_m_axi_{low}_data_width"] == hp_width, (name, ch)
             assert cfg[f"c_{low}_sof_enable"] == "1", (name, ch)
         if "S2MM" in vdma_channels(bd, name):
@@ -564,22 +601,53 @@ def test_nothing_downstream_can_hold_the_broadcaster(bd: BlockDesign) -> None:
 
 # ---- memory, interrupts, clocks, resets ------------------------------------------------------------------
 
-def test_every_vdma_channel_reaches_ddr_through_hp0(bd: BlockDesign) -> None:
-    masters = []
-    for name in ("vdma_raw", "vdma_proc"):
-        for ch in vdma_channels(bd, name):
-            _, _, memory, space = CHANNELS[ch]
-            (port,) = bd.connected(f"{name}/{memory}")
-            masters.append(port)
-            address = bd.address(f"{name}/{space}", HP0_DDR)
-            assert address.offset == 0 and address.range & (address.range - 1) == 0
-    hub = {port.split("/")[0] for port in masters}
-    assert len(hub) == 1
-    (mem,) = hub
-    assert int(bd.config[mem]["NUM_SI"]) == len(masters)
-    assert sorted(masters) == [f"{mem}/S{i:02d}_AXI" for i in range(len(masters))]
-    assert bd.connected(f"{mem}/M00_AXI") == {f"{PS7}/S_AXI_HP0"}
-    assert bd.config[PS7]["PCW_USE_S_AXI_HP0"] == "1"
+@pytest.mark.parametrize("build", ["colour", "depth"])
+def test_every_vdma_channel_reaches_ddr_through_its_own_hp_port(build: str, bd: BlockDesign,
+                                                                depth_bd: BlockDesign) -> None:
+    """Each VDMA master on an HP port of its own, through a 1:1 interconnect of its own (no arbitration
+    between channels in the fabric), the port enabled 64 bits wide, its DDR segment the only one the
+    channel's address space sees, at 0; the ports from HP0 up, none enabled and left unused."""
+    design = depth_bd if build == "depth" else bd
+    ports = memory_ports(design)
+    hubs = [hub for hub, _ in ports.values()]
+    numbers = sorted(n for _, n in ports.values())
+    assert len(set(hubs)) == len(hubs), "one interconnect per channel"
+    assert numbers == list(range(len(ports))) == hp_enabled(design), "one HP port per channel, from HP0"
+    for (name, ch), (_, n) in ports.items():
+        assert design.config[PS7][f"PCW_S_AXI_HP{n}_DATA_WIDTH"] == "64", n
+        assert design.config[name][f"c_m_axi_{ch.lower()}_data_width"] == "64", (name, ch)
+        space = f"{name}/{CHANNELS[ch][3]}"
+        assert [a.segment for a in design.addresses if a.space == space] == [hp_ddr(n)], space
+        address = design.address(space, hp_ddr(n))
+        assert address.offset == 0 and address.range & (address.range - 1) == 0
+
+
+@pytest.mark.parametrize("build", ["colour", "depth"])
+def test_every_memory_interconnect_runs_on_the_fabric_clock_and_the_interconnect_resets(
+        build: str, bd: BlockDesign, depth_bd: BlockDesign) -> None:
+    """Clocked and reset as the register interconnect is: FCLK_CLK0 on ACLK and both slots and on the HP
+    port's ACLK; ARESETN on interconnect_aresetn, the slots' resets on peripheral_aresetn."""
+    design = depth_bd if build == "depth" else bd
+    (ctrl_in,) = design.connected(f"{PS7}/M_AXI_GP0")
+    ctrl = ctrl_in.split("/")[0]
+    clock = set(design.net_of(f"{PS7}/FCLK_CLK0"))
+    interconnect_reset = set(design.net_of(f"{ctrl}/ARESETN"))
+    peripheral_reset = set(design.net_of(f"{ctrl}/S00_ARESETN"))
+    assert "rst_ps7_0/interconnect_aresetn" in interconnect_reset
+    assert "rst_ps7_0/peripheral_aresetn" in peripheral_reset
+    for hub, n in memory_ports(design).values():
+        assert {f"{PS7}/S_AXI_HP{n}_ACLK", f"{hub}/ACLK", f"{hub}/S00_ACLK", f"{hub}/M00_ACLK"} <= clock, hub
+        assert f"{hub}/ARESETN" in interconnect_reset, hub
+        assert {f"{hub}/S00_ARESETN", f"{hub}/M00_ARESETN"} <= peripheral_reset, hub
+
+
+@pytest.mark.parametrize("build", ["colour", "depth"])
+def test_vdma_bursts_are_axi3_legal(build: str, bd: BlockDesign, depth_bd: BlockDesign) -> None:
+    """The HP ports are AXI3: bursts of at most 16 beats (the VDMA's default is 8), set explicitly, so
+    the interconnect's protocol converter passes every burst whole."""
+    design = depth_bd if build == "depth" else bd
+    for name, ch in memory_ports(design):
+        assert design.config[name][f"c_{ch.lower()}_max_burst_length"] == "16", (name, ch)
 
 
 def test_every_vdma_interrupt_reaches_irq_f2p_in_the_spec_order(bd: BlockDesign) -> None:
@@ -601,7 +669,8 @@ def test_every_vdma_interrupt_reaches_irq_f2p_in_the_spec_order(bd: BlockDesign)
 
 def test_one_clock_runs_every_interface(bd: BlockDesign, variables: Dict[str, str]) -> None:
     clock = bd.net_of(f"{PS7}/FCLK_CLK0")
-    expected = {f"{PS7}/M_AXI_GP0_ACLK", f"{PS7}/S_AXI_HP0_ACLK", "rectify/aclk",
+    assert hp_enabled(bd)
+    expected = {f"{PS7}/M_AXI_GP0_ACLK", *(f"{PS7}/S_AXI_HP{n}_ACLK" for n in hp_enabled(bd)), "rectify/aclk",
                 f"{camera_in.INSTANCE}/aclk", "mux/aclk", "mux/s_axi_ctrl_aclk",
                 *(f"{gate}/aclk" for gate in frame_gate.INSTANCES)}
     (split_in,) = bd.connected(f"{camera_in.INSTANCE}/m_axis")
@@ -1122,9 +1191,16 @@ def test_the_scripts_as_they_are_pass_the_stubbed_vivado(tmp_path: Path, rtl_cop
 
 
 @pytest.mark.parametrize("script, old, new, message", [
-    ("block_design.tcl", "xilinx.com:ip:smartconnect:1.0", "xilinx.com:ip:smartconnect:9.9",
-     "IP definition not found for VLNV xilinx.com:ip:smartconnect:9.9: Vivado 2022.1 has "
-     "xilinx.com:ip:smartconnect:1.0"),
+    ("block_design.tcl", "xilinx.com:ip:axi_interconnect:2.1 axi_mem_raw",
+     "xilinx.com:ip:axi_interconnect:9.9 axi_mem_raw",
+     "IP definition not found for VLNV xilinx.com:ip:axi_interconnect:9.9: Vivado 2022.1 has "
+     "xilinx.com:ip:axi_interconnect:2.1"),
+    ("block_design.tcl", "CONFIG.PCW_USE_S_AXI_HP1 {1}", "CONFIG.PCW_USE_S_AXI_HP1 {0}",
+     "get_bd_intf_pins: processing_system7_0 (xilinx.com:ip:processing_system7:5.5) has no interface "
+     "'S_AXI_HP1'"),
+    ("block_design.tcl", "CONFIG.PCW_S_AXI_HP2_DATA_WIDTH {64}", "CONFIG.PCW_S_AXI_HP2_DATA_WIDTH {128}",
+     "set_property CONFIG.PCW_S_AXI_HP2_DATA_WIDTH on processing_system7_0 "
+     "(xilinx.com:ip:processing_system7:5.5): '128' is not one of 32, 64"),
     ("block_design.tcl", "xilinx.com:ip:proc_sys_reset:5.0", "xilinx.com:ip:proc_sys_reset:0.1",
      "IP definition not found for VLNV xilinx.com:ip:proc_sys_reset:0.1"),
     ("block_design.tcl", "CONFIG.HAS_TKEEP {0}", "CONFIG.HAS_TKEEPZ {0}",
@@ -1200,7 +1276,8 @@ def test_the_depth_build_adds_the_optional_instances_and_nothing_else_changes_na
         assert depth_bd.cells.get(name) in accepted, f"{name}: {depth_bd.cells.get(name)}, not in {accepted}"
     assert depth_bd.cells[overlay.STEREO] == stereo.VLNV
     added = set(depth_bd.cells) - set(bd.cells)
-    assert added == set(overlay.OPTIONAL_INSTANCES) | {"rectified_split"}
+    depth_memory, _ = hp_port(depth_bd, f"{overlay.DEPTH_VDMA}/M_AXI_S2MM")
+    assert added == set(overlay.OPTIONAL_INSTANCES) | {"rectified_split", depth_memory}
     assert all(depth_bd.cells[name] == vlnv for name, vlnv in bd.cells.items())
     # the gray rectify core: the colour one's block RAM and the stereo core's do not fit together
     assert int(depth_bd.config["rectify"]["COLOUR"]) == int(rectify.BUILDS["gray"].colour) == 0
@@ -1258,14 +1335,15 @@ def test_depth_stream_graph_splits_the_rectified_stream_to_the_stereo_core(bd: B
     assert cfg["S_TUSER_WIDTH"] == cfg["M_TUSER_WIDTH"] == "1" and cfg["HAS_TLAST"] == "1"
 
 
-def test_vdma_depth_writes_the_stereo_cores_beats_to_ddr(depth_bd: BlockDesign) -> None:
+def test_vdma_depth_writes_the_stereo_cores_beats_to_ddr(bd: BlockDesign, depth_bd: BlockDesign) -> None:
     name = overlay.DEPTH_VDMA
     cfg = depth_bd.config[name]
     assert vdma_channels(depth_bd, name) == ["S2MM"], "vdma_depth only writes"
     assert int(cfg["c_num_fstores"]) == overlay.NUM_FSTORES and cfg["c_include_sg"] == "0"
     stream, memory = int(cfg["c_s_axis_s2mm_tdata_width"]), int(cfg["c_m_axi_s2mm_data_width"])
     assert stream == stereo.OUT_BEAT_BITS, "one stream beat per output beat of the core"
-    assert memory == int(depth_bd.config[PS7]["PCW_S_AXI_HP0_DATA_WIDTH"])
+    hub, n = hp_port(depth_bd, f"{name}/M_AXI_S2MM")
+    assert memory == int(depth_bd.config[PS7][f"PCW_S_AXI_HP{n}_DATA_WIDTH"])
     assert memory // stream == overlay.DEPTH_PIXELS_PER_BEAT, "the driver's width / 2 eight-byte pixels"
     assert (cfg["c_use_s2mm_fsync"], cfg["c_s2mm_sof_enable"]) == (USE_FSYNC_TUSER, "1")
     assert cfg["c_s_axis_s2mm_tdata_width.VALUE_SRC"] == "USER"
@@ -1274,10 +1352,11 @@ def test_vdma_depth_writes_the_stereo_cores_beats_to_ddr(depth_bd: BlockDesign) 
     assert depth_bd.config["vdma_proc"].get("c_s2mm_genlock_mode", "0") == "0"
     assert set(depth_bd.net_of(f"{name}/s2mm_frame_ptr_in")) == {
         f"{name}/s2mm_frame_ptr_in", "vdma_proc/s2mm_frame_ptr_out"}
-    (port,) = depth_bd.connected(f"{name}/M_AXI_S2MM")
-    hub = port.split("/")[0]
-    assert int(depth_bd.config[hub]["NUM_SI"]) == 4 and port == f"{hub}/S03_AXI"
-    assert depth_bd.address(f"{name}/Data_S2MM", HP0_DDR).offset == 0
+    # an HP port and interconnect of its own; the colour build's channels keep theirs
+    colour = memory_ports(bd)
+    assert {k: v for k, v in memory_ports(depth_bd).items() if k[0] != name} == colour
+    assert n not in {m for _, m in colour.values()} and hub not in {h for h, _ in colour.values()}
+    assert depth_bd.address(f"{name}/Data_S2MM", hp_ddr(n)).offset == 0
     fabric = EmulatedFabric(clock="stepped")
     try:  # the driver takes this build of the channel
         VDMA(fabric.blocks["vdma_raw"], fabric.ddr, num_fstores=int(cfg["c_num_fstores"]),

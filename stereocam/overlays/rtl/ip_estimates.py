@@ -5,9 +5,15 @@ product guide (and the section holding its resource table) it is taken from, and
 figure follows from the block design's configuration. They are marked as estimates in every
 output. Where the figure was not read digit for digit from the guide's table here (the guides
 now keep their tables on AMD's "Performance and Resource Utilization" pages, which could not be
-opened from this machine), ``read_from_table`` is False and the figure is an engineering
-estimate sized on the high side for the configuration; Vivado's ``report_utilization`` of a
-real build replaces them all.
+opened from this machine; for PG059's "AXI Protocol Converter Resource Utilization" the search
+index reached holds the page's title but not its figures), ``read_from_table`` is False and the
+figure is an engineering estimate sized on the high side for the configuration; Vivado's
+``report_utilization`` of a real build replaces them all.
+
+An IP used in more than one way has one rule per use, each with its own guide section, basis and
+figures, and the rule is chosen from the cell's configuration (:func:`estimate`): the AXI
+Interconnect is the GP0 register crossbar (one SI, several AXI4-Lite MI) and, on each HP port, a
+1:1 conversion-only interconnect. A configuration no rule covers is refused rather than guessed.
 
 Block RAM follows from the configuration by arithmetic and is exact up to Vivado's choice of
 primitive: a VDMA channel's line buffer is a FIFO of ``depth`` words of the stream width
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Dict, Mapping, Tuple
+from typing import Callable, Dict, Mapping, Sequence, Tuple
 
 #: A RAMB36E1 as a 512 x 72 FIFO (7 series): bits per block.
 RAMB36_BITS = 36 * 1024
@@ -43,6 +49,8 @@ class IpEstimate:
     basis: str  # how the figure follows from the configuration
     read_from_table: bool  # were the figures read from the table itself (else: an estimate)
     figures: Callable[[Mapping[str, str]], Figures]
+    #: the configurations this rule covers (an IP with several uses has a rule for each)
+    applies: Callable[[Mapping[str, str]], bool] = lambda _c: True
 
     @property
     def citation(self) -> str:
@@ -76,18 +84,43 @@ def _broadcaster(config: Mapping[str, str]) -> Figures:
     return Figures(5 * int(config.get("NUM_MI", "2")), 0, 0, 0)
 
 
+def _slots(config: Mapping[str, str]) -> Tuple[int, int]:
+    """NUM_SI, NUM_MI of an AXI Interconnect (PG059's defaults 1 and 2 when not set)."""
+    return int(config.get("NUM_SI", "1")), int(config.get("NUM_MI", "2"))
+
+
+def _register_interconnect(config: Mapping[str, str]) -> bool:
+    """GP0's register crossbar: the PS7 alone to several AXI4-Lite slaves."""
+    si, mi = _slots(config)
+    return si == 1 and mi > 1
+
+
+def _conversion_only(config: Mapping[str, str]) -> bool:
+    """One master to one slave: PG059 builds no crossbar, only the converters the two ends need."""
+    return _slots(config) == (1, 1)
+
+
 def _interconnect(config: Mapping[str, str]) -> Figures:
-    mi = int(config.get("NUM_MI", "1"))
+    _, mi = _slots(config)
     # crossbar (SASD, AXI4-Lite slaves) plus the AXI3 (GP0) to AXI4-Lite protocol converter
     return Figures(300 + 100 * mi, 400 + 100 * mi, 0, 0)
 
 
-def _smartconnect(config: Mapping[str, str]) -> Figures:
-    si = int(config.get("NUM_SI", "1"))
-    return Figures(1_000 + 1_000 * si, 1_500 + 1_200 * si, 0, 0)
+#: One AXI4 -> AXI3 protocol converter, 64-bit (PG059 "AXI4-to-AXI3 Converter": WID from AWID, bursts
+#: over 16 beats split, their responses merged), read and write sides, whichever the master uses:
+#: sized on the high side; the guide's figures for it were not read.
+AXI3_CONVERTER = Figures(300, 450, 0, 0)
 
 
-ESTIMATES: Dict[str, IpEstimate] = {e.ip: e for e in (
+def _by_ip(rules: Sequence[IpEstimate]) -> Dict[str, Tuple[IpEstimate, ...]]:
+    out: Dict[str, Tuple[IpEstimate, ...]] = {}
+    for e in rules:
+        out[e.ip] = (*out.get(e.ip, ()), e)
+    return out
+
+
+#: IP name -> its rules, in the order they are tried (:func:`rule`).
+ESTIMATES: Dict[str, Tuple[IpEstimate, ...]] = _by_ip((
     IpEstimate("processing_system7", "PG082 (Zynq-7000 Processing System v5.5)", "Resource Utilization",
                "hard block in the PS: no PL LUT, FF, block RAM or DSP", False,
                lambda _c: Figures(0, 0, 0, 0)),
@@ -95,9 +128,13 @@ ESTIMATES: Dict[str, IpEstimate] = {e.ip: e for e in (
                "one instance, synchronous reset outputs", False, lambda _c: Figures(20, 40, 0, 0)),
     IpEstimate("axi_interconnect", "PG059 (AXI Interconnect v2.1)",
                "AXI Crossbar Resource Utilization: SASD, AXI4-Lite Protocol; AXI Protocol Converter Resource "
-               "Utilization", "1 SI (GP0, AXI3 32-bit) to NUM_MI AXI4-Lite slaves", False, _interconnect),
-    IpEstimate("smartconnect", "PG247 (SmartConnect v1.0)", "Resource Utilization",
-               "NUM_SI AXI4 64-bit masters to 1 MI (HP0), default register slices", False, _smartconnect),
+               "Utilization", "1 SI (GP0, AXI3 32-bit) to NUM_MI AXI4-Lite slaves", False, _interconnect,
+               _register_interconnect),
+    IpEstimate("axi_interconnect", "PG059 (AXI Interconnect v2.1)",
+               "AXI Protocol Converter Resource Utilization",
+               "NUM_SI 1, NUM_MI 1: conversion only, no crossbar; one AXI4 (VDMA) to AXI3 (HP port) protocol "
+               "converter, 64-bit both sides, one clock; 300 LUT, 450 FF sized on the high side (the table's "
+               "figures could not be read here)", False, lambda _c: AXI3_CONVERTER, _conversion_only),
     IpEstimate("axi_vdma", "PG020 (AXI VDMA v6.3)",
                "Resource Utilization (Performance and Resource Utilization page)",
                "register direct mode, per included channel; line buffer depth x (stream width + 2) "
@@ -111,7 +148,7 @@ ESTIMATES: Dict[str, IpEstimate] = {e.ip: e for e in (
                "no register slice: TREADY/TVALID gating only", False, _broadcaster),
     IpEstimate("xlconcat", "xlconcat (Concat v2.1, IP catalog description)", "no resource table: wiring only",
                "concatenates nets into a bus: no logic", False, lambda _c: Figures(0, 0, 0, 0)),
-)}
+))
 
 
 def vlnv_name(vlnv: str) -> str:
@@ -120,7 +157,17 @@ def vlnv_name(vlnv: str) -> str:
     return parts[2] if len(parts) == 4 else vlnv
 
 
+def rule(vlnv: str, config: Mapping[str, str]) -> IpEstimate:
+    """The rule for one IP cell: the first of its IP's that covers ``config``; KeyError names an IP, or
+    a configuration of it, this table does not know."""
+    name = vlnv_name(vlnv)
+    for e in ESTIMATES.get(name, ()):
+        if e.applies(config):
+            return e
+    raise KeyError(name)
+
+
 def estimate(vlnv: str, config: Mapping[str, str]) -> Tuple[IpEstimate, Figures]:
-    """The estimate for one IP cell; KeyError names an IP this table does not know."""
-    e = ESTIMATES[vlnv_name(vlnv)]
+    """The estimate for one IP cell (:func:`rule`) and its figures for ``config``."""
+    e = rule(vlnv, config)
     return e, e.figures(config)

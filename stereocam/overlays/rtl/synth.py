@@ -658,6 +658,10 @@ def _rtl_part(name: str, cells: Sequence[str], result: SynthResult) -> Part:
                 f"yosys {SYNTH_COMMAND.format(top=result.top)} ({params})" + (f", x{n}" if n > 1 else ""))
 
 
+def _config_text(config: Mapping[str, str]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in config.items()) or "defaults"
+
+
 def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequence[BdCell]] = None,
                   camera_dir: Optional[Path] = None, timeout: float = DEFAULT_TIMEOUT_S,
                   use_cache: bool = True) -> List[Part]:
@@ -690,8 +694,8 @@ def overlay_parts(build: BuildParams, core: SynthResult, *, cells: Optional[Sequ
                 est, fig = ip_estimates.estimate(cell.vlnv, cell.config)
             except KeyError:
                 raise HwSynthError(f"block design cell {cell.name} ({cell.vlnv}) has no resource estimate in "
-                                   f"stereocam/overlays/rtl/ip_estimates.py: add one from its product "
-                                   f"guide") from None
+                                   f"stereocam/overlays/rtl/ip_estimates.py for its configuration "
+                                   f"({_config_text(cell.config)}): add one from its product guide") from None
             parts.append(Part(f"{cell.ip} (estimate)", (cell.name,), "estimate", fig.lut, fig.ff, fig.bram36,
                               fig.dsp, f"{est.citation}: {est.basis}"))
     for config, names in gates.items():
@@ -716,8 +720,9 @@ def synthesize_stereo(build: BuildParams, *, timeout: float = DEFAULT_TIMEOUT_S,
 
 def stereo_parts(build: BuildParams, cells: Sequence[BdCell], *, timeout: float = DEFAULT_TIMEOUT_S,
                  use_cache: bool = True) -> List[Part]:
-    """The depth build's stereo core, synthesised with the build's parameters (its VDMA, split and
-    the interconnects' extra ports are cells of the block design's depth build, estimated as the others)."""
+    """The depth build's stereo core, synthesised with the build's parameters (its VDMA, split, HP3
+    interconnect and the register interconnect's extra ports are cells of the block design's depth build,
+    estimated as the others)."""
     names = [c.name for c in cells if c.ip == STEREO_VLNV_NAME]
     if not names:
         raise HwSynthError("the block design's cells have no stereo core: read them for the depth build "

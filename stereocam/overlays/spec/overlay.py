@@ -63,7 +63,7 @@ OPTIONAL_ADDRESS_MAP: Dict[str, int] = {
 }
 DEPTH_PIXELS_PER_BEAT = 2  # 32-bit output beats per 64-bit stream beat of vdma_depth
 
-#: The one fabric clock (the PS7's FCLK_CLK0): AXI4-Lite registers, every stream, the HP port.
+#: The one fabric clock (the PS7's FCLK_CLK0): AXI4-Lite registers, every stream, the HP ports.
 #: stereocam/overlays/vivado/settings.tcl sets it in MHz (STEREOCAM_FCLK0_MHZ); a test checks they agree.
 FABRIC_CLOCK_HZ = 100_000_000
 

@@ -2,14 +2,18 @@
 #
 #  cam0/cam1 pins -> camera_in -> camera_split -+-> gate_raw  -> vdma_raw S2MM ----------------> HP0 (DDR)
 #                                               +-> gate_live -> mux S00 -+
-#  DDR (HP0) -> vdma_proc MM2S ---------------------------------> mux S01 -+-> mux M00 -> rectify
-#                                                                                 -> vdma_proc S2MM -> HP0
+#  DDR (HP1) -> vdma_proc MM2S ---------------------------------> mux S01 -+-> mux M00 -> rectify
+#                                                                                 -> vdma_proc S2MM -> HP2
 #
 # The depth build ($STEREOCAM_BUILD depth, build.tcl -build depth) adds the stereo core on the rectified
 # stream (stereocam/overlays/spec/overlay.py: OPTIONAL_INSTANCES, STEREO_CORE.md):
 #
-#  rectify -> rectified_split -+-> vdma_proc S2MM -> HP0
-#                              +-> stereo -> vdma_depth S2MM -> HP0
+#  rectify -> rectified_split -+-> vdma_proc S2MM -> HP2
+#                              +-> stereo -> vdma_depth S2MM -> HP3
+#
+# Each VDMA master has an HP port of its own, through a 1:1 AXI interconnect (the usual Zynq
+# arrangement, as in PYNQ's board designs): no arbitration between the channels in the fabric, and
+# the interconnect is only the AXI4 -> AXI3 protocol converter the HP ports need (PG059).
 #
 # Sourced by build.tcl into an open project whose IP catalogue holds the packaged cores (package_ip.tcl).
 # Written in the style of Vivado's write_bd_tcl (PYNQ's boards/*/base/base.tcl): one cell per
@@ -30,8 +34,8 @@ if {[lsearch -exact $STEREOCAM_BUILDS $STEREOCAM_BUILD] < 0} {
 
 create_bd_design $STEREOCAM_BD_NAME
 
-# ---- Zynq PS7: M_AXI_GP0 for the registers, S_AXI_HP0 for the frames, FCLK_CLK0, IRQ_F2P, and I2C0
-# through EMIO to the sensors' two-wire interface ----------------------------------------------------------
+# ---- Zynq PS7: M_AXI_GP0 for the registers, S_AXI_HP0..HP2 (HP3 in the depth build) for the frames,
+# FCLK_CLK0, IRQ_F2P, and I2C0 through EMIO to the sensors' two-wire interface ------------------------------
 
 create_bd_cell -type ip -vlnv xilinx.com:ip:processing_system7:5.5 processing_system7_0
 if {$STEREOCAM_BOARD_PART ne ""} {
@@ -47,6 +51,10 @@ set_property -dict [list \
     CONFIG.PCW_USE_M_AXI_GP0 {1} \
     CONFIG.PCW_USE_S_AXI_HP0 {1} \
     CONFIG.PCW_S_AXI_HP0_DATA_WIDTH {64} \
+    CONFIG.PCW_USE_S_AXI_HP1 {1} \
+    CONFIG.PCW_S_AXI_HP1_DATA_WIDTH {64} \
+    CONFIG.PCW_USE_S_AXI_HP2 {1} \
+    CONFIG.PCW_S_AXI_HP2_DATA_WIDTH {64} \
     CONFIG.PCW_EN_CLK0_PORT {1} \
     CONFIG.PCW_EN_RST0_PORT {1} \
     CONFIG.PCW_FPGA_FCLK0_ENABLE {1} \
@@ -56,10 +64,17 @@ set_property -dict [list \
     CONFIG.PCW_I2C0_PERIPHERAL_ENABLE {1} \
     CONFIG.PCW_I2C0_I2C0_IO {EMIO} \
 ] [get_bd_cells processing_system7_0]
+# The depth build: HP3 for vdma_depth S2MM.
+if {$STEREOCAM_BUILD eq "depth"} {
+    set_property -dict [list \
+        CONFIG.PCW_USE_S_AXI_HP3 {1} \
+        CONFIG.PCW_S_AXI_HP3_DATA_WIDTH {64} \
+    ] [get_bd_cells processing_system7_0]
+}
 
 create_bd_cell -type ip -vlnv xilinx.com:ip:proc_sys_reset:5.0 rst_ps7_0
 
-# ---- AXI: registers through an interconnect on GP0, frames through a SmartConnect to HP0 --------------
+# ---- AXI: registers through an interconnect on GP0, frames through one 1:1 interconnect per HP port ---
 
 # M00 vdma_raw, M01 vdma_proc, M02 rectify, M03 mux
 create_bd_cell -type ip -vlnv xilinx.com:ip:axi_interconnect:2.1 axi_ctrl
@@ -68,21 +83,41 @@ set_property -dict [list \
     CONFIG.NUM_MI {4} \
 ] [get_bd_cells axi_ctrl]
 
-# S00 vdma_raw S2MM, S01 vdma_proc MM2S, S02 vdma_proc S2MM
-create_bd_cell -type ip -vlnv xilinx.com:ip:smartconnect:1.0 axi_mem
+# One per VDMA master, to an HP port of its own; 64 bits and FCLK_CLK0 on both sides, so with one SI
+# and one MI PG059 builds no crossbar, width or clock converter: only the AXI4 -> AXI3 protocol
+# converter (PG059, "AXI Protocol Converter"; the HP ports are AXI3).
+# axi_mem_raw: vdma_raw S2MM -> HP0
+create_bd_cell -type ip -vlnv xilinx.com:ip:axi_interconnect:2.1 axi_mem_raw
 set_property -dict [list \
-    CONFIG.NUM_SI {3} \
+    CONFIG.NUM_SI {1} \
     CONFIG.NUM_MI {1} \
-] [get_bd_cells axi_mem]
+] [get_bd_cells axi_mem_raw]
 
-# The depth build: M04 stereo, M05 vdma_depth on GP0; S03 vdma_depth S2MM to HP0.
+# axi_mem_proc_rd: vdma_proc MM2S -> HP1
+create_bd_cell -type ip -vlnv xilinx.com:ip:axi_interconnect:2.1 axi_mem_proc_rd
+set_property -dict [list \
+    CONFIG.NUM_SI {1} \
+    CONFIG.NUM_MI {1} \
+] [get_bd_cells axi_mem_proc_rd]
+
+# axi_mem_proc_wr: vdma_proc S2MM -> HP2
+create_bd_cell -type ip -vlnv xilinx.com:ip:axi_interconnect:2.1 axi_mem_proc_wr
+set_property -dict [list \
+    CONFIG.NUM_SI {1} \
+    CONFIG.NUM_MI {1} \
+] [get_bd_cells axi_mem_proc_wr]
+
+# The depth build: M04 stereo, M05 vdma_depth on GP0; axi_mem_depth: vdma_depth S2MM -> HP3.
 if {$STEREOCAM_BUILD eq "depth"} {
     set_property -dict [list \
         CONFIG.NUM_MI {6} \
     ] [get_bd_cells axi_ctrl]
+
+    create_bd_cell -type ip -vlnv xilinx.com:ip:axi_interconnect:2.1 axi_mem_depth
     set_property -dict [list \
-        CONFIG.NUM_SI {4} \
-    ] [get_bd_cells axi_mem]
+        CONFIG.NUM_SI {1} \
+        CONFIG.NUM_MI {1} \
+    ] [get_bd_cells axi_mem_depth]
 }
 
 # ---- The camera input IP (stereocam/overlays/spec/camera_in.py), the split of its stream and the frame gates ----
@@ -123,6 +158,8 @@ set_property -dict [list \
 ] [get_bd_cells gate_live]
 
 # ---- VDMAs (PG020): register direct mode, 64-bit streams, start of frame on TUSER ----------------------
+# c_mm2s_max_burst_length / c_s2mm_max_burst_length 16: AXI3's longest burst, so each channel's bursts
+# reach its HP port (AXI3) through the interconnect's protocol converter whole, never split.
 # c_use_s2mm_fsync 2 = "s2mm tuser": an S2MM frame starts at the beat with TUSER set.
 # c_use_mm2s_fsync 0 = free running: the virtual camera sends frames as fast as the core takes them.
 # The S2MM stream width is propagated from the stream it is connected to unless marked USER.
@@ -320,14 +357,21 @@ if {$STEREOCAM_BUILD eq "depth"} {
     connect_bd_intf_net [get_bd_intf_pins axi_ctrl/M05_AXI] [get_bd_intf_pins vdma_depth/S_AXI_LITE]
 }
 
-# ---- Frame memory (HP0) ------------------------------------------------------------------------------
-connect_bd_intf_net [get_bd_intf_pins vdma_raw/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S00_AXI]
-connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_MM2S] [get_bd_intf_pins axi_mem/S01_AXI]
-connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S02_AXI]
+# ---- Frame memory (HP0..HP2, HP3 in the depth build): each VDMA master through its interconnect ------
+connect_bd_intf_net [get_bd_intf_pins vdma_raw/M_AXI_S2MM] [get_bd_intf_pins axi_mem_raw/S00_AXI]
+connect_bd_intf_net [get_bd_intf_pins axi_mem_raw/M00_AXI] \
+    [get_bd_intf_pins processing_system7_0/S_AXI_HP0]
+connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_MM2S] [get_bd_intf_pins axi_mem_proc_rd/S00_AXI]
+connect_bd_intf_net [get_bd_intf_pins axi_mem_proc_rd/M00_AXI] \
+    [get_bd_intf_pins processing_system7_0/S_AXI_HP1]
+connect_bd_intf_net [get_bd_intf_pins vdma_proc/M_AXI_S2MM] [get_bd_intf_pins axi_mem_proc_wr/S00_AXI]
+connect_bd_intf_net [get_bd_intf_pins axi_mem_proc_wr/M00_AXI] \
+    [get_bd_intf_pins processing_system7_0/S_AXI_HP2]
 if {$STEREOCAM_BUILD eq "depth"} {
-    connect_bd_intf_net [get_bd_intf_pins vdma_depth/M_AXI_S2MM] [get_bd_intf_pins axi_mem/S03_AXI]
+    connect_bd_intf_net [get_bd_intf_pins vdma_depth/M_AXI_S2MM] [get_bd_intf_pins axi_mem_depth/S00_AXI]
+    connect_bd_intf_net [get_bd_intf_pins axi_mem_depth/M00_AXI] \
+        [get_bd_intf_pins processing_system7_0/S_AXI_HP3]
 }
-connect_bd_intf_net [get_bd_intf_pins axi_mem/M00_AXI] [get_bd_intf_pins processing_system7_0/S_AXI_HP0]
 
 # ---- Interrupts --------------------------------------------------------------------------------------
 connect_bd_net [get_bd_pins vdma_raw/s2mm_introut] [get_bd_pins irq_concat/In0]
@@ -344,6 +388,8 @@ connect_bd_net [get_bd_pins irq_concat/dout] [get_bd_pins processing_system7_0/I
 connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
     [get_bd_pins processing_system7_0/M_AXI_GP0_ACLK] \
     [get_bd_pins processing_system7_0/S_AXI_HP0_ACLK] \
+    [get_bd_pins processing_system7_0/S_AXI_HP1_ACLK] \
+    [get_bd_pins processing_system7_0/S_AXI_HP2_ACLK] \
     [get_bd_pins rst_ps7_0/slowest_sync_clk] \
     [get_bd_pins axi_ctrl/ACLK] \
     [get_bd_pins axi_ctrl/S00_ACLK] \
@@ -351,7 +397,15 @@ connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
     [get_bd_pins axi_ctrl/M01_ACLK] \
     [get_bd_pins axi_ctrl/M02_ACLK] \
     [get_bd_pins axi_ctrl/M03_ACLK] \
-    [get_bd_pins axi_mem/aclk] \
+    [get_bd_pins axi_mem_raw/ACLK] \
+    [get_bd_pins axi_mem_raw/S00_ACLK] \
+    [get_bd_pins axi_mem_raw/M00_ACLK] \
+    [get_bd_pins axi_mem_proc_rd/ACLK] \
+    [get_bd_pins axi_mem_proc_rd/S00_ACLK] \
+    [get_bd_pins axi_mem_proc_rd/M00_ACLK] \
+    [get_bd_pins axi_mem_proc_wr/ACLK] \
+    [get_bd_pins axi_mem_proc_wr/S00_ACLK] \
+    [get_bd_pins axi_mem_proc_wr/M00_ACLK] \
     [get_bd_pins camera_in/aclk] \
     [get_bd_pins camera_split/aclk] \
     [get_bd_pins gate_raw/aclk] \
@@ -370,8 +424,12 @@ connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
 if {$STEREOCAM_BUILD eq "depth"} {
     # added to FCLK_CLK0's net
     connect_bd_net [get_bd_pins processing_system7_0/FCLK_CLK0] \
+        [get_bd_pins processing_system7_0/S_AXI_HP3_ACLK] \
         [get_bd_pins axi_ctrl/M04_ACLK] \
         [get_bd_pins axi_ctrl/M05_ACLK] \
+        [get_bd_pins axi_mem_depth/ACLK] \
+        [get_bd_pins axi_mem_depth/S00_ACLK] \
+        [get_bd_pins axi_mem_depth/M00_ACLK] \
         [get_bd_pins rectified_split/aclk] \
         [get_bd_pins stereo/aclk] \
         [get_bd_pins vdma_depth/s_axi_lite_aclk] \
@@ -383,13 +441,21 @@ if {$STEREOCAM_BUILD eq "depth"} {
 connect_bd_net [get_bd_pins processing_system7_0/FCLK_RESET0_N] [get_bd_pins rst_ps7_0/ext_reset_in]
 connect_bd_net [get_bd_pins rst_ps7_0/interconnect_aresetn] \
     [get_bd_pins axi_ctrl/ARESETN] \
-    [get_bd_pins axi_mem/aresetn]
+    [get_bd_pins axi_mem_raw/ARESETN] \
+    [get_bd_pins axi_mem_proc_rd/ARESETN] \
+    [get_bd_pins axi_mem_proc_wr/ARESETN]
 connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
     [get_bd_pins axi_ctrl/S00_ARESETN] \
     [get_bd_pins axi_ctrl/M00_ARESETN] \
     [get_bd_pins axi_ctrl/M01_ARESETN] \
     [get_bd_pins axi_ctrl/M02_ARESETN] \
     [get_bd_pins axi_ctrl/M03_ARESETN] \
+    [get_bd_pins axi_mem_raw/S00_ARESETN] \
+    [get_bd_pins axi_mem_raw/M00_ARESETN] \
+    [get_bd_pins axi_mem_proc_rd/S00_ARESETN] \
+    [get_bd_pins axi_mem_proc_rd/M00_ARESETN] \
+    [get_bd_pins axi_mem_proc_wr/S00_ARESETN] \
+    [get_bd_pins axi_mem_proc_wr/M00_ARESETN] \
     [get_bd_pins camera_in/aresetn] \
     [get_bd_pins camera_split/aresetn] \
     [get_bd_pins gate_raw/aresetn] \
@@ -400,17 +466,22 @@ connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
     [get_bd_pins mux/s_axi_ctrl_aresetn] \
     [get_bd_pins rectify/aresetn]
 if {$STEREOCAM_BUILD eq "depth"} {
-    # added to peripheral_aresetn's net
+    # added to interconnect_aresetn's and peripheral_aresetn's nets
+    connect_bd_net [get_bd_pins rst_ps7_0/interconnect_aresetn] \
+        [get_bd_pins axi_mem_depth/ARESETN]
     connect_bd_net [get_bd_pins rst_ps7_0/peripheral_aresetn] \
         [get_bd_pins axi_ctrl/M04_ARESETN] \
         [get_bd_pins axi_ctrl/M05_ARESETN] \
+        [get_bd_pins axi_mem_depth/S00_ARESETN] \
+        [get_bd_pins axi_mem_depth/M00_ARESETN] \
         [get_bd_pins rectified_split/aresetn] \
         [get_bd_pins stereo/aresetn] \
         [get_bd_pins vdma_depth/axi_resetn]
 }
 
 # ---- Addresses (stereocam/overlays/spec/overlay.py: ADDRESS_MAP, WINDOW_SIZE) ----------------------------------
-# The PS7 sees each register window at its base; each VDMA channel sees the 512 MiB of DDR through HP0.
+# The PS7 sees each register window at its base; each VDMA channel sees the 512 MiB of DDR at 0 through
+# its own HP port (vdma_raw S2MM HP0, vdma_proc MM2S HP1, vdma_proc S2MM HP2, vdma_depth S2MM HP3).
 assign_bd_address -offset 0x43000000 -range 0x00010000 \
     -target_address_space [get_bd_addr_spaces processing_system7_0/Data] \
     [get_bd_addr_segs vdma_raw/S_AXI_LITE/Reg] -force
@@ -428,10 +499,10 @@ assign_bd_address -offset 0x00000000 -range 0x20000000 \
     [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
 assign_bd_address -offset 0x00000000 -range 0x20000000 \
     -target_address_space [get_bd_addr_spaces vdma_proc/Data_MM2S] \
-    [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
+    [get_bd_addr_segs processing_system7_0/S_AXI_HP1/HP1_DDR_LOWOCM] -force
 assign_bd_address -offset 0x00000000 -range 0x20000000 \
     -target_address_space [get_bd_addr_spaces vdma_proc/Data_S2MM] \
-    [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
+    [get_bd_addr_segs processing_system7_0/S_AXI_HP2/HP2_DDR_LOWOCM] -force
 if {$STEREOCAM_BUILD eq "depth"} {
     assign_bd_address -offset 0x43020000 -range 0x00010000 \
         -target_address_space [get_bd_addr_spaces processing_system7_0/Data] \
@@ -441,5 +512,5 @@ if {$STEREOCAM_BUILD eq "depth"} {
         [get_bd_addr_segs stereo/s_axil/reg0] -force
     assign_bd_address -offset 0x00000000 -range 0x20000000 \
         -target_address_space [get_bd_addr_spaces vdma_depth/Data_S2MM] \
-        [get_bd_addr_segs processing_system7_0/S_AXI_HP0/HP0_DDR_LOWOCM] -force
+        [get_bd_addr_segs processing_system7_0/S_AXI_HP3/HP3_DDR_LOWOCM] -force
 }

@@ -30,13 +30,13 @@ set STEREOCAM_BUILDS {colour depth}
 set STEREOCAM_BD_NAME stereocam
 set STEREOCAM_OVERLAY stereocam
 
-# The one fabric clock, FCLK_CLK0, for the AXI4-Lite registers, the streams and the HP port
+# The one fabric clock, FCLK_CLK0, for the AXI4-Lite registers, the streams and the HP ports
 # (stereocam/overlays/spec/overlay.py: FABRIC_CLOCK_HZ; tests/overlays/test_overlay_build.py checks they agree).
 # The rectify core takes 2 clocks per beat (stereocam/overlays/spec/rectify.py: CLOCKS_PER_BEAT): 100 MHz
 # is 50 Mbeat/s, 1.9x the MT9V034's pixel clock (26.6 MHz, a beat per pixel clock within a line)
-# and 2.3x a 752x480 frame at 60 fps (21.7 Mbeat/s). The HP port then carries 64 bits x 100 MHz
-# = 800 MB/s each way; the three VDMA channels at 60 fps need 2 x 173 MB/s of writes and 173 MB/s
-# of reads.
+# and 2.3x a 752x480 frame at 60 fps (21.7 Mbeat/s). Each VDMA channel has an HP port of its own,
+# 64 bits x 100 MHz = 800 MB/s; a channel at 60 fps needs at most 173 MB/s (vdma_depth's 32-bit
+# beats half that).
 set STEREOCAM_FCLK0_MHZ 100
 
 # Where things are (overridable: set them before sourcing to package another checkout's RTL).
