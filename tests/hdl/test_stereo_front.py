@@ -80,15 +80,17 @@ def test_front_sums(sim: str, case: Case, cocotb_dir: Path) -> None:
     assert run.passed
 
 
-TREES = [  # (N, W, STAGES, OUT_REG): the front's four trees at the small builds, a padded N, odd widths
-    (32, 8, 2, 1), (8, 8, 2, 1), (16, 8, 1, 0), (8, 8, 1, 0), (128, 8, 1, 0), (13, 5, 3, 1), (6, 3, 2, 0),
+TREES = [  # (N, W, STAGES, OUT_REG, ROOT_LEVELS): the front's trees at the small and depth builds, a
+    # padded N, odd widths, runs of levels of either parity between the registers
+    (32, 8, 2, 1, 0), (8, 8, 2, 1, 0), (16, 8, 1, 0, 2), (64, 8, 1, 0, 2), (8, 8, 1, 0, 0), (128, 8, 1, 0, 0),
+    (13, 5, 3, 1, 0), (6, 3, 2, 0, 0), (64, 8, 1, 0, 1), (64, 8, 1, 0, 3), (100, 7, 1, 0, 4),
 ]
 
 
 @pytest.mark.parametrize("tree", TREES, ids=["-".join(map(str, t)) for t in TREES])
-def test_min_tree(tree: tuple[int, int, int, int], cocotb_dir: Path) -> None:
+def test_min_tree(tree: tuple[int, int, int, int, int], cocotb_dir: Path) -> None:
     """sc_min_tree gives the minimum of the words taken STAGES enabled clocks before (Icarus)."""
-    build = dict(zip(("N", "W", "STAGES", "OUT_REG"), tree, strict=True))
+    build = dict(zip(("N", "W", "STAGES", "OUT_REG", "ROOT_LEVELS"), tree, strict=True))
     env = {"STEREOCAM_UNIT_PARAMS": json.dumps(build), "COCOTB_RANDOM_SEED": "1"}
     run = run_cocotb("sc_min_tree", [STEREO / "sc_min_tree.v"], "tb_sc_min_tree", sim="icarus",
                      parameters=build, extra_env=env, test_dir=cocotb_dir)

@@ -59,7 +59,15 @@ assign lb_col = frame_begin ? 11'd0 : col;
 assign lb_row = frame_begin ? 11'd0 : rows_in;
 assign lb_data = {s_tdata[`SC_IN_RIGHT_GRAY_BYTE*8 +: 8], s_tdata[`SC_IN_LEFT_GRAY_BYTE*8 +: 8]};
 
-wire row_end = writing && (s_tlast || (frame_begin ? width == 11'd1 : col == width - 11'd1));
+// The end-of-row and last-row tests kept as flags beside col and rows_in (from the handshake
+// through these comparisons into in_frame was a path over the period): col_last is
+// col == width - 1, row_last rows_in + 1 == height, each set when its counter changes.
+reg  col_last = 1'b0;
+reg  row_last = 1'b0;
+wire width_1 = width == 11'd1;
+wire height_1 = height == 11'd1;
+wire row_end = writing && (s_tlast || (frame_begin ? width_1 : col_last));
+wire last_row = frame_begin ? height_1 : row_last;
 
 always @(posedge clk) begin
     size_error <= 1'b0;
@@ -67,12 +75,16 @@ always @(posedge clk) begin
         in_frame <= 1'b0;
         skipping <= 1'b0;
         col <= 11'd0;
+        col_last <= width_1;
         rows_in <= 11'd0;
+        row_last <= height_1;
     end else if (take) begin
         if (frame_begin) begin
             in_frame <= 1'b1;
             rows_in <= 11'd0;
+            row_last <= height_1;
             col <= 11'd1;
+            col_last <= width == 11'd2;
         end
         if (!in_frame && !s_tuser) begin
             size_error <= 1'b1;  // between frames, not a frame's first beat: dropped
@@ -82,16 +94,19 @@ always @(posedge clk) begin
         end else if (writing) begin
             if (row_end) begin
                 col <= 11'd0;
+                col_last <= width_1;
                 rows_in <= (frame_begin ? 11'd0 : rows_in) + 11'd1;
-                if (s_tlast != (frame_begin ? width == 11'd1 : col == width - 11'd1)) begin
+                row_last <= frame_begin ? height == 11'd2 : rows_in + 11'd2 == height;
+                if (s_tlast != (frame_begin ? width_1 : col_last)) begin
                     size_error <= 1'b1;
                     skipping <= !s_tlast;  // a long row: drop the rest up to TLAST
                 end
-                if ((frame_begin ? 11'd0 : rows_in) + 11'd1 == height) begin
+                if (last_row) begin
                     in_frame <= 1'b0;
                 end
             end else begin
                 col <= (frame_begin ? 11'd0 : col) + 11'd1;
+                col_last <= frame_begin ? width == 11'd2 : col + 11'd2 == width;
             end
         end
     end
@@ -99,6 +114,7 @@ always @(posedge clk) begin
         // TUSER inside a frame: the frame ends here (missing rows count as arrived)
         size_error <= 1'b1;
         rows_in <= height;
+        row_last <= 1'b0;
         in_frame <= 1'b0;
         skipping <= 1'b0;
     end

@@ -12,7 +12,14 @@
  * tree level floor(K * s / STAGES) from the root, s = 0 .. STAGES - 1: the
  * root is registered. With OUT_REG 0 they sit after level
  * floor(K * s / (STAGES + 1)), s = 1 .. STAGES, and the root is logic after
- * the last register (for a caller that combines it with more).
+ * the last register (for a caller that combines it with more); ROOT_LEVELS
+ * > 0 (with STAGES 1) puts the register after level ROOT_LEVELS instead, so
+ * a caller can leave the root's side shorter for its own logic.
+ * Between registers, levels are taken two at a time where they can be: a
+ * node then takes the least of its four grandchildren by six comparisons at
+ * once and a choice, which is shorter than two levels of two-input minima
+ * in a row (the lowest of each pair of levels, counted from the leaves' or
+ * the register's side, is left to its parent).
  * Latency: STAGES enabled clocks (`en`: every register loads only when it
  * is 1, so the tree holds while it is 0). Throughput: one word set per
  * enabled clock. No reset (data only).
@@ -24,7 +31,8 @@ module sc_min_tree #
     parameter N = 32,
     parameter W = 8,
     parameter STAGES = 2,
-    parameter OUT_REG = 1
+    parameter OUT_REG = 1,
+    parameter ROOT_LEVELS = 0
 )
 (
     input  wire           clk,
@@ -45,6 +53,8 @@ generate
     if (STAGES < 1 || STAGES > K || (OUT_REG == 0 && STAGES >= K))
         sc_min_tree_parameter_STAGES_must_be_1_to_clog2_N stages_out_of_range();
     if (OUT_REG != 0 && OUT_REG != 1) sc_min_tree_parameter_OUT_REG_must_be_0_or_1 out_reg_invalid();
+    if (ROOT_LEVELS < 0 || (ROOT_LEVELS > 0 && (OUT_REG != 0 || STAGES != 1 || ROOT_LEVELS >= K)))
+        sc_min_tree_parameter_ROOT_LEVELS_needs_OUT_REG_0_STAGES_1_below_K root_levels_invalid();
     // verilator lint_on GENUNNAMED
 endgenerate
 
@@ -70,10 +80,48 @@ function integer level_registered;
             if (OUT_REG != 0 && (K * s) / STAGES == lev) begin
                 level_registered = 1;
             end
-            if (OUT_REG == 0 && (K * (s + 1)) / (STAGES + 1) == lev) begin
+            if (OUT_REG == 0 && ROOT_LEVELS == 0 && (K * (s + 1)) / (STAGES + 1) == lev) begin
                 level_registered = 1;
             end
         end
+        if (ROOT_LEVELS > 0 && lev == ROOT_LEVELS) begin
+            level_registered = 1;
+        end
+    end
+endfunction
+
+// 1 when the nodes of level lev take their four grandchildren (levels lev and lev + 1 as one): the
+// upper of each pair of levels counted from the bottom of the run of levels between registers
+function integer level_paired;
+    input integer lev;
+    integer bot;
+    integer r;
+    begin
+        bot = K - 1;  // the lowest level of lev's run: above the next registered level, or K - 1
+        for (r = K - 1; r > lev; r = r - 1) begin
+            if (level_registered(r) != 0) begin
+                bot = r - 1;
+            end
+        end
+        level_paired = (lev < bot && (bot - lev) % 2 == 1) ? 1 : 0;
+    end
+endfunction
+
+// the least of four, the first on ties: six comparisons at once, then the choice
+function [W-1:0] min4;
+    input [W-1:0] a;
+    input [W-1:0] b;
+    input [W-1:0] c;
+    input [W-1:0] d;
+    reg ab, ac, ad, bc, bd, cd;
+    begin
+        ab = b < a;
+        ac = c < a;
+        ad = d < a;
+        bc = c < b;
+        bd = d < b;
+        cd = d < c;
+        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
     end
 endfunction
 
@@ -94,9 +142,14 @@ generate
         end
     end
     for (i = 1; i < P; i = i + 1) begin : g_node
-        wire [W-1:0] a = nodes[2*i];
-        wire [W-1:0] b = nodes[2*i+1];
-        wire [W-1:0] m = (b < a) ? b : a;
+        wire [W-1:0] m;
+        if (level_paired(node_level(i)) != 0) begin : g_four
+            assign m = min4(nodes[4*i], nodes[4*i+1], nodes[4*i+2], nodes[4*i+3]);
+        end else begin : g_two
+            wire [W-1:0] a = nodes[2*i];
+            wire [W-1:0] b = nodes[2*i+1];
+            assign m = (b < a) ? b : a;
+        end
         if (level_registered(node_level(i)) != 0) begin : g_reg
             reg [W-1:0] m_reg;
             always @(posedge clk) begin

@@ -83,7 +83,18 @@ rc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW)) code_ram (
 );
 
 // ---------------------------------------------------------------- phase B: validity
-wire real_now = row_b >= 0 && row_b < $signed({1'b0, height}) && col >= 0 && col < $signed({1'b0, width});
+// The rows' tests, a clock behind `row` (from the scheduler's row through the arithmetic and the
+// comparisons into the RAM enables was a path over the period): `row` changes at a sweep's first
+// slot, where `col` is still negative (-PRE), so no read or write depends on them there.
+reg       row_b_in = 1'b0;     // row_b inside the image
+reg [2:0] row_c_in = 3'b000;   // row_c - 1 + k inside the image, k = 0..2
+always @(posedge clk) begin
+    row_b_in <= row_b >= 0 && row_b < $signed({1'b0, height});
+    row_c_in[0] <= row_c - 12'sd1 >= 0 && row_c - 12'sd1 < $signed({1'b0, height});
+    row_c_in[1] <= row_c >= 0 && row_c < $signed({1'b0, height});
+    row_c_in[2] <= row_c + 12'sd1 >= 0 && row_c + 12'sd1 < $signed({1'b0, height});
+end
+wire real_now = row_b_in && col >= 0 && col < $signed({1'b0, width});
 
 // phase 0: the record
 reg          a_real = 1'b0;
@@ -155,9 +166,8 @@ localparam CW = 27;
 
 
 // ---- reads: column x_c + 1 of rows row_c - 1 + phase (phases 0..2)
-wire signed [11:0] rrow = row_c - 12'sd1 + $signed({10'b0, phase});
 wire signed [11:0] rcol = x_c + 12'sd1;
-wire        row_in = rrow >= 0 && rrow < $signed({1'b0, height});
+wire        row_in = (phase == 2'd0) ? row_c_in[0] : (phase == 2'd1) ? row_c_in[1] : row_c_in[2];
 wire        col_in = rcol >= 0 && rcol < $signed({1'b0, width});
 assign code_re = run && phase != 2'd3 && row_in && col_in;
 assign code_raddr = base_of_bank(bank_c) + rcol[10:0];
@@ -270,10 +280,12 @@ always @(posedge clk) begin
     o = srt(t[7], t[8]); t[7] = o[31:16]; t[8] = o[15:0];
     t[3] = (t[0] > t[3]) ? t[0] : t[3];
     t[5] = (t[5] < t[8]) ? t[5] : t[8];
-    for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s2[ri5] <= t[ri5];
-    // stage 3: sort(4,7); p6 = max(3,6); p4 = max(1,4); p2 = min(2,5); p4 = min(4,7)
-    for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = s2[ri5];
+    // (stage 3's first exchange, done here: it reads only 4 and 7, which nothing after it in this
+    // stage does; in stage 3 it made a chain of three, a path over the period)
     o = srt(t[4], t[7]); t[4] = o[31:16]; t[7] = o[15:0];
+    for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s2[ri5] <= t[ri5];
+    // stage 3: p6 = max(3,6); p4 = max(1,4); p2 = min(2,5); p4 = min(4,7)
+    for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = s2[ri5];
     t[6] = (t[3] > t[6]) ? t[3] : t[6];
     t[4] = (t[1] > t[4]) ? t[1] : t[4];
     t[2] = (t[2] < t[5]) ? t[2] : t[5];

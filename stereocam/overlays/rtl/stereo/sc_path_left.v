@@ -68,7 +68,8 @@ sc_min_tree #(
     .N(H),
     .W(8),
     .STAGES(1),
-    .OUT_REG(0)
+    .OUT_REG(0),
+    .ROOT_LEVELS($clog2(H) >= 3 ? 2 : 1)  // the root's side short: m's comparison follows it
 )
 min_inst (
     .clk(clk),

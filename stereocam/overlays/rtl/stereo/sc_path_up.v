@@ -17,9 +17,9 @@
  *
  * Timing, in run clocks from phase 0 of the slot s0 that brought pixel
  * (x, y) into the front (slot s0 + k is run clocks 4k .. 4k + 3):
- *   6 + g   read group g of column xq (x above, x + 1 upper right) of the
- *           previous row (`rx1`, `ren1` of slot s0 + 1 for g = 0, 1; `rx2`,
- *           `ren2` of slot s0 + 2 for g = 2, 3); 6: read xq's minimum;
+ *   5 + g   read group g of column xq (x above, x + 1 upper right) of the
+ *           previous row (`rx1`, `ren1` of slot s0 + 1 for g = 0, 1, 2; `rx2`,
+ *           `ren2` of slot s0 + 2 for g = 3); 6: read xq's minimum;
  *   9       take the minimum and the pixel's `first2` and `edge2` (slot s0 + 2);
  *   9 + g   the lane terms a = min(L(d), L(d +- 1) + P1) of group g (the
  *           group's word, the last lane of group g - 1, the first of g + 1);
@@ -33,7 +33,7 @@
  *           slot s0 + 4).
  * So `l_path` holds group g = (phase + 1) mod 4 of the pixel of slot s0 + 2
  * at phase 3, of slot s0 + 3 at phases 0..2. A column is read before the row
- * below overwrites it (read at 6..9, written at 11..14 and 17; the upper
+ * below overwrites it (read at 5..8, written at 11..14 and 17; the upper
  * right path's column x + 1 is read by pixel x, written by pixel x + 1).
  *
  * Throughput: one pixel a slot. Every register and RAM read and write is
@@ -87,10 +87,11 @@ endgenerate
 
 `include "sc_lane.vh"
 
-// ---- reads: group (phase + 2) mod 4; even groups from ram_e at phases 2, 0
-wire [10:0] rx = phase[1] ? rx1 : rx2;
-wire ren = phase[1] ? ren1 : ren2;
-wire [XA:0] raddr = {rx[XA-1:0], ~phase[1]};
+// ---- reads: group (phase + 3) mod 4; even groups from ram_e at phases 1, 3 (a clock before the
+// terms need them, so that the next group's first lane is a register by then, see below)
+wire [10:0] rx = (phase == 2'd0) ? rx2 : rx1;
+wire ren = (phase == 2'd0) ? ren2 : ren1;
+wire [XA:0] raddr = {rx[XA-1:0], ~(phase[1] ^ phase[0])};
 
 // ---- writes: group (phase + 1) mod 4 of l_path; even groups at phases 3, 1
 wire [XA:0] waddr = {wx[XA-1:0], phase[0] ^ phase[1]};
@@ -108,7 +109,7 @@ ram_e (
     .we(run && wen && phase[0]),
     .waddr(waddr),
     .wdata(l_path),
-    .re(run && ren && !phase[0]),
+    .re(run && ren && phase[0]),
     .raddr(raddr),
     .rdata(rdata_e)
 );
@@ -123,7 +124,7 @@ ram_o (
     .we(run && wen && !phase[0]),
     .waddr(waddr),
     .wdata(l_path),
-    .re(run && ren && phase[0]),
+    .re(run && ren && !phase[0]),
     .raddr(raddr),
     .rdata(rdata_o)
 );
@@ -147,23 +148,31 @@ ram_m (
     .rdata(rdata_m)
 );
 
-// ---- the word read 2 run clocks ago: group (phase + 3) mod 4 at this run clock's
-// lane terms (cur), group (phase + 4) mod 4 just arriving (nxt)
-wire [LW-1:0] nxt = phase[0] ? rdata_o : rdata_e;
+// ---- the words: group (phase + 2) mod 4 arriving (nxt, read 2 run clocks ago), group
+// (phase + 1) mod 4 in cur, group (phase + 3) mod 4, this run clock's lane terms', in cur2 with
+// the last lane of the group before it in prev_last and the first of the group after it in cur
+// (all registers: the arriving word's first lane through the terms was a path over the period)
+wire [LW-1:0] nxt = phase[0] ? rdata_e : rdata_o;
 reg [LW-1:0] cur;
+reg [LW-1:0] cur2;
 reg [7:0] prev_last;
+// the edges of the range: group 0's lane below and group 3's lane above are 255; flags for the
+// group of the next run clock's terms, so that no decode of `phase` is on the terms' path
+// (a masked group g + 1 needs no test: its lanes were written as 255 in the row above)
+reg lo_out = 1'b0;  // the terms' group is 0
+reg hi_out = 1'b1;  // the terms' group is 3 (phase 0, the first run clock after reset)
 always @(posedge clk) begin
     if (run) begin
         cur <= nxt;
-        prev_last <= cur[LW-8 +: 8];
+        cur2 <= cur;
+        prev_last <= cur2[LW-8 +: 8];
+        lo_out <= phase == 2'd0;
+        hi_out <= phase == 2'd3;
     end
 end
 
 wire [1:0] g_a = phase + 2'd3;  // the group of the lane terms
-wire lo_out = g_a == 2'd0;
-// (a masked group g + 1 needs no test: its lanes were written as 255 in the row above)
-wire hi_out = g_a == 2'd3;
-wire [LW+15:0] padded = {hi_out ? 8'hFF : nxt[7:0], cur, lo_out ? 8'hFF : prev_last};
+wire [LW+15:0] padded = {hi_out ? 8'hFF : cur[7:0], cur2, lo_out ? 8'hFF : prev_last};
 
 reg [PARALLEL*9-1:0] a_reg;
 genvar j;

@@ -19,7 +19,7 @@
  * group of that buffer only after the second pass has read it (the second pass starts 4 clocks
  * after the last group and reads one group a clock, the writer is at least 5 clocks behind).
  * Then two restoring dividers: the sub-pixel offset (4 quotient bits) and the confidence (9).
- * Latency: 19 clocks from a pixel's last group to its record. Free running (no enable): it only
+ * Latency: 20 clocks from a pixel's last group to its record. Free running (no enable): it only
  * needs its input's order.
  *
  * And the right image's winners for step 7's left-right check (STEREO_CORE.md, step 6):
@@ -174,13 +174,38 @@ end
 // (a balanced tree: a chain of picks was a path over the period; the first lane still wins ties)
 reg [SW+LW-1:0] t3;
 reg [SW+LW-1:0] tq [0:2*Q-2];  // heap order: node n's children are 2n + 1 and 2n + 2, leaves last
-always @* begin
-    for (i5 = 0; i5 < Q; i5 = i5 + 1)
-        tq[Q - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
-    for (i5 = Q - 2; i5 >= 0; i5 = i5 - 1)
-        tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
-    t3 = tq[0];
-end
+// {value, lane} of the least of four, the first on ties: the six comparisons at once, then the
+// choice (two levels of picks in a row, then the running minimum, were a path over the period)
+function [SW+LW-1:0] pick4;
+    input [SW+LW-1:0] a;
+    input [SW+LW-1:0] b;
+    input [SW+LW-1:0] c;
+    input [SW+LW-1:0] d;
+    reg ab, ac, ad, bc, bd, cd;
+    begin
+        ab = b[SW+LW-1:LW] < a[SW+LW-1:LW];
+        ac = c[SW+LW-1:LW] < a[SW+LW-1:LW];
+        ad = d[SW+LW-1:LW] < a[SW+LW-1:LW];
+        bc = c[SW+LW-1:LW] < b[SW+LW-1:LW];
+        bd = d[SW+LW-1:LW] < b[SW+LW-1:LW];
+        cd = d[SW+LW-1:LW] < c[SW+LW-1:LW];
+        pick4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
+    end
+endfunction
+generate
+    if (Q == 4) begin : g_t3_4
+        always @* t3 = pick4(a1_lanes[0 +: SW+LW], a1_lanes[SW+LW +: SW+LW], a1_lanes[2*(SW+LW) +: SW+LW],
+                             a1_lanes[3*(SW+LW) +: SW+LW]);
+    end else begin : g_t3_tree
+        always @* begin
+            for (i5 = 0; i5 < Q; i5 = i5 + 1)
+                tq[Q - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
+            for (i5 = Q - 2; i5 >= 0; i5 = i5 - 1)
+                tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
+            t3 = tq[0];
+        end
+    end
+endgenerate
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
 reg                   d_valid = 1'b0;  // a pixel's d1 and S1 are ready
@@ -215,7 +240,8 @@ wire                  p_group_ok = {9'd0, p_step[1:0]} * PAR11 < {3'd0, num_disp
 
 reg                   b0_valid = 1'b0, b0_last = 1'b0;
 reg [PARALLEL*SW-1:0] b0_lanes;          // masked
-reg [SW-1:0]          b0_a, b0_b;        // S(d1 - 1), S(d1 + 1) when in this group
+reg [PARALLEL*SW-1:0] b0_row;            // the group's sums as read
+reg [LW-1:0]          b0_a_lane, b0_b_lane;  // the lanes of d1 - 1 and d1 + 1
 reg                   b0_has_a, b0_has_b;
 always @(posedge clk) begin
     b0_valid <= 1'b0;
@@ -235,14 +261,16 @@ always @(posedge clk) begin
                                       && !(p_b_ok && p_step[1:0] == p_b_at[LW+1:LW] && i7 == p_b_at[LW-1:0]))
                                      ? p_row[i7*SW +: SW] : BIG;
         end
-        // S(d1 - 1) and S(d1 + 1): one lane each, chosen by registers (a search over the lanes
-        // here made a chain of multiplexers, the core's second longest path)
+        // S(d1 - 1) and S(d1 + 1): one lane each of the group's sums, kept whole here and chosen
+        // in the next stage by lanes registered here (the buffer's read and the 32-way choice
+        // in one clock were a path over the period)
+        b0_row <= p_row;
+        b0_a_lane <= p_a_at[LW-1:0];
+        b0_b_lane <= p_b_at[LW-1:0];
         if (p_a_ok && p_step[1:0] == p_a_at[LW+1:LW]) begin
-            b0_a <= p_row[p_a_at[LW-1:0]*SW +: SW];
             b0_has_a <= 1'b1;
         end
         if (p_b_ok && p_step[1:0] == p_b_at[LW+1:LW]) begin
-            b0_b <= p_row[p_b_at[LW-1:0]*SW +: SW];
             b0_has_b <= 1'b1;
         end
     end
@@ -281,19 +309,44 @@ reg                   b1_has_a, b1_has_b;
 always @(posedge clk) begin
     b1_valid <= b0_valid && !rst;
     b1_last <= b0_last;
-    b1_a <= b0_a;
-    b1_b <= b0_b;
+    b1_a <= b0_row[b0_a_lane*SW +: SW];
+    b1_b <= b0_row[b0_b_lane*SW +: SW];
     b1_has_a <= b0_valid && b0_has_a;
     b1_has_b <= b0_valid && b0_has_b;
     for (i9 = 0; i9 < Q; i9 = i9 + 1)
         b1_lanes[i9*SW +: SW] <= (u2[2*i9+1] < u2[2*i9]) ? u2[2*i9+1] : u2[2*i9];
 end
+// the least of the Q group minima, before the running minimum in the same clock: for Q = 4 the
+// six comparisons at once and a choice (a chain of three was the core's second longest path)
+function [SW-1:0] min4;
+    input [SW-1:0] a;
+    input [SW-1:0] b;
+    input [SW-1:0] c;
+    input [SW-1:0] d;
+    reg ab, ac, ad, bc, bd, cd;
+    begin
+        ab = b < a;
+        ac = c < a;
+        ad = d < a;
+        bc = c < b;
+        bd = d < b;
+        cd = d < c;
+        // the first of the least: a, else b, else c, else d
+        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
+    end
+endfunction
 integer i10;
-always @* begin
-    u3 = b1_lanes[0 +: SW];
-    for (i10 = 1; i10 < Q; i10 = i10 + 1)
-        u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
-end
+generate
+    if (Q == 4) begin : g_u3_4
+        always @* u3 = min4(b1_lanes[0 +: SW], b1_lanes[SW +: SW], b1_lanes[2*SW +: SW], b1_lanes[3*SW +: SW]);
+    end else begin : g_u3_chain
+        always @* begin
+            u3 = b1_lanes[0 +: SW];
+            for (i10 = 1; i10 < Q; i10 = i10 + 1)
+                u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
+        end
+    end
+endgenerate
 reg [SW-1:0] s2_run;
 reg [SW-1:0] nb_a, nb_b;
 reg          c_valid = 1'b0;
@@ -345,22 +398,44 @@ always @(posedge clk) begin
         h_y <= p_y;
     end
 end
+// One stage (f) for the sub-pixel operands: den and 16 (a - b), with the pixel's values copied
+// beside them (s2_run and nb_* take the next pixel's from the next clock; h_* four clocks later);
+// the numerator's sum, its sign and magnitude a stage later (e): from nb_* through den into the
+// magnitude in one clock was a path over the period.
 wire [SW:0]  sum_ab = nb_a + nb_b;
 wire [SW+1:0] den_raw = sum_ab - {h_s1, 1'b0};
 wire [SW+1:0] den = (sum_ab <= {h_s1, 1'b0}) ? 1 : den_raw;
-wire signed [NUMW:0] num = $signed({1'b0, nb_a, 4'b0}) - $signed({1'b0, nb_b, 4'b0}) + $signed({1'b0, den});
+reg              f_valid = 1'b0;
+reg [SW+1:0]     f_den;
+reg signed [NUMW:0] f_d16;  // 16 (a - b)
+reg [SW-1:0]     f_s1, f_s2;
+reg [SW+8:0]     f_prod;
+reg [6:0]        f_d1;
+reg [10:0]       f_x, f_y;
 always @(posedge clk) begin
-    e_valid <= c_valid && !rst;
+    f_valid <= c_valid && !rst;
+    f_den <= den;
+    f_d16 <= $signed({1'b0, nb_a, 4'b0}) - $signed({1'b0, nb_b, 4'b0});
+    f_s1 <= h_s1;
+    f_s2 <= s2_run;
+    f_prod <= h_prod;
+    f_d1 <= h_d1;
+    f_x <= h_x;
+    f_y <= h_y;
+end
+wire signed [NUMW:0] num = f_d16 + $signed({1'b0, f_den});
+always @(posedge clk) begin
+    e_valid <= f_valid && !rst;
     e_num_neg <= num < 0;
     e_num_abs <= (num < 0) ? -num : num;
-    e_den2 <= {den, 1'b0};
-    e_refine <= subpixel && h_d1 > 0 && h_d1 + 1 < num_disp;
-    e_cnum <= {s2_run - h_s1, 8'b0};
-    e_s2 <= s2_run;
-    e_unique <= {s2_run, 8'b0} > h_prod;
-    e_d1 <= h_d1;
-    e_x <= h_x;
-    e_y <= h_y;
+    e_den2 <= {f_den, 1'b0};
+    e_refine <= subpixel && f_d1 > 0 && f_d1 + 1 < num_disp;
+    e_cnum <= {f_s2 - f_s1, 8'b0};
+    e_s2 <= f_s2;
+    e_unique <= {f_s2, 8'b0} > f_prod;
+    e_d1 <= f_d1;
+    e_x <= f_x;
+    e_y <= f_y;
 end
 
 localparam STAGES = 9;

@@ -174,16 +174,23 @@ sc_winners #(.MAX_WIDTH(MAX_WIDTH), .MAX_DISP(MAX_DISP), .PARALLEL(PARALLEL), .A
 wire          rec_re;
 wire [AW-1:0] rec_raddr;
 wire [27:0]   rec_rdata;
-// A record is written a clock after it leaves the winners (its row's bank and address registered:
-// from r_y through bank_base and the add into the RAM was a path over the period); phase B reads it
-// two sweeps later.
-reg           rec_we = 1'b0;
+// A record is written two clocks after it leaves the winners: its row's bank first, then the
+// address (from r_y through bank_base and the add into the RAM was a path over the period, and
+// the bank and the add in one clock still too long); phase B reads it two sweeps later.
+reg           rec_we0 = 1'b0, rec_we = 1'b0;
+reg [AW-1:0]  rec_base0;
+reg [10:0]    rec_x0;
+reg [27:0]    rec_wdata0;
 reg [AW-1:0]  rec_waddr;
 reg [27:0]    rec_wdata;
 always @(posedge aclk) begin
-    rec_we <= r_valid && !rst;
-    rec_waddr <= bank_base(r_y) + r_x;
-    rec_wdata <= {r_border, r_unique, r_conf, r_code, r_d1};
+    rec_we0 <= r_valid && !rst;
+    rec_base0 <= bank_base(r_y);
+    rec_x0 <= r_x;
+    rec_wdata0 <= {r_border, r_unique, r_conf, r_code, r_d1};
+    rec_we <= rec_we0 && !rst;
+    rec_waddr <= rec_base0 + rec_x0;
+    rec_wdata <= rec_wdata0;
 end
 rc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW)) rec_ram (
     .clk(aclk), .we(rec_we), .waddr(rec_waddr), .wdata(rec_wdata),
