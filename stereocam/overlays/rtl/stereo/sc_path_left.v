@@ -140,7 +140,7 @@ wire [H*8-1:0] l_new;
 generate
     for (d = 0; d < H; d = d + 1) begin : g_lane
         wire [5:0] c = cost_h[6*d +: 6];
-        assign l_new[8*d +: 8] = !ok_h[d] ? 8'hFF : first ? {2'b00, c} : sc_lane_step(c, a[9*d +: 9], m, p2);
+        assign l_new[8*d +: 8] = sc_lane_l(c, a[9*d +: 9], m, p2, first, ok_h[d]);
     end
 endgenerate
 

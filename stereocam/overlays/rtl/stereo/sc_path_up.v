@@ -150,29 +150,28 @@ ram_m (
 
 // ---- the words: group (phase + 2) mod 4 arriving (nxt, read 2 run clocks ago), group
 // (phase + 1) mod 4 in cur, group (phase + 3) mod 4, this run clock's lane terms', in cur2 with
-// the last lane of the group before it in prev_last and the first of the group after it in cur
-// (all registers: the arriving word's first lane through the terms was a path over the period)
+// its neighbours `above` and `below` (all registers: the arriving word's first lane through the
+// terms was a path over the period)
 wire [LW-1:0] nxt = phase[0] ? rdata_e : rdata_o;
 reg [LW-1:0] cur;
 reg [LW-1:0] cur2;
-reg [7:0] prev_last;
-// the edges of the range: group 0's lane below and group 3's lane above are 255; flags for the
-// group of the next run clock's terms, so that no decode of `phase` is on the terms' path
 // (a masked group g + 1 needs no test: its lanes were written as 255 in the row above)
-reg lo_out = 1'b0;  // the terms' group is 0
-reg hi_out = 1'b1;  // the terms' group is 3 (phase 0, the first run clock after reset)
+// the neighbours beyond the terms' group, registered with the edges applied: `above` the next
+// group's first lane (255 for group 3), `below` the last lane of the group before (255 for group
+// 0); the terms' group is (phase + 3) mod 4, so the next run clock's is phase
+reg [7:0] above;
+reg [7:0] below;
 always @(posedge clk) begin
     if (run) begin
         cur <= nxt;
         cur2 <= cur;
-        prev_last <= cur2[LW-8 +: 8];
-        lo_out <= phase == 2'd0;
-        hi_out <= phase == 2'd3;
+        above <= (phase == 2'd3) ? 8'hFF : nxt[7:0];
+        below <= (phase == 2'd0) ? 8'hFF : cur2[LW-8 +: 8];
     end
 end
 
 wire [1:0] g_a = phase + 2'd3;  // the group of the lane terms
-wire [LW+15:0] padded = {hi_out ? 8'hFF : cur[7:0], cur2, lo_out ? 8'hFF : prev_last};
+wire [LW+15:0] padded = {above, cur2, below};
 
 reg [PARALLEL*9-1:0] a_reg;
 genvar j;
@@ -205,13 +204,7 @@ generate
         wire [5:0] c = cost_g[6*j +: 6];
         always @(posedge clk) begin
             if (run) begin
-                if (!group_ok[g_l]) begin
-                    l_path[8*j +: 8] <= 8'hFF;
-                end else if (first_reg) begin
-                    l_path[8*j +: 8] <= {2'b00, c};
-                end else begin
-                    l_path[8*j +: 8] <= sc_lane_step(c, a_reg[9*j +: 9], m_prev, p2_reg);
-                end
+                l_path[8*j +: 8] <= sc_lane_l(c, a_reg[9*j +: 9], m_prev, p2_reg, first_reg, group_ok[g_l]);
             end
         end
     end

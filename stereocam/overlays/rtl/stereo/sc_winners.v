@@ -99,6 +99,44 @@ function [SW+LW-1:0] pick;  // {value, lane} of the smaller of two, the first on
     end
 endfunction
 
+// {value, lane} of the least of four, the first on ties: the six comparisons at once, then the
+// choice (shorter than two levels of picks in a row)
+function [SW+LW-1:0] pick4;
+    input [SW+LW-1:0] a;
+    input [SW+LW-1:0] b;
+    input [SW+LW-1:0] c;
+    input [SW+LW-1:0] d;
+    reg ab, ac, ad, bc, bd, cd;
+    begin
+        ab = b[SW+LW-1:LW] < a[SW+LW-1:LW];
+        ac = c[SW+LW-1:LW] < a[SW+LW-1:LW];
+        ad = d[SW+LW-1:LW] < a[SW+LW-1:LW];
+        bc = c[SW+LW-1:LW] < b[SW+LW-1:LW];
+        bd = d[SW+LW-1:LW] < b[SW+LW-1:LW];
+        cd = d[SW+LW-1:LW] < c[SW+LW-1:LW];
+        pick4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
+    end
+endfunction
+
+// the least of four values
+function [SW-1:0] min4;
+    input [SW-1:0] a;
+    input [SW-1:0] b;
+    input [SW-1:0] c;
+    input [SW-1:0] d;
+    reg ab, ac, ad, bc, bd, cd;
+    begin
+        ab = b < a;
+        ac = c < a;
+        ad = d < a;
+        bc = c < b;
+        bd = d < b;
+        cd = d < c;
+        // the first of the least: a, else b, else c, else d
+        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
+    end
+endfunction
+
 // ---- the sum buffers: two pixels' worth
 reg [PARALLEL*SW-1:0] buf0 [0:G-1];
 reg [PARALLEL*SW-1:0] buf1 [0:G-1];
@@ -130,6 +168,7 @@ integer i5;
 integer i7;
 integer i8;
 integer i9;
+integer i11;
 // A group takes part iff its first disparity is below num_disp (a multiple of PARALLEL: sc_regs
 // refuses any other), so one test a group serves all its lanes.
 wire s_group_ok = {9'd0, s_group} * PAR11 < {3'd0, num_disp};
@@ -145,67 +184,55 @@ always @(posedge clk) begin
     end
 end
 
-// tree levels 1-3 (32 -> 4)
-localparam Q = PARALLEL / 8;
+// tree levels, two at a time by choices of four: PARALLEL -> R in the first stage (32 -> 2), the
+// last level and the running minimum over the groups in the second (a tree of pairs to 4, then
+// two more and the running minimum in one clock, was a path over the period)
+localparam R1 = PARALLEL / 4;
+localparam R = (R1 >= 4) ? R1 / 4 : R1;
 reg                   a1_valid = 1'b0;
 reg [1:0]             a1_group;
 reg [10:0]            a1_x, a1_y;
 reg                   a1_buf;
-reg [Q*(SW+LW)-1:0]   a1_lanes;
-reg [SW+LW-1:0] t1 [0:PARALLEL/2-1];
-reg [SW+LW-1:0] t2 [0:PARALLEL/4-1];
+reg [R*(SW+LW)-1:0]   a1_lanes;
+reg [SW+LW-1:0] t1 [0:R1-1];
+reg [SW+LW-1:0] t2 [0:R-1];
 always @* begin
-    for (i3 = 0; i3 < PARALLEL / 2; i3 = i3 + 1)
-        t1[i3] = pick(a0_lanes[(2*i3)*(SW+LW) +: SW+LW], a0_lanes[(2*i3+1)*(SW+LW) +: SW+LW]);
-    for (i3 = 0; i3 < PARALLEL / 4; i3 = i3 + 1)
-        t2[i3] = pick(t1[2*i3], t1[2*i3+1]);
+    for (i3 = 0; i3 < R1; i3 = i3 + 1)
+        t1[i3] = pick4(a0_lanes[(4*i3)*(SW+LW) +: SW+LW], a0_lanes[(4*i3+1)*(SW+LW) +: SW+LW],
+                       a0_lanes[(4*i3+2)*(SW+LW) +: SW+LW], a0_lanes[(4*i3+3)*(SW+LW) +: SW+LW]);
 end
+generate
+    if (R1 >= 4) begin : g_t2_four
+        always @* begin
+            for (i4 = 0; i4 < R; i4 = i4 + 1)
+                t2[i4] = pick4(t1[4*i4], t1[4*i4+1], t1[4*i4+2], t1[4*i4+3]);
+        end
+    end else begin : g_t2_same
+        always @* begin
+            for (i4 = 0; i4 < R; i4 = i4 + 1)
+                t2[i4] = t1[i4];
+        end
+    end
+endgenerate
 always @(posedge clk) begin
     a1_valid <= a0_valid && !rst;
     a1_group <= a0_group;
     a1_x <= a0_x;
     a1_y <= a0_y;
     a1_buf <= a0_buf;
-    for (i4 = 0; i4 < Q; i4 = i4 + 1)
-        a1_lanes[i4*(SW+LW) +: SW+LW] <= pick(t2[2*i4], t2[2*i4+1]);
+    for (i11 = 0; i11 < R; i11 = i11 + 1)
+        a1_lanes[i11*(SW+LW) +: SW+LW] <= t2[i11];
 end
 
-// tree levels 4.. (Q -> 1) and the running minimum over the groups
-// (a balanced tree: a chain of picks was a path over the period; the first lane still wins ties)
 reg [SW+LW-1:0] t3;
-reg [SW+LW-1:0] tq [0:2*Q-2];  // heap order: node n's children are 2n + 1 and 2n + 2, leaves last
-// {value, lane} of the least of four, the first on ties: the six comparisons at once, then the
-// choice (two levels of picks in a row, then the running minimum, were a path over the period)
-function [SW+LW-1:0] pick4;
-    input [SW+LW-1:0] a;
-    input [SW+LW-1:0] b;
-    input [SW+LW-1:0] c;
-    input [SW+LW-1:0] d;
-    reg ab, ac, ad, bc, bd, cd;
-    begin
-        ab = b[SW+LW-1:LW] < a[SW+LW-1:LW];
-        ac = c[SW+LW-1:LW] < a[SW+LW-1:LW];
-        ad = d[SW+LW-1:LW] < a[SW+LW-1:LW];
-        bc = c[SW+LW-1:LW] < b[SW+LW-1:LW];
-        bd = d[SW+LW-1:LW] < b[SW+LW-1:LW];
-        cd = d[SW+LW-1:LW] < c[SW+LW-1:LW];
-        pick4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
-    end
-endfunction
-generate
-    if (Q == 4) begin : g_t3_4
-        always @* t3 = pick4(a1_lanes[0 +: SW+LW], a1_lanes[SW+LW +: SW+LW], a1_lanes[2*(SW+LW) +: SW+LW],
-                             a1_lanes[3*(SW+LW) +: SW+LW]);
-    end else begin : g_t3_tree
-        always @* begin
-            for (i5 = 0; i5 < Q; i5 = i5 + 1)
-                tq[Q - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
-            for (i5 = Q - 2; i5 >= 0; i5 = i5 - 1)
-                tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
-            t3 = tq[0];
-        end
-    end
-endgenerate
+reg [SW+LW-1:0] tq [0:2*R-2];  // heap order: node n's children are 2n + 1 and 2n + 2, leaves last
+always @* begin
+    for (i5 = 0; i5 < R; i5 = i5 + 1)
+        tq[R - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
+    for (i5 = R - 2; i5 >= 0; i5 = i5 - 1)
+        tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
+    t3 = tq[0];
+end
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
 reg                   d_valid = 1'b0;  // a pixel's d1 and S1 are ready
@@ -292,20 +319,34 @@ always @(posedge clk) begin
     end
 end
 
-reg [SW-1:0] u1 [0:PARALLEL/2-1];
-reg [SW-1:0] u2 [0:PARALLEL/4-1];
+// the same tree for the runner-up's minimum: PARALLEL -> R by choices of four in this stage, the
+// last level and the running minimum in the next
+reg [SW-1:0] u1 [0:R1-1];
+reg [SW-1:0] u2 [0:R-1];
 reg [SW-1:0] u3;
 always @* begin
-    for (i8 = 0; i8 < PARALLEL / 2; i8 = i8 + 1)
-        u1[i8] = (b0_lanes[(2*i8+1)*SW +: SW] < b0_lanes[(2*i8)*SW +: SW]) ? b0_lanes[(2*i8+1)*SW +: SW]
-                                                                     : b0_lanes[(2*i8)*SW +: SW];
-    for (i8 = 0; i8 < PARALLEL / 4; i8 = i8 + 1)
-        u2[i8] = (u1[2*i8+1] < u1[2*i8]) ? u1[2*i8+1] : u1[2*i8];
+    for (i8 = 0; i8 < R1; i8 = i8 + 1)
+        u1[i8] = min4(b0_lanes[(4*i8)*SW +: SW], b0_lanes[(4*i8+1)*SW +: SW], b0_lanes[(4*i8+2)*SW +: SW],
+                      b0_lanes[(4*i8+3)*SW +: SW]);
 end
+generate
+    if (R1 >= 4) begin : g_u2_four
+        always @* begin
+            for (i9 = 0; i9 < R; i9 = i9 + 1)
+                u2[i9] = min4(u1[4*i9], u1[4*i9+1], u1[4*i9+2], u1[4*i9+3]);
+        end
+    end else begin : g_u2_same
+        always @* begin
+            for (i9 = 0; i9 < R; i9 = i9 + 1)
+                u2[i9] = u1[i9];
+        end
+    end
+endgenerate
 reg                   b1_valid = 1'b0, b1_last = 1'b0;
-reg [Q*SW-1:0]        b1_lanes;
+reg [R*SW-1:0]        b1_lanes;
 reg [SW-1:0]          b1_a, b1_b;
 reg                   b1_has_a, b1_has_b;
+integer i6;
 always @(posedge clk) begin
     b1_valid <= b0_valid && !rst;
     b1_last <= b0_last;
@@ -313,40 +354,15 @@ always @(posedge clk) begin
     b1_b <= b0_row[b0_b_lane*SW +: SW];
     b1_has_a <= b0_valid && b0_has_a;
     b1_has_b <= b0_valid && b0_has_b;
-    for (i9 = 0; i9 < Q; i9 = i9 + 1)
-        b1_lanes[i9*SW +: SW] <= (u2[2*i9+1] < u2[2*i9]) ? u2[2*i9+1] : u2[2*i9];
+    for (i6 = 0; i6 < R; i6 = i6 + 1)
+        b1_lanes[i6*SW +: SW] <= u2[i6];
 end
-// the least of the Q group minima, before the running minimum in the same clock: for Q = 4 the
-// six comparisons at once and a choice (a chain of three was the core's second longest path)
-function [SW-1:0] min4;
-    input [SW-1:0] a;
-    input [SW-1:0] b;
-    input [SW-1:0] c;
-    input [SW-1:0] d;
-    reg ab, ac, ad, bc, bd, cd;
-    begin
-        ab = b < a;
-        ac = c < a;
-        ad = d < a;
-        bc = c < b;
-        bd = d < b;
-        cd = d < c;
-        // the first of the least: a, else b, else c, else d
-        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
-    end
-endfunction
 integer i10;
-generate
-    if (Q == 4) begin : g_u3_4
-        always @* u3 = min4(b1_lanes[0 +: SW], b1_lanes[SW +: SW], b1_lanes[2*SW +: SW], b1_lanes[3*SW +: SW]);
-    end else begin : g_u3_chain
-        always @* begin
-            u3 = b1_lanes[0 +: SW];
-            for (i10 = 1; i10 < Q; i10 = i10 + 1)
-                u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
-        end
-    end
-endgenerate
+always @* begin
+    u3 = b1_lanes[0 +: SW];
+    for (i10 = 1; i10 < R; i10 = i10 + 1)
+        u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
+end
 reg [SW-1:0] s2_run;
 reg [SW-1:0] nb_a, nb_b;
 reg          c_valid = 1'b0;
