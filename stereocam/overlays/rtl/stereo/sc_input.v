@@ -10,7 +10,7 @@
  *
  * A frame starts with a TUSER beat, accepted only while the scheduler can start a frame
  * (`accept_frame`); a row ends at column WIDTH - 1. A row may be written once phase A no longer
- * reads the row 8 above it (row r needs r <= `engine_row` + 4). SIZE_ERROR (`size_error`, one
+ * reads the row 8 above it (row r needs r <= `row_limit`, phase A's row + 4). SIZE_ERROR (`size_error`, one
  * clock) when TLAST is not at column WIDTH - 1 (an early TLAST ends the row; the rest of a long
  * row is dropped up to its TLAST), when TUSER comes inside a frame (the frame's missing rows are
  * counted as arrived, so the frame still completes, and the beat waits to start the next frame),
@@ -33,7 +33,7 @@ module sc_input
     input  wire [10:0]  height,
     input  wire         accept_frame,
     output wire         frame_begin,      // this clock accepts a frame's first beat
-    input  wire [10:0]  engine_row,       // phase A's row (height or more: every row may come)
+    input  wire [10:0]  row_limit,        // phase A's row + 4 (height + 4 or more: every row may come)
 
     output reg  [10:0]  rows_in = 11'd0,  // complete rows of the frame
     output wire         lb_we,
@@ -47,7 +47,7 @@ reg         in_frame = 1'b0;
 reg         skipping = 1'b0;   // dropping the rest of a long row, up to its TLAST
 reg [10:0]  col = 11'd0;
 
-wire row_ok = {1'b0, rows_in} <= {1'b0, engine_row} + 12'd4;
+wire row_ok = rows_in <= row_limit;
 // A TUSER beat inside a frame is not taken: it ends this frame and then starts the next.
 assign s_tready = enable && (in_frame ? (!s_tuser && (skipping || row_ok))
                                       : (!s_tuser || accept_frame));

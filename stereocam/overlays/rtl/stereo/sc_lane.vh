@@ -21,23 +21,23 @@ function [8:0] sc_lane_a;
 endfunction
 
 // L = C + min(a - m, P2') (a >= m: m is the least L(q, k), a one of them plus 0 or P1); C where
-// the previous pixel is outside the image (`first`); 255 in a masked lane (`ok` 0). The two cases
-// are made by the sum's operands (0 added for `first`; 63 + 192 for a masked lane), so that no
+// the previous pixel is outside the image (`from_c`); 255 in a masked lane (`lane_in` 0). The two
+// cases are made by the sum's operands (0 added for `from_c`; 63 + 192 for a masked lane), so that no
 // choice follows the sum: the lane's L feeds registers and the next quarter's terms directly.
 function [7:0] sc_lane_l;
     input [5:0] c;
     input [8:0] a;
     input [7:0] mn;
     input [7:0] pen2;
-    input       first;
-    input       ok;
+    input       from_c;   // the previous pixel is outside the image: L = C
+    input       lane_in;  // the lane is below NUM_DISP
     reg [8:0] u;
     reg [7:0] b;
     reg [7:0] cc;
     begin
         u = a - {1'b0, mn};
-        b = !ok ? 8'd192 : first ? 8'd0 : u < {1'b0, pen2} ? u[7:0] : pen2;
-        cc = ok ? {2'b00, c} : 8'd63;
+        b = !lane_in ? 8'd192 : from_c ? 8'd0 : u < {1'b0, pen2} ? u[7:0] : pen2;
+        cc = lane_in ? {2'b00, c} : 8'd63;
         sc_lane_l = cc + b;
     end
 endfunction

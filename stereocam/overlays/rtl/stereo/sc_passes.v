@@ -85,14 +85,18 @@ rc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW)) code_ram (
 // ---------------------------------------------------------------- phase B: validity
 // The rows' tests, a clock behind `row` (from the scheduler's row through the arithmetic and the
 // comparisons into the RAM enables was a path over the period): `row` changes at a sweep's first
-// slot, where `col` is still negative (-PRE), so no read or write depends on them there.
-reg       row_b_in = 1'b0;     // row_b inside the image
-reg [2:0] row_c_in = 3'b000;   // row_c - 1 + k inside the image, k = 0..2
+// slot, where `col` is still negative (-PRE), so no read or write depends on them there. The
+// bounds come from registers of height + 2 .. 4 (the height changes only between frames).
+reg [11:0] height2, height3, height4;
+reg        row_b_in = 1'b0;     // row_b (row - 2) inside the image; also row_c + 1
+reg [1:0]  row_c_in = 2'b00;    // row_c - 1 + k (row - 4 + k) inside the image, k = 0, 1
 always @(posedge clk) begin
-    row_b_in <= row_b >= 0 && row_b < $signed({1'b0, height});
-    row_c_in[0] <= row_c - 12'sd1 >= 0 && row_c - 12'sd1 < $signed({1'b0, height});
-    row_c_in[1] <= row_c >= 0 && row_c < $signed({1'b0, height});
-    row_c_in[2] <= row_c + 12'sd1 >= 0 && row_c + 12'sd1 < $signed({1'b0, height});
+    height2 <= {1'b0, height} + 12'd2;
+    height3 <= {1'b0, height} + 12'd3;
+    height4 <= {1'b0, height} + 12'd4;
+    row_b_in <= row >= 12'sd2 && row < $signed(height2);
+    row_c_in[0] <= row >= 12'sd4 && row < $signed(height4);
+    row_c_in[1] <= row >= 12'sd3 && row < $signed(height3);
 end
 wire real_now = row_b_in && col >= 0 && col < $signed({1'b0, width});
 
@@ -167,8 +171,16 @@ localparam CW = 27;
 
 // ---- reads: column x_c + 1 of rows row_c - 1 + phase (phases 0..2)
 wire signed [11:0] rcol = x_c + 12'sd1;
-wire        row_in = (phase == 2'd0) ? row_c_in[0] : (phase == 2'd1) ? row_c_in[1] : row_c_in[2];
-wire        col_in = rcol >= 0 && rcol < $signed({1'b0, width});
+wire        row_in = (phase == 2'd0) ? row_c_in[0] : (phase == 2'd1) ? row_c_in[1] : row_b_in;
+// The column's test for the `col` of the next clock, registered (from col through the arithmetic
+// and the comparison into the RAM's enable was a path over the period): col advances at the end
+// of a slot's phase 3 (after a sweep's last slot it goes to -PRE, but that slot's col + 1 - LAG + 1
+// is past the width anyway: a sweep has at least width + 8 slots) and is -PRE after frame_begin.
+wire signed [11:0] rcol_next = (run && phase == 2'd3) ? rcol + 12'sd1 : rcol;
+reg         col_in = 1'b0;
+always @(posedge clk) begin
+    col_in <= !frame_begin && rcol_next >= 0 && rcol_next < $signed({1'b0, width});
+end
 assign code_re = run && phase != 2'd3 && row_in && col_in;
 assign code_raddr = base_of_bank(bank_c) + rcol[10:0];
 
@@ -263,9 +275,24 @@ reg signed [11:0] x1 = -12'sd1, x2 = -12'sd1, x3 = -12'sd1, x4 = -12'sd1, x5 = -
 reg signed [11:0] y1 = -12'sd1, y2 = -12'sd1, y3 = -12'sd1, y4 = -12'sd1, y5 = -12'sd1;
 reg [15:0] t [0:8];
 reg [31:0] o;
+integer ri7;
+// stage 0: the nine values registered (the substitution of the centre before stage 1's two
+// exchanges in a row was a path over the period)
+reg [15:0] s0 [0:8];
+reg [CW-1:0] c0;
+reg        v0 = 1'b0;
+reg signed [11:0] x0 = -12'sd1, y0 = -12'sd1;
+always @(posedge clk) begin
+    for (ri7 = 0; ri7 < 9; ri7 = ri7 + 1) s0[ri7] <= p[ri7];
+    v0 <= go && !rst;
+    c0 <= win[1][1];
+    x0 <= cur_x;
+    y0 <= cur_row;
+end
+integer ri6;
 always @(posedge clk) begin
     // stage 1: sort(1,2) sort(4,5) sort(7,8); sort(0,1) sort(3,4) sort(6,7)
-    for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = p[ri5];
+    for (ri6 = 0; ri6 < 9; ri6 = ri6 + 1) t[ri6] = s0[ri6];
     o = srt(t[1], t[2]); t[1] = o[31:16]; t[2] = o[15:0];
     o = srt(t[4], t[5]); t[4] = o[31:16]; t[5] = o[15:0];
     o = srt(t[7], t[8]); t[7] = o[31:16]; t[8] = o[15:0];
@@ -299,10 +326,10 @@ always @(posedge clk) begin
     // stage 5: p4 = min(4,2): the median
     m5 <= (s4[4] < s4[2]) ? s4[4] : s4[2];
 
-    v1 <= go && !rst;  v2 <= v1 && !rst;  v3 <= v2 && !rst;  v4 <= v3 && !rst;  v5 <= v4 && !rst;
-    c1 <= win[1][1];  c2 <= c1;  c3 <= c2;  c4 <= c3;  c5 <= c4;
-    x1 <= cur_x;  x2 <= x1;  x3 <= x2;  x4 <= x3;  x5 <= x4;
-    y1 <= cur_row;  y2 <= y1;  y3 <= y2;  y4 <= y3;  y5 <= y4;
+    v1 <= v0 && !rst;  v2 <= v1 && !rst;  v3 <= v2 && !rst;  v4 <= v3 && !rst;  v5 <= v4 && !rst;
+    c1 <= c0;  c2 <= c1;  c3 <= c2;  c4 <= c3;  c5 <= c4;
+    x1 <= x0;  x2 <= x1;  x3 <= x2;  x4 <= x3;  x5 <= x4;
+    y1 <= y0;  y2 <= y1;  y3 <= y2;  y4 <= y3;  y5 <= y4;
 end
 
 // ---- the beat

@@ -18,7 +18,8 @@
  * this clock's `rows_in` and `out_room`: `run` fans out to every register and RAM of the core, so
  * it is one gate from registers, and a slot may start a clock later than its rows arrived
  * (`rows_in` only grows within a frame; the caller's `out_room` leaves a beat for the clock).
- * `engine_row` (phase A's row, or `height` between frames and after the last row) is a clock late.
+ * `row_limit` (phase A's row + 4, or `height` + 4 between frames and after the last row: the last
+ * row the input may write) is a clock late.
  * Reset: synchronous, active high.
  */
 module sc_sched #
@@ -45,7 +46,7 @@ module sc_sched #
     output reg  signed [11:0] row = 12'sd0,
     output reg  signed [11:0] col = 12'sd0,
     output reg  [1:0]         row_bank = 2'd0,  // row mod 3, kept beside row
-    output wire [10:0]        engine_row,
+    output wire [10:0]        row_limit,
     output wire               busy,
     output reg                frame_done = 1'b0
 );
@@ -78,11 +79,12 @@ assign idle = state == S_IDLE;
 // the input's counters was the core's longest path. A clock late is safe: within a frame it only
 // grows, so the input waits a clock longer at most; at a frame's start it is `height` for one more
 // clock, when the input has at most one row.
-reg [10:0] engine_row_q = 11'd0;
+// The input's limit is phase A's row + 4 (the adder here, not behind the input's comparison).
+reg [10:0] row_limit_q = 11'd4;
 always @(posedge clk) begin
-    engine_row_q <= (state == S_RUN && row < h) ? row[10:0] : height;
+    row_limit_q <= ((state == S_RUN && row < h) ? row[10:0] : height) + 11'd4;
 end
-assign engine_row = engine_row_q;
+assign row_limit = row_limit_q;
 
 wire signed [11:0] wide = $signed({1'b0, width}) + 12'sd8;
 wire signed [11:0] least = MAX_DISP + 32;

@@ -117,7 +117,7 @@ wire        run, accept_frame, frame_begin, out_room;
 wire [1:0]  phase;
 wire signed [11:0] row, col;
 wire [1:0]  row_bank;
-wire [10:0] engine_row, rows_in;
+wire [10:0] row_limit, rows_in;
 wire        lb_we;
 wire [10:0] lb_col, lb_row;
 wire [15:0] lb_data;
@@ -126,7 +126,7 @@ sc_sched #(.MAX_DISP(MAX_DISP), .PRE(PRE)) sched_inst (
     .clk(aclk), .rst(rst), .enable(enable), .width(width), .height(height), .rows_in(rows_in),
     .frame_begin(frame_begin), .out_room(out_room), .hold(apply_pending), .idle(idle),
     .accept_frame(accept_frame), .run(run), .phase(phase), .row(row), .col(col),
-    .row_bank(row_bank), .engine_row(engine_row), .busy(busy), .frame_done(frame_done)
+    .row_bank(row_bank), .row_limit(row_limit), .busy(busy), .frame_done(frame_done)
 );
 
 sc_input input_inst (
@@ -134,7 +134,7 @@ sc_input input_inst (
     .s_tdata(s_axis_tdata), .s_tuser(s_axis_tuser), .s_tlast(s_axis_tlast),
     .s_tvalid(s_axis_tvalid), .s_tready(s_axis_tready),
     .enable(enable), .width(width), .height(height), .accept_frame(accept_frame),
-    .frame_begin(frame_begin), .engine_row(engine_row), .rows_in(rows_in),
+    .frame_begin(frame_begin), .row_limit(row_limit), .rows_in(rows_in),
     .lb_we(lb_we), .lb_col(lb_col), .lb_row(lb_row), .lb_data(lb_data), .size_error(size_error)
 );
 
@@ -224,7 +224,7 @@ rc_fifo #(.WIDTH(35), .DEPTH(OUT_DEPTH), .SHOW_AHEAD(1), .OUTPUT_REG(1)) out_fif
     .m_data({out_eof, m_axis_tlast, m_axis_tuser, m_axis_tdata}), .m_valid(m_axis_tvalid),
     .m_ready(m_axis_tready), .count(out_count)
 );
-assign out_room = out_count <= OUT_DEPTH - 13;  // 12 beats in flight, 1 for sc_sched's registered test
+assign out_room = out_count <= OUT_DEPTH - 14;  // 13 beats in flight, 1 for sc_sched's registered test
 
 always @(posedge aclk) begin
     frame_out <= !rst && m_axis_tvalid && m_axis_tready && out_eof;
