@@ -77,7 +77,8 @@ reg  [26:0]   code_wdata;   // {reason[2:0], conf[7:0], code[15:0]}
 wire          code_re;
 wire [AW-1:0] code_raddr;
 wire [26:0]   code_rdata;
-rc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW)) code_ram (
+// (in 9-bit slices, a block RAM each as 4K x 9: one deep, no LUTs choosing between blocks: sc_ram)
+sc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW), .SLICE(9)) code_ram (
     .clk(clk), .we(code_we), .waddr(code_waddr), .wdata(code_wdata),
     .re(code_re), .raddr(code_raddr), .rdata(code_rdata)
 );
@@ -176,10 +177,18 @@ wire        row_in = (phase == 2'd0) ? row_c_in[0] : (phase == 2'd1) ? row_c_in[
 // and the comparison into the RAM's enable was a path over the period): col advances at the end
 // of a slot's phase 3 (after a sweep's last slot it goes to -PRE, but that slot's col + 1 - LAG + 1
 // is past the width anyway: a sweep has at least width + 8 slots) and is -PRE after frame_begin.
-wire signed [11:0] rcol_next = (run && phase == 2'd3) ? rcol + 12'sd1 : rcol;
+// The bounds are constants and registers of width + LAG - 2, + LAG - 1 (the width changes only
+// between frames), so the test is comparisons of col alone.
+reg signed [11:0] width_adv, width_stay;
+always @(posedge clk) begin
+    width_adv <= $signed({1'b0, width}) + LAG - 2;
+    width_stay <= $signed({1'b0, width}) + LAG - 1;
+end
+wire        advancing = run && phase == 2'd3;
 reg         col_in = 1'b0;
 always @(posedge clk) begin
-    col_in <= !frame_begin && rcol_next >= 0 && rcol_next < $signed({1'b0, width});
+    col_in <= !frame_begin && (advancing ? col >= LAG - 2 && col < width_adv
+                                         : col >= LAG - 1 && col < width_stay);
 end
 assign code_re = run && phase != 2'd3 && row_in && col_in;
 assign code_raddr = base_of_bank(bank_c) + rcol[10:0];

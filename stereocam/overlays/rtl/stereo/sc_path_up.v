@@ -7,7 +7,7 @@
  * r = (0, -1), or from the upper right, r = (1, -1); sc_front instantiates it
  * twice), PARALLEL disparities a run clock, one pixel a slot.
  *
- * State: the previous row's L of every column in two rc_ram banks (even
+ * State: the previous row's L of every column in two banks of rc_ram slices (even
  * groups 0, 2 in `ram_e`, odd groups 1, 3 in `ram_o`; column x's group g at
  * address 2 x + g / 2, PARALLEL * 8 bits a word), each column's minimum over
  * the lanes in a third (MAX_WIDTH words of 8 bits). A bank is read at most
@@ -99,10 +99,14 @@ wire [XA:0] waddr = {wx[XA-1:0], phase[0] ^ phase[1]};
 wire [LW-1:0] rdata_e;
 wire [LW-1:0] rdata_o;
 
-rc_ram #(
+// Each bank in slices of 18 bits (sc_ram), a block RAM each as 2K x 18: a bank's 2 MAX_WIDTH words
+// fit one deep. (As one 256-bit RAM, yosys maps a bank as 512 x 72 blocks three deep, and their
+// output choice was 259 LUT a bank; the slices take 2.5 block RAMs more a bank and no LUT.)
+sc_ram #(
     .WIDTH(LW),
     .DEPTH(2 * MAX_WIDTH),
-    .AW(XA + 1)
+    .AW(XA + 1),
+    .SLICE(18)
 )
 ram_e (
     .clk(clk),
@@ -114,10 +118,11 @@ ram_e (
     .rdata(rdata_e)
 );
 
-rc_ram #(
+sc_ram #(
     .WIDTH(LW),
     .DEPTH(2 * MAX_WIDTH),
-    .AW(XA + 1)
+    .AW(XA + 1),
+    .SLICE(18)
 )
 ram_o (
     .clk(clk),

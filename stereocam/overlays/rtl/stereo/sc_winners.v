@@ -16,10 +16,12 @@
  * How: a first pass takes the minimum of each group as it arrives (a pipelined 32-way tree) into
  * a running minimum; the sums are kept in one of two buffers; once d1 is known a second pass
  * reads the buffer group by group for S2 and the sums beside d1. The next pixel but one writes a
- * group of that buffer only after the second pass has read it (the second pass starts 4 clocks
- * after the last group and reads one group a clock, the writer is at least 5 clocks behind).
+ * group of that buffer at the end of the clock the second pass reads it at the earliest, and the
+ * buffers are read without a clock (LUT RAM), so the read takes the sums before the write (the
+ * second pass starts 5 clocks after the last group and reads one group a clock; the writer's
+ * group g comes 5 + g clocks after it at the earliest).
  * Then two restoring dividers: the sub-pixel offset (4 quotient bits) and the confidence (9).
- * Latency: 20 clocks from a pixel's last group to its record. Free running (no enable): it only
+ * Latency: 22 clocks from a pixel's last group to its record. Free running (no enable): it only
  * needs its input's order.
  *
  * And the right image's winners for step 7's left-right check (STEREO_CORE.md, step 6):
@@ -184,11 +186,12 @@ always @(posedge clk) begin
     end
 end
 
-// tree levels, two at a time by choices of four: PARALLEL -> R in the first stage (32 -> 2), the
-// last level and the running minimum over the groups in the second (a tree of pairs to 4, then
-// two more and the running minimum in one clock, was a path over the period)
+// The tree in two stages (a choice of four, then pairs: PARALLEL -> R, 32 -> 4; then R -> 1, by a
+// choice of four for R = 4), then the running minimum over the groups in a third: a tree to 4 and
+// two more levels and the running minimum in one clock, and two choices of four in a row, were
+// paths over the period.
 localparam R1 = PARALLEL / 4;
-localparam R = (R1 >= 4) ? R1 / 4 : R1;
+localparam R = (R1 >= 2) ? R1 / 2 : 1;
 reg                   a1_valid = 1'b0;
 reg [1:0]             a1_group;
 reg [10:0]            a1_x, a1_y;
@@ -202,16 +205,13 @@ always @* begin
                        a0_lanes[(4*i3+2)*(SW+LW) +: SW+LW], a0_lanes[(4*i3+3)*(SW+LW) +: SW+LW]);
 end
 generate
-    if (R1 >= 4) begin : g_t2_four
+    if (R1 >= 2) begin : g_t2_pairs
         always @* begin
             for (i4 = 0; i4 < R; i4 = i4 + 1)
-                t2[i4] = pick4(t1[4*i4], t1[4*i4+1], t1[4*i4+2], t1[4*i4+3]);
+                t2[i4] = pick(t1[2*i4], t1[2*i4+1]);
         end
     end else begin : g_t2_same
-        always @* begin
-            for (i4 = 0; i4 < R; i4 = i4 + 1)
-                t2[i4] = t1[i4];
-        end
+        always @* t2[0] = t1[0];
     end
 endgenerate
 always @(posedge clk) begin
@@ -226,12 +226,32 @@ end
 
 reg [SW+LW-1:0] t3;
 reg [SW+LW-1:0] tq [0:2*R-2];  // heap order: node n's children are 2n + 1 and 2n + 2, leaves last
-always @* begin
-    for (i5 = 0; i5 < R; i5 = i5 + 1)
-        tq[R - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
-    for (i5 = R - 2; i5 >= 0; i5 = i5 - 1)
-        tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
-    t3 = tq[0];
+generate
+    if (R == 4) begin : g_t3_four
+        always @* t3 = pick4(a1_lanes[0 +: SW+LW], a1_lanes[SW+LW +: SW+LW], a1_lanes[2*(SW+LW) +: SW+LW],
+                             a1_lanes[3*(SW+LW) +: SW+LW]);
+    end else begin : g_t3_tree
+        always @* begin
+            for (i5 = 0; i5 < R; i5 = i5 + 1)
+                tq[R - 1 + i5] = a1_lanes[i5*(SW+LW) +: SW+LW];
+            for (i5 = R - 2; i5 >= 0; i5 = i5 - 1)
+                tq[i5] = pick(tq[2*i5 + 1], tq[2*i5 + 2]);
+            t3 = tq[0];
+        end
+    end
+endgenerate
+reg                   a2_valid = 1'b0;
+reg [1:0]             a2_group;
+reg [10:0]            a2_x, a2_y;
+reg                   a2_buf;
+reg [SW+LW-1:0]       a2_min;  // the group's {least sum, its lane}
+always @(posedge clk) begin
+    a2_valid <= a1_valid && !rst;
+    a2_group <= a1_group;
+    a2_x <= a1_x;
+    a2_y <= a1_y;
+    a2_buf <= a1_buf;
+    a2_min <= t3;
 end
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
@@ -240,16 +260,16 @@ reg [10:0]            d_x, d_y;
 reg                   d_buf;
 always @(posedge clk) begin
     d_valid <= 1'b0;
-    if (a1_valid && !rst) begin
-        if (a1_group == 0 || t3[SW+LW-1:LW] < run_min) begin
-            run_min <= t3[SW+LW-1:LW];
-            run_d <= a1_group * PARALLEL + t3[LW-1:0];
+    if (a2_valid && !rst) begin
+        if (a2_group == 0 || a2_min[SW+LW-1:LW] < run_min) begin
+            run_min <= a2_min[SW+LW-1:LW];
+            run_d <= a2_group * PARALLEL + a2_min[LW-1:0];
         end
-        if (a1_group == G - 1) begin
+        if (a2_group == G - 1) begin
             d_valid <= 1'b1;
-            d_x <= a1_x;
-            d_y <= a1_y;
-            d_buf <= a1_buf;
+            d_x <= a2_x;
+            d_y <= a2_y;
+            d_buf <= a2_buf;
         end
     end
 end
@@ -319,8 +339,8 @@ always @(posedge clk) begin
     end
 end
 
-// the same tree for the runner-up's minimum: PARALLEL -> R by choices of four in this stage, the
-// last level and the running minimum in the next
+// the same tree for the runner-up's minimum: PARALLEL -> R in this stage, R -> 1 in the next (b1),
+// the running minimum over the groups in the one after (b2)
 reg [SW-1:0] u1 [0:R1-1];
 reg [SW-1:0] u2 [0:R-1];
 reg [SW-1:0] u3;
@@ -330,16 +350,13 @@ always @* begin
                       b0_lanes[(4*i8+3)*SW +: SW]);
 end
 generate
-    if (R1 >= 4) begin : g_u2_four
+    if (R1 >= 2) begin : g_u2_pairs
         always @* begin
             for (i9 = 0; i9 < R; i9 = i9 + 1)
-                u2[i9] = min4(u1[4*i9], u1[4*i9+1], u1[4*i9+2], u1[4*i9+3]);
+                u2[i9] = (u1[2*i9+1] < u1[2*i9]) ? u1[2*i9+1] : u1[2*i9];
         end
     end else begin : g_u2_same
-        always @* begin
-            for (i9 = 0; i9 < R; i9 = i9 + 1)
-                u2[i9] = u1[i9];
-        end
+        always @* u2[0] = u1[0];
     end
 endgenerate
 reg                   b1_valid = 1'b0, b1_last = 1'b0;
@@ -358,25 +375,43 @@ always @(posedge clk) begin
         b1_lanes[i6*SW +: SW] <= u2[i6];
 end
 integer i10;
-always @* begin
-    u3 = b1_lanes[0 +: SW];
-    for (i10 = 1; i10 < R; i10 = i10 + 1)
-        u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
+generate
+    if (R == 4) begin : g_u3_four
+        always @* u3 = min4(b1_lanes[0 +: SW], b1_lanes[SW +: SW], b1_lanes[2*SW +: SW], b1_lanes[3*SW +: SW]);
+    end else begin : g_u3_chain
+        always @* begin
+            u3 = b1_lanes[0 +: SW];
+            for (i10 = 1; i10 < R; i10 = i10 + 1)
+                u3 = (b1_lanes[i10*SW +: SW] < u3) ? b1_lanes[i10*SW +: SW] : u3;
+        end
+    end
+endgenerate
+reg                   b2_valid = 1'b0, b2_last = 1'b0;
+reg [SW-1:0]          b2_min, b2_a, b2_b;
+reg                   b2_has_a, b2_has_b;
+always @(posedge clk) begin
+    b2_valid <= b1_valid && !rst;
+    b2_last <= b1_last;
+    b2_min <= u3;
+    b2_a <= b1_a;
+    b2_b <= b1_b;
+    b2_has_a <= b1_valid && b1_has_a;
+    b2_has_b <= b1_valid && b1_has_b;
 end
 reg [SW-1:0] s2_run;
 reg [SW-1:0] nb_a, nb_b;
 reg          c_valid = 1'b0;
-reg          b1_first = 1'b1;  // the next b1 group is a pixel's first
+reg          b2_first = 1'b1;  // the next b2 group is a pixel's first
 always @(posedge clk) begin
     c_valid <= 1'b0;
-    if (b1_valid && b1_has_a) nb_a <= b1_a;  // with the groups' minima: a pixel's last group
-    if (b1_valid && b1_has_b) nb_b <= b1_b;  // is in the clock before the next pixel's first
+    if (b2_valid && b2_has_a) nb_a <= b2_a;  // with the groups' minima: a pixel's last group
+    if (b2_valid && b2_has_b) nb_b <= b2_b;  // is in the clock before the next pixel's first
     if (rst) begin
-        b1_first <= 1'b1;
-    end else if (b1_valid) begin
-        s2_run <= (b1_first || u3 < s2_run) ? u3 : s2_run;
-        b1_first <= b1_last;
-        c_valid <= b1_last;
+        b2_first <= 1'b1;
+    end else if (b2_valid) begin
+        s2_run <= (b2_first || b2_min < s2_run) ? b2_min : s2_run;
+        b2_first <= b2_last;
+        c_valid <= b2_last;
     end
 end
 
