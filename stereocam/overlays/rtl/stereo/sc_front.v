@@ -256,10 +256,17 @@ always @(posedge clk) begin
         cost_all[3*CW +: CW] <= cost;
     end
 end
-wire [CW-1:0] cost_g = g_cost == 2'd0 ? cost_all[0 +: CW]
-                     : g_cost == 2'd1 ? cost_all[CW +: CW]
-                     : g_cost == 2'd2 ? cost_all[2*CW +: CW]
-                     : cost_all[3*CW +: CW];
+// the group sc_path_up needs now is the one in `cost` 4 run clocks ago: a delay line, not a choice
+// from cost_all (192 LUT); reset, so that no tool folds it into shift-register LUTs
+reg [4*CW-1:0] cost_line;
+always @(posedge clk) begin
+    if (rst) begin
+        cost_line <= {4*CW{1'b0}};
+    end else if (run) begin
+        cost_line <= {cost_line[3*CW-1:0], cost};
+    end
+end
+wire [CW-1:0] cost_g = cost_line[3*CW +: CW];
 
 // ---- the three paths
 wire [MAX_DISP*8-1:0] l_left;

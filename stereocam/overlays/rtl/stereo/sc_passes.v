@@ -336,9 +336,19 @@ always @(posedge clk) begin
     m5 <= (s4[4] < s4[2]) ? s4[4] : s4[2];
 
     v1 <= v0 && !rst;  v2 <= v1 && !rst;  v3 <= v2 && !rst;  v4 <= v3 && !rst;  v5 <= v4 && !rst;
-    c1 <= c0;  c2 <= c1;  c3 <= c2;  c4 <= c3;  c5 <= c4;
-    x1 <= x0;  x2 <= x1;  x3 <= x2;  x4 <= x3;  x5 <= x4;
-    y1 <= y0;  y2 <= y1;  y3 <= y2;  y4 <= y3;  y5 <= y4;
+    // (reset, like x and y: no tool folds these delay lines into shift-register LUTs)
+    if (rst) begin
+        c1 <= {CW{1'b0}};  c2 <= {CW{1'b0}};  c3 <= {CW{1'b0}};  c4 <= {CW{1'b0}};  c5 <= {CW{1'b0}};
+    end else begin
+        c1 <= c0;  c2 <= c1;  c3 <= c2;  c4 <= c3;  c5 <= c4;
+    end
+    if (rst) begin
+        x1 <= -12'sd1;  x2 <= -12'sd1;  x3 <= -12'sd1;  x4 <= -12'sd1;  x5 <= -12'sd1;
+        y1 <= -12'sd1;  y2 <= -12'sd1;  y3 <= -12'sd1;  y4 <= -12'sd1;  y5 <= -12'sd1;
+    end else begin
+        x1 <= x0;  x2 <= x1;  x3 <= x2;  x4 <= x3;  x5 <= x4;
+        y1 <= y0;  y2 <= y1;  y3 <= y2;  y4 <= y3;  y5 <= y4;
+    end
 end
 
 // ---- the beat

@@ -160,6 +160,7 @@ reg                   a0_valid = 1'b0;
 reg [1:0]             a0_group;
 reg [10:0]            a0_x, a0_y;
 reg                   a0_buf;
+reg                   a0_ok, a1_ok;
 reg [PARALLEL*(SW+LW)-1:0] a0_lanes;
 
 integer i1;
@@ -180,9 +181,9 @@ always @(posedge clk) begin
     a0_x <= s_x;
     a0_y <= s_y;
     a0_buf <= wbuf;
+    a0_ok <= s_group_ok;  // a group at or above num_disp: its least sum is made BIG after the tree
     for (i2 = 0; i2 < PARALLEL; i2 = i2 + 1) begin
-        a0_lanes[i2*(SW+LW) +: SW+LW] <=
-            {s_group_ok ? s_sum[i2*SW +: SW] : BIG, i2[LW-1:0]};
+        a0_lanes[i2*(SW+LW) +: SW+LW] <= {s_sum[i2*SW +: SW], i2[LW-1:0]};
     end
 end
 
@@ -220,6 +221,7 @@ always @(posedge clk) begin
     a1_x <= a0_x;
     a1_y <= a0_y;
     a1_buf <= a0_buf;
+    a1_ok <= a0_ok;
     for (i11 = 0; i11 < R; i11 = i11 + 1)
         a1_lanes[i11*(SW+LW) +: SW+LW] <= t2[i11];
 end
@@ -251,7 +253,7 @@ always @(posedge clk) begin
     a2_x <= a1_x;
     a2_y <= a1_y;
     a2_buf <= a1_buf;
-    a2_min <= t3;
+    a2_min <= {a1_ok ? t3[SW+LW-1:LW] : BIG, t3[LW-1:0]};
 end
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
@@ -608,9 +610,12 @@ reg [6:0]             lane_d;
 integer k2;
 always @* begin
     for (k2 = 0; k2 < PARALLEL; k2 = k2 + 1) begin
-        shifted_in = q_row_start ? EMPTY
-                   : k2 == 0 ? (q_group == 2'd0 ? EMPTY : carry)
-                   : cw[0][(k2-1)*CW +: CW];
+        // (an empty cell's d is never read: every cell that leaves or is flushed has taken its
+        // column's d = 0 at place 0, so only the sum is made empty)
+        shifted_in = k2 == 0 ? carry : cw[0][(k2-1)*CW +: CW];
+        if (q_row_start || (k2 == 0 && q_group == 2'd0)) begin
+            shifted_in[CW-1:7] = BIG;
+        end
         lane_d = q_group * PARALLEL + k2;
         upd[k2*CW +: CW] = (q_lane_ok[k2] && q_sum[k2*SW +: SW] < shifted_in[CW-1:7])
                          ? {q_sum[k2*SW +: SW], lane_d} : shifted_in;
@@ -626,9 +631,15 @@ reg [6:0]    ex_d;
 integer k4;
 always @(posedge clk) begin
     ex_en <= 1'b0;
-    if (q_valid) begin
+    // (the words are reset, so that no tool folds the ring's untapped sums into shift-register
+    // LUTs: 310 of them)
+    if (rst) begin
+        for (k4 = 0; k4 < G; k4 = k4 + 1) cw[k4] <= {PARALLEL{EMPTY}};
+    end else if (q_valid) begin
         for (k4 = 0; k4 < G - 1; k4 = k4 + 1) cw[k4] <= cw[k4+1];
         cw[G-1] <= upd;
+    end
+    if (q_valid) begin
         carry <= cw[0][(PARALLEL-1)*CW +: CW];
         if (q_group == 2'd0) begin
             x_now <= q_x;
