@@ -184,6 +184,25 @@ def test_text_table_has_a_row_per_part_and_the_total(parts: List[Part]) -> None:
     assert not over["within_device"]
 
 
+def test_the_depth_build_is_held_to_its_floor(parts: List[Part]) -> None:
+    """The depth build's whole overlay has a floor below the device (LUT 75 %, BRAM36 85 %, DSP48E1 220):
+    the table says which it is over, and the command exits 1."""
+    depth = hw_synth.builds()[0][hw_synth.STEREO_BUILD]
+    assert hw_synth.OVERLAY_FLOORS[depth.name] == {"LUT": 39_900, "BRAM36": 119, "DSP48E1": 220}
+    assert hw_synth.overlay_dict(parts, gray())["floor"] == {}  # the gray build's floor is its core's
+    fits = hw_synth.overlay_dict(parts, depth)
+    assert fits["within_floor"] and fits["within_device"], fits["over_floor"]
+    assert "within the floor of build depth (LUT <= 39,900, BRAM36 <= 119, DSP48E1 <= 220)" in (
+        hw_synth.format_overlay(fits))
+    room = 39_900 - fits["total"]["LUT"]
+    big = hw_synth.overlay_dict([*parts, Part("x", ("x",), "estimate", room + 1, 0, 0, 0, "t")], depth)
+    assert big["over_floor"] == ["LUT 39,901 > 39,900"] and big["within_device"] and not big["within_floor"]
+    assert "OVER the floor of build depth" in hw_synth.format_overlay(big)
+    bram = hw_synth.overlay_dict([*parts, Part("x", ("x",), "yosys", 0, 0, 119.5 - fits["total"]["BRAM36"], 0,
+                                                "t")], depth)
+    assert bram["over_floor"] == ["BRAM36 119.5 > 119"]
+
+
 @pytest.mark.timeout(1800)  # a full yosys run of the core per build (about a minute); cached after that
 @pytest.mark.parametrize("build", ["gray", "colour"])
 def test_each_build_fits_the_device(build: str, capsys: pytest.CaptureFixture[str]) -> None:

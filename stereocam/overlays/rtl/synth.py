@@ -544,6 +544,10 @@ def cmd_hw_synth(args: argparse.Namespace) -> int:
         print(f"stereocam hw synth: the whole overlay of build {build.name} is over the {DEVICE}: "
               f"{', '.join(overlay['over_device'])}", file=sys.stderr)
         code = 1
+    if overlay is not None and overlay["over_floor"]:
+        print(f"stereocam hw synth: the whole overlay of build {build.name} is over its floor: "
+              f"{', '.join(overlay['over_floor'])}", file=sys.stderr)
+        code = 1
     return code
 
 
@@ -649,6 +653,14 @@ class Part:
 #: The device the totals are held against (the Zynq-7020's PL), by resource.
 OVERLAY_DEVICE: Dict[str, int] = {"LUT": 53_200, "FF": 106_400, "BRAM36": 140, "DSP48E1": 220}
 
+#: The whole overlay's floors, per build where the build has one (issue 23's for the depth build: LUT
+#: at most 75 % of the device, BRAM36 at most 85 %, DSP48E1 at most 220, room left for Vivado's placer);
+#: the gray and colour builds' floors are their rectify core's (:data:`RESOURCES`).
+OVERLAY_FLOORS: Dict[str, Dict[str, float]] = {
+    STEREO_BUILD: {"LUT": 0.75 * OVERLAY_DEVICE["LUT"], "BRAM36": 0.85 * OVERLAY_DEVICE["BRAM36"],
+                   "DSP48E1": 220},
+}
+
 
 def _rtl_part(name: str, cells: Sequence[str], result: SynthResult) -> Part:
     c = result.counts
@@ -744,10 +756,14 @@ def overlay_dict(parts: Sequence[Part], build: BuildParams) -> Dict[str, Any]:
     """The ``overlay`` object of ``--json``: the rows, their totals, the share of the device."""
     total = overlay_totals(parts)
     over = [f"{k} {_num(v)} > {OVERLAY_DEVICE[k]:,}" for k, v in total.items() if v > OVERLAY_DEVICE[k]]
+    floor = OVERLAY_FLOORS.get(build.name, {})
+    over_floor = [f"{k} {_num(total[k])} > {_num(limit)}" for k, limit in floor.items() if total[k] > limit]
     return {"build": build.name, "device": DEVICE, "device_totals": dict(OVERLAY_DEVICE),
             "parts": [p.to_dict() for p in parts], "total": total,
             "share_pct": {k: round(100 * v / OVERLAY_DEVICE[k], 1) for k, v in total.items()},
-            "over_device": over, "within_device": not over, "note": OVERLAY_NOTE}
+            "over_device": over, "within_device": not over,
+            "floor": dict(floor), "over_floor": over_floor, "within_floor": not over_floor,
+            "note": OVERLAY_NOTE}
 
 
 def format_overlay(overlay: Mapping[str, Any]) -> str:
@@ -771,4 +787,11 @@ def format_overlay(overlay: Mapping[str, Any]) -> str:
         lines.append(f"OVER the {DEVICE}: " + ", ".join(overlay["over_device"]))
     else:
         lines.append(f"within the {DEVICE}")
+    if overlay.get("floor"):
+        limits = ", ".join(f"{k} <= {_num(v)}" for k, v in overlay["floor"].items())
+        if overlay["over_floor"]:
+            lines.append(f"OVER the floor of build {overlay['build']} ({limits}): "
+                         + ", ".join(overlay["over_floor"]))
+        else:
+            lines.append(f"within the floor of build {overlay['build']} ({limits})")
     return "\n".join(line.rstrip() for line in lines)

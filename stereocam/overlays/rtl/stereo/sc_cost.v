@@ -15,7 +15,7 @@
  * Latency: group g of the slot's pixel is in `cost` (lane j at [6*j +: 6])
  * during the run clock 2 after its phase g, i.e. phase g + 2 (the next slot's
  * phase g - 2 for g >= 2). Throughput: one group of PARALLEL costs per run
- * clock. Every register is enabled by `run`. Reset: the delay line only (see there).
+ * clock. Every register is enabled by `run`. Reset: the delay lines only (see there).
  * Parameters are checked at elaboration: MAX_DISP = 4 * PARALLEL, PARALLEL >= 1.
  */
 module sc_cost #
@@ -59,7 +59,9 @@ endgenerate
 localparam HIST = 3 * PARALLEL;
 reg [NB*HIST-1:0] hist;  // element k at [NB*k +: NB]: cr of pixel x - 1 - k
 always @(posedge clk) begin
-    if (run && phase == 2'd3) begin
+    if (rst) begin
+        hist <= {NB*HIST{1'b0}};  // (reset, as the line below: flip-flops, not shift-register LUTs)
+    end else if (run && phase == 2'd3) begin
         hist <= {hist[NB*(HIST-1)-1:0], cr};
     end
 end
