@@ -26,7 +26,7 @@ from .sim_cases import sim_cases
 RTL = hdl.rtl_dir()
 STEREO = RTL / "stereo"
 SOURCES = (*(STEREO / f"{m}.v" for m in ("sc_linebuf", "sc_census", "sc_cost", "sc_min_tree", "sc_path_left",
-                                          "sc_ram", "sc_path_up", "sc_front")), RTL / "rc_ram.v")
+                                          "sc_path_up", "sc_front")), RTL / "rc_ram.v")
 
 
 def frame(kind: str, width: int, height: int, seed: int, **params: int) -> dict[str, Any]:

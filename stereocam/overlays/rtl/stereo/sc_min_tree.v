@@ -107,23 +107,9 @@ function integer level_paired;
     end
 endfunction
 
-// the least of four, the first on ties: six comparisons at once, then the choice
-function [W-1:0] min4;
-    input [W-1:0] a;
-    input [W-1:0] b;
-    input [W-1:0] c;
-    input [W-1:0] d;
-    reg ab, ac, ad, bc, bd, cd;
-    begin
-        ab = b < a;
-        ac = c < a;
-        ad = d < a;
-        bc = c < b;
-        bd = d < b;
-        cd = d < c;
-        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
-    end
-endfunction
+localparam SC_KEY_W = W;
+`include "sc_least4.vh"
+
 
 // heap-ordered nodes: node i is nodes[i]; the root is node 1, the leaves P .. 2P-1. An array of
 // wires, so a simulator follows each node apart (one vector read and written by the whole tree is
@@ -144,7 +130,7 @@ generate
     for (i = 1; i < P; i = i + 1) begin : g_node
         wire [W-1:0] m;
         if (level_paired(node_level(i)) != 0) begin : g_four
-            assign m = min4(nodes[4*i], nodes[4*i+1], nodes[4*i+2], nodes[4*i+3]);
+            assign m = sc_min4(nodes[4*i], nodes[4*i+1], nodes[4*i+2], nodes[4*i+3]);
         end else begin : g_two
             wire [W-1:0] a = nodes[2*i];
             wire [W-1:0] b = nodes[2*i+1];

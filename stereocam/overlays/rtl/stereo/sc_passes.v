@@ -77,8 +77,8 @@ reg  [26:0]   code_wdata;   // {reason[2:0], conf[7:0], code[15:0]}
 wire          code_re;
 wire [AW-1:0] code_raddr;
 wire [26:0]   code_rdata;
-// (in 9-bit slices, a block RAM each as 4K x 9: one deep, no LUTs choosing between blocks: sc_ram)
-sc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW), .SLICE(9)) code_ram (
+// (in 9-bit slices, a block RAM each as 4K x 9: one deep, no LUTs choosing between blocks: rc_ram)
+rc_ram #(.WIDTH(27), .DEPTH(3 * MAX_WIDTH), .AW(AW), .SLICE(9)) code_ram (
     .clk(clk), .we(code_we), .waddr(code_waddr), .wdata(code_wdata),
     .re(code_re), .raddr(code_raddr), .rdata(code_rdata)
 );
@@ -256,38 +256,47 @@ always @(posedge clk) begin
 end
 
 // ---- the nine codes, outside ones as the centre; then the median network (Devillard's opt_med9)
-wire [15:0] centre = win[1][1][15:0];
-reg  [15:0] p [0:8];
+// The network works on 11 bits: a code is 16 d1 + offset, at most 16 x 127 + 8 = 2040, and the
+// invalid 0xFFFF becomes 2047, still above every code (five bits of every exchange fewer).
+localparam VB = 11;
+function [VB-1:0] narrow;
+    input [15:0] code;
+    begin
+        narrow = code[VB-1:0] | {VB{code[15]}};
+    end
+endfunction
+wire [VB-1:0] centre = narrow(win[1][1][15:0]);
+reg  [VB-1:0] p [0:8];
 always @* begin
     for (ri4 = 0; ri4 < 3; ri4 = ri4 + 1)
         for (ci4 = 0; ci4 < 3; ci4 = ci4 + 1)
-            p[ri4*3+ci4] = wv[ri4][ci4] ? win[ri4][ci4][15:0] : centre;
+            p[ri4*3+ci4] = wv[ri4][ci4] ? narrow(win[ri4][ci4][15:0]) : centre;
 end
 
-function [31:0] srt;  // {min, max}
-    input [15:0] a;
-    input [15:0] b;
+function [2*VB-1:0] srt;  // {min, max}
+    input [VB-1:0] a;
+    input [VB-1:0] b;
     begin
         srt = (b < a) ? {b, a} : {a, b};
     end
 endfunction
 
 // pipeline registers: s1..s5 hold the nine values (or what is left of them) and the centre's data
-reg [15:0] s1 [0:8];
-reg [15:0] s2 [0:8];
-reg [15:0] s3 [0:8];
-reg [15:0] s4 [0:8];
-reg [15:0] m5;
+reg [VB-1:0] s1 [0:8];
+reg [VB-1:0] s2 [0:8];
+reg [VB-1:0] s3 [0:8];
+reg [VB-1:0] s4 [0:8];
+reg [VB-1:0] m5;
 reg [CW-1:0] c1, c2, c3, c4, c5;
 reg        v1 = 1'b0, v2 = 1'b0, v3 = 1'b0, v4 = 1'b0, v5 = 1'b0;
 reg signed [11:0] x1 = -12'sd1, x2 = -12'sd1, x3 = -12'sd1, x4 = -12'sd1, x5 = -12'sd1;
 reg signed [11:0] y1 = -12'sd1, y2 = -12'sd1, y3 = -12'sd1, y4 = -12'sd1, y5 = -12'sd1;
-reg [15:0] t [0:8];
-reg [31:0] o;
+reg [VB-1:0] t [0:8];
+reg [2*VB-1:0] o;
 integer ri7;
 // stage 0: the nine values registered (the substitution of the centre before stage 1's two
 // exchanges in a row was a path over the period)
-reg [15:0] s0 [0:8];
+reg [VB-1:0] s0 [0:8];
 reg [CW-1:0] c0;
 reg        v0 = 1'b0;
 reg signed [11:0] x0 = -12'sd1, y0 = -12'sd1;
@@ -302,23 +311,23 @@ integer ri6;
 always @(posedge clk) begin
     // stage 1: sort(1,2) sort(4,5) sort(7,8); sort(0,1) sort(3,4) sort(6,7)
     for (ri6 = 0; ri6 < 9; ri6 = ri6 + 1) t[ri6] = s0[ri6];
-    o = srt(t[1], t[2]); t[1] = o[31:16]; t[2] = o[15:0];
-    o = srt(t[4], t[5]); t[4] = o[31:16]; t[5] = o[15:0];
-    o = srt(t[7], t[8]); t[7] = o[31:16]; t[8] = o[15:0];
-    o = srt(t[0], t[1]); t[0] = o[31:16]; t[1] = o[15:0];
-    o = srt(t[3], t[4]); t[3] = o[31:16]; t[4] = o[15:0];
-    o = srt(t[6], t[7]); t[6] = o[31:16]; t[7] = o[15:0];
+    o = srt(t[1], t[2]); t[1] = o[2*VB-1:VB]; t[2] = o[VB-1:0];
+    o = srt(t[4], t[5]); t[4] = o[2*VB-1:VB]; t[5] = o[VB-1:0];
+    o = srt(t[7], t[8]); t[7] = o[2*VB-1:VB]; t[8] = o[VB-1:0];
+    o = srt(t[0], t[1]); t[0] = o[2*VB-1:VB]; t[1] = o[VB-1:0];
+    o = srt(t[3], t[4]); t[3] = o[2*VB-1:VB]; t[4] = o[VB-1:0];
+    o = srt(t[6], t[7]); t[6] = o[2*VB-1:VB]; t[7] = o[VB-1:0];
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s1[ri5] <= t[ri5];
     // stage 2: sort(1,2) sort(4,5) sort(7,8); p3 = max(0,3); p5 = min(5,8); (p6 kept)
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = s1[ri5];
-    o = srt(t[1], t[2]); t[1] = o[31:16]; t[2] = o[15:0];
-    o = srt(t[4], t[5]); t[4] = o[31:16]; t[5] = o[15:0];
-    o = srt(t[7], t[8]); t[7] = o[31:16]; t[8] = o[15:0];
+    o = srt(t[1], t[2]); t[1] = o[2*VB-1:VB]; t[2] = o[VB-1:0];
+    o = srt(t[4], t[5]); t[4] = o[2*VB-1:VB]; t[5] = o[VB-1:0];
+    o = srt(t[7], t[8]); t[7] = o[2*VB-1:VB]; t[8] = o[VB-1:0];
     t[3] = (t[0] > t[3]) ? t[0] : t[3];
     t[5] = (t[5] < t[8]) ? t[5] : t[8];
     // (stage 3's first exchange, done here: it reads only 4 and 7, which nothing after it in this
     // stage does; in stage 3 it made a chain of three, a path over the period)
-    o = srt(t[4], t[7]); t[4] = o[31:16]; t[7] = o[15:0];
+    o = srt(t[4], t[7]); t[4] = o[2*VB-1:VB]; t[7] = o[VB-1:0];
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s2[ri5] <= t[ri5];
     // stage 3: p6 = max(3,6); p4 = max(1,4); p2 = min(2,5); p4 = min(4,7)
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = s2[ri5];
@@ -329,7 +338,7 @@ always @(posedge clk) begin
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s3[ri5] <= t[ri5];
     // stage 4: sort(4,2); p4 = max(6,4)
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) t[ri5] = s3[ri5];
-    o = srt(t[4], t[2]); t[4] = o[31:16]; t[2] = o[15:0];
+    o = srt(t[4], t[2]); t[4] = o[2*VB-1:VB]; t[2] = o[VB-1:0];
     t[4] = (t[6] > t[4]) ? t[6] : t[4];
     for (ri5 = 0; ri5 < 9; ri5 = ri5 + 1) s4[ri5] <= t[ri5];
     // stage 5: p4 = min(4,2): the median
@@ -360,10 +369,10 @@ always @(posedge clk) begin
     o_eof <= x5 == $signed({1'b0, width}) - 12'sd1 && y5 == $signed({1'b0, height}) - 12'sd1;
     if (!median || c5[15:0] == `SC_INVALID) begin
         o_data <= {5'b0, c5};
-    end else if (m5 == `SC_INVALID) begin
+    end else if (m5 == {VB{1'b1}}) begin
         o_data <= {5'b0, 3'd`SC_REASON_MEDIAN, 8'd0, 16'd`SC_INVALID};
     end else begin
-        o_data <= {5'b0, c5[26:16], m5};
+        o_data <= {5'b0, c5[26:16], {16-VB{1'b0}}, m5};
     end
 end
 

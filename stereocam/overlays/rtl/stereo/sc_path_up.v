@@ -8,7 +8,7 @@
  * twice), PARALLEL disparities a run clock, one pixel a slot.
  *
  * State: the previous row's L of every column in two banks of rc_ram slices (even
- * groups 0, 2 in `ram_e`, odd groups 1, 3 in `ram_o`; column x's group g at
+ * groups 0, 2 in bank 0, odd groups 1, 3 in bank 1; column x's group g at
  * address 2 x + g / 2, PARALLEL * 8 bits a word), each column's minimum over
  * the lanes in a third (MAX_WIDTH words of 8 bits). A bank is read at most
  * every other run clock, so each read's data is taken exactly 2 run clocks
@@ -87,7 +87,7 @@ endgenerate
 
 `include "sc_lane.vh"
 
-// ---- reads: group (phase + 3) mod 4; even groups from ram_e at phases 1, 3 (a clock before the
+// ---- reads: group (phase + 3) mod 4; even groups from bank 0 at phases 1, 3 (a clock before the
 // terms need them, so that the next group's first lane is a register by then, see below)
 wire [10:0] rx = (phase == 2'd0) ? rx2 : rx1;
 wire ren = (phase == 2'd0) ? ren2 : ren1;
@@ -96,43 +96,34 @@ wire [XA:0] raddr = {rx[XA-1:0], ~(phase[1] ^ phase[0])};
 // ---- writes: group (phase + 1) mod 4 of l_path; even groups at phases 3, 1
 wire [XA:0] waddr = {wx[XA-1:0], phase[0] ^ phase[1]};
 
-wire [LW-1:0] rdata_e;
-wire [LW-1:0] rdata_o;
-
-// Each bank in slices of 18 bits (sc_ram), a block RAM each as 2K x 18: a bank's 2 MAX_WIDTH words
-// fit one deep. (As one 256-bit RAM, yosys maps a bank as 512 x 72 blocks three deep, and their
-// output choice was 259 LUT a bank; the slices take 2.5 block RAMs more a bank and no LUT.)
-sc_ram #(
-    .WIDTH(LW),
-    .DEPTH(2 * MAX_WIDTH),
-    .AW(XA + 1),
-    .SLICE(18)
-)
-ram_e (
-    .clk(clk),
-    .we(run && wen && phase[0]),
-    .waddr(waddr),
-    .wdata(l_path),
-    .re(run && ren && phase[0]),
-    .raddr(raddr),
-    .rdata(rdata_e)
-);
-
-sc_ram #(
-    .WIDTH(LW),
-    .DEPTH(2 * MAX_WIDTH),
-    .AW(XA + 1),
-    .SLICE(18)
-)
-ram_o (
-    .clk(clk),
-    .we(run && wen && !phase[0]),
-    .waddr(waddr),
-    .wdata(l_path),
-    .re(run && ren && !phase[0]),
-    .raddr(raddr),
-    .rdata(rdata_o)
-);
+// The two banks: bank 0 (even groups) is read and written at odd phases, bank 1 (odd groups) at
+// even phases. Each in slices of 18 bits (rc_ram SLICE), a block RAM each as 2K x 18: a bank's
+// 2 MAX_WIDTH words fit one deep. (As one 256-bit RAM, yosys maps a bank as 512 x 72 blocks three
+// deep, and their output choice was 259 LUT a bank; the slices take 2.5 block RAMs more a bank.)
+wire [LW-1:0] rdata_bank [0:1];
+genvar b;
+generate
+    for (b = 0; b < 2; b = b + 1) begin : g_bank
+        wire mine = phase[0] == (b == 0);
+        rc_ram #(
+            .WIDTH(LW),
+            .DEPTH(2 * MAX_WIDTH),
+            .AW(XA + 1),
+            .SLICE(18)
+        )
+        ram (
+            .clk(clk),
+            .we(run && wen && mine),
+            .waddr(waddr),
+            .wdata(l_path),
+            .re(run && ren && mine),
+            .raddr(raddr),
+            .rdata(rdata_bank[b])
+        );
+    end
+endgenerate
+wire [LW-1:0] rdata_e = rdata_bank[0];
+wire [LW-1:0] rdata_o = rdata_bank[1];
 
 // ---- each column's minimum
 reg [7:0] run_min;

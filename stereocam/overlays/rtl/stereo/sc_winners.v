@@ -101,43 +101,23 @@ function [SW+LW-1:0] pick;  // {value, lane} of the smaller of two, the first on
     end
 endfunction
 
-// {value, lane} of the least of four, the first on ties: the six comparisons at once, then the
-// choice (shorter than two levels of picks in a row)
+localparam SC_KEY_W = SW;
+`include "sc_least4.vh"
+
+// {value, lane} of the least of four, the first on ties (a choice of four: shorter than two levels
+// of picks in a row)
 function [SW+LW-1:0] pick4;
     input [SW+LW-1:0] a;
     input [SW+LW-1:0] b;
     input [SW+LW-1:0] c;
     input [SW+LW-1:0] d;
-    reg ab, ac, ad, bc, bd, cd;
+    reg [1:0] first;
     begin
-        ab = b[SW+LW-1:LW] < a[SW+LW-1:LW];
-        ac = c[SW+LW-1:LW] < a[SW+LW-1:LW];
-        ad = d[SW+LW-1:LW] < a[SW+LW-1:LW];
-        bc = c[SW+LW-1:LW] < b[SW+LW-1:LW];
-        bd = d[SW+LW-1:LW] < b[SW+LW-1:LW];
-        cd = d[SW+LW-1:LW] < c[SW+LW-1:LW];
-        pick4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
+        first = sc_least4(a[SW+LW-1:LW], b[SW+LW-1:LW], c[SW+LW-1:LW], d[SW+LW-1:LW]);
+        pick4 = first == 2'd0 ? a : first == 2'd1 ? b : first == 2'd2 ? c : d;
     end
 endfunction
 
-// the least of four values
-function [SW-1:0] min4;
-    input [SW-1:0] a;
-    input [SW-1:0] b;
-    input [SW-1:0] c;
-    input [SW-1:0] d;
-    reg ab, ac, ad, bc, bd, cd;
-    begin
-        ab = b < a;
-        ac = c < a;
-        ad = d < a;
-        bc = c < b;
-        bd = d < b;
-        cd = d < c;
-        // the first of the least: a, else b, else c, else d
-        min4 = (!ab && !ac && !ad) ? a : (ab && !bc && !bd) ? b : (ac && bc && !cd) ? c : d;
-    end
-endfunction
 
 // ---- the sum buffers: two pixels' worth
 reg [PARALLEL*SW-1:0] buf0 [0:G-1];
@@ -156,11 +136,10 @@ always @(posedge clk) begin
 end
 
 // ---- first pass: mask, tree, running minimum
+// a group's tag through the first pass: {ok (below num_disp), buffer, y, x, group}
+localparam TAG_W = 26;
 reg                   a0_valid = 1'b0;
-reg [1:0]             a0_group;
-reg [10:0]            a0_x, a0_y;
-reg                   a0_buf;
-reg                   a0_ok, a1_ok;
+reg [TAG_W-1:0]       a0_tag;
 reg [PARALLEL*(SW+LW)-1:0] a0_lanes;
 
 integer i1;
@@ -177,11 +156,8 @@ integer i11;
 wire s_group_ok = {9'd0, s_group} * PAR11 < {3'd0, num_disp};
 always @(posedge clk) begin
     a0_valid <= s_valid && !rst;
-    a0_group <= s_group;
-    a0_x <= s_x;
-    a0_y <= s_y;
-    a0_buf <= wbuf;
-    a0_ok <= s_group_ok;  // a group at or above num_disp: its least sum is made BIG after the tree
+    // (a group at or above num_disp: its least sum is made BIG after the tree)
+    a0_tag <= {s_group_ok, wbuf, s_y, s_x, s_group};
     for (i2 = 0; i2 < PARALLEL; i2 = i2 + 1) begin
         a0_lanes[i2*(SW+LW) +: SW+LW] <= {s_sum[i2*SW +: SW], i2[LW-1:0]};
     end
@@ -194,9 +170,7 @@ end
 localparam R1 = PARALLEL / 4;
 localparam R = (R1 >= 2) ? R1 / 2 : 1;
 reg                   a1_valid = 1'b0;
-reg [1:0]             a1_group;
-reg [10:0]            a1_x, a1_y;
-reg                   a1_buf;
+reg [TAG_W-1:0]       a1_tag;
 reg [R*(SW+LW)-1:0]   a1_lanes;
 reg [SW+LW-1:0] t1 [0:R1-1];
 reg [SW+LW-1:0] t2 [0:R-1];
@@ -217,11 +191,7 @@ generate
 endgenerate
 always @(posedge clk) begin
     a1_valid <= a0_valid && !rst;
-    a1_group <= a0_group;
-    a1_x <= a0_x;
-    a1_y <= a0_y;
-    a1_buf <= a0_buf;
-    a1_ok <= a0_ok;
+    a1_tag <= a0_tag;
     for (i11 = 0; i11 < R; i11 = i11 + 1)
         a1_lanes[i11*(SW+LW) +: SW+LW] <= t2[i11];
 end
@@ -243,18 +213,17 @@ generate
     end
 endgenerate
 reg                   a2_valid = 1'b0;
-reg [1:0]             a2_group;
-reg [10:0]            a2_x, a2_y;
-reg                   a2_buf;
+reg [TAG_W-1:0]       a2_tag;
 reg [SW+LW-1:0]       a2_min;  // the group's {least sum, its lane}
 always @(posedge clk) begin
     a2_valid <= a1_valid && !rst;
-    a2_group <= a1_group;
-    a2_x <= a1_x;
-    a2_y <= a1_y;
-    a2_buf <= a1_buf;
-    a2_min <= {a1_ok ? t3[SW+LW-1:LW] : BIG, t3[LW-1:0]};
+    a2_tag <= a1_tag;
+    a2_min <= {a1_tag[TAG_W-1] ? t3[SW+LW-1:LW] : BIG, t3[LW-1:0]};
 end
+wire [1:0]            a2_group = a2_tag[1:0];
+wire [10:0]           a2_x = a2_tag[12:2];
+wire [10:0]           a2_y = a2_tag[23:13];
+wire                  a2_buf = a2_tag[24];
 reg [SW-1:0]          run_min;
 reg [6:0]             run_d;
 reg                   d_valid = 1'b0;  // a pixel's d1 and S1 are ready
@@ -348,7 +317,7 @@ reg [SW-1:0] u2 [0:R-1];
 reg [SW-1:0] u3;
 always @* begin
     for (i8 = 0; i8 < R1; i8 = i8 + 1)
-        u1[i8] = min4(b0_lanes[(4*i8)*SW +: SW], b0_lanes[(4*i8+1)*SW +: SW], b0_lanes[(4*i8+2)*SW +: SW],
+        u1[i8] = sc_min4(b0_lanes[(4*i8)*SW +: SW], b0_lanes[(4*i8+1)*SW +: SW], b0_lanes[(4*i8+2)*SW +: SW],
                       b0_lanes[(4*i8+3)*SW +: SW]);
 end
 generate
@@ -379,7 +348,7 @@ end
 integer i10;
 generate
     if (R == 4) begin : g_u3_four
-        always @* u3 = min4(b1_lanes[0 +: SW], b1_lanes[SW +: SW], b1_lanes[2*SW +: SW], b1_lanes[3*SW +: SW]);
+        always @* u3 = sc_min4(b1_lanes[0 +: SW], b1_lanes[SW +: SW], b1_lanes[2*SW +: SW], b1_lanes[3*SW +: SW]);
     end else begin : g_u3_chain
         always @* begin
             u3 = b1_lanes[0 +: SW];

@@ -192,8 +192,8 @@ always @(posedge aclk) begin
     rec_waddr <= rec_base0 + rec_x0;
     rec_wdata <= rec_wdata0;
 end
-// (in 9-bit slices, a block RAM each as 4K x 9: one deep, no LUTs choosing between blocks: sc_ram)
-sc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW), .SLICE(9)) rec_ram (
+// (in 9-bit slices, a block RAM each as 4K x 9: one deep, no LUTs choosing between blocks: rc_ram)
+rc_ram #(.WIDTH(28), .DEPTH(RAM_DEPTH), .AW(AW), .SLICE(9)) rec_ram (
     .clk(aclk), .we(rec_we), .waddr(rec_waddr), .wdata(rec_wdata),
     .re(rec_re), .raddr(rec_raddr), .rdata(rec_rdata)
 );
