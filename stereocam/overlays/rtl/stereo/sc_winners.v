@@ -151,6 +151,8 @@ integer i7;
 integer i8;
 integer i9;
 integer i11;
+integer i12;
+integer i13;
 // A group takes part iff its first disparity is below num_disp (a multiple of PARALLEL: sc_regs
 // refuses any other), so one test a group serves all its lanes.
 wire s_group_ok = {9'd0, s_group} * PAR11 < {3'd0, num_disp};
@@ -258,8 +260,13 @@ wire                  p_group_ok = {9'd0, p_step[1:0]} * PAR11 < {3'd0, num_disp
 
 reg                   b0_valid = 1'b0, b0_last = 1'b0;
 reg [PARALLEL*SW-1:0] b0_lanes;          // masked
-reg [PARALLEL*SW-1:0] b0_row;            // the group's sums as read
-reg [LW-1:0]          b0_a_lane, b0_b_lane;  // the lanes of d1 - 1 and d1 + 1
+// S(d1 - 1) and S(d1 + 1) in two steps: the block of BL lanes holding each here, the lane in the
+// next stage (one 32-way choice after the buffer's read, or alone in a clock, was a path at the
+// period's floor)
+localparam BL = (PARALLEL >= 8) ? 8 : PARALLEL;  // lanes a block
+localparam LB = $clog2(BL);
+reg [BL*SW-1:0]       b0_a_blk, b0_b_blk;    // the blocks of d1 - 1 and d1 + 1
+reg [LB-1:0]          b0_a_lane, b0_b_lane;  // their lanes in the block
 reg                   b0_has_a, b0_has_b;
 always @(posedge clk) begin
     b0_valid <= 1'b0;
@@ -282,9 +289,12 @@ always @(posedge clk) begin
         // S(d1 - 1) and S(d1 + 1): one lane each of the group's sums, kept whole here and chosen
         // in the next stage by lanes registered here (the buffer's read and the 32-way choice
         // in one clock were a path over the period)
-        b0_row <= p_row;
-        b0_a_lane <= p_a_at[LW-1:0];
-        b0_b_lane <= p_b_at[LW-1:0];
+        for (i12 = 0; i12 < PARALLEL / BL; i12 = i12 + 1) begin
+            if (p_a_at[LW-1:0] / BL == i12) b0_a_blk <= p_row[i12*BL*SW +: BL*SW];
+            if (p_b_at[LW-1:0] / BL == i12) b0_b_blk <= p_row[i12*BL*SW +: BL*SW];
+        end
+        b0_a_lane <= p_a_at[LB-1:0];
+        b0_b_lane <= p_b_at[LB-1:0];
         if (p_a_ok && p_step[1:0] == p_a_at[LW+1:LW]) begin
             b0_has_a <= 1'b1;
         end
@@ -338,8 +348,10 @@ integer i6;
 always @(posedge clk) begin
     b1_valid <= b0_valid && !rst;
     b1_last <= b0_last;
-    b1_a <= b0_row[b0_a_lane*SW +: SW];
-    b1_b <= b0_row[b0_b_lane*SW +: SW];
+    for (i13 = 0; i13 < BL; i13 = i13 + 1) begin
+        if (b0_a_lane == i13) b1_a <= b0_a_blk[i13*SW +: SW];
+        if (b0_b_lane == i13) b1_b <= b0_b_blk[i13*SW +: SW];
+    end
     b1_has_a <= b0_valid && b0_has_a;
     b1_has_b <= b0_valid && b0_has_b;
     for (i6 = 0; i6 < R; i6 = i6 + 1)
