@@ -42,9 +42,9 @@
  * the outputs hold between run clocks. A consumer in lockstep samples them at
  * its run clocks.
  *
- * Resources at 752/128/32 (yosys 0.23 synth_xilinx -flatten, as `stereocam
- * hw synth` counts): 19,771 LUT, 19,440 FF, 49 BRAM36 (the two upper paths'
- * rows 2 x 24, the line buffer and the minima), no DSP.
+ * Resources: the whole core's, in STEREO_CORE.md ("Resources (measured)"); the
+ * front holds most of its block RAM (the two upper paths' rows, the line
+ * buffer and the minima) and no DSP.
  *
  * Reset: synchronous, active high: the valid bits of the pipeline (so no
  * output and no path-state write before the first real pixel); data is not
