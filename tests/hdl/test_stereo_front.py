@@ -95,3 +95,11 @@ def test_min_tree(tree: tuple[int, int, int, int, int], cocotb_dir: Path) -> Non
     run = run_cocotb("sc_min_tree", [STEREO / "sc_min_tree.v"], "tb_sc_min_tree", sim="icarus",
                      parameters=build, extra_env=env, test_dir=cocotb_dir)
     assert run.passed
+
+
+def test_input_writes_good_rows_and_flags_bad_frames(cocotb_dir: Path) -> None:
+    """sc_input: good frames written whole, short, long and cut rows and stray beats each a SIZE_ERROR,
+    with random TVALID gaps and a row limit that holds rows back (Icarus)."""
+    run = run_cocotb("sc_input", [STEREO / "sc_input.v"], "tb_sc_input", sim="icarus", includes=[STEREO],
+                     extra_env={"COCOTB_RANDOM_SEED": "1"}, test_dir=cocotb_dir)
+    assert run.passed
