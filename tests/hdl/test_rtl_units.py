@@ -74,6 +74,9 @@ UNITS = [
     # AW wider than needed (allowed: 2**AW >= DEPTH); Verilator warns of the address wider than the array
     unit("rc_ram", {"WIDTH": 1, "DEPTH": 2, "AW": 3}, verilator_args=WIDE_ADDRESS),
     unit("rc_ram", {"WIDTH": 66, "DEPTH": 16, "AW": 4}),
+    # in slices of 18 bits, the last 12 (the stereo core's RAMs); and a slice wider than the word (one)
+    unit("rc_ram", {"WIDTH": 66, "DEPTH": 10, "AW": 4, "SLICE": 18}, verilator=True),
+    unit("rc_ram", {"WIDTH": 7, "DEPTH": 6, "AW": 3, "SLICE": 9}),
     unit("rc_linebuf", {"WIDTH": 24, "DEPTH": 12, "AW": 4}, extra=("rc_ram.v",), verilator=True),
     unit("rc_linebuf", {"WIDTH": 8, "DEPTH": 5, "AW": 5}, extra=("rc_ram.v",), verilator_args=WIDE_ADDRESS),
     unit("rc_gray", {}, verilator=True),
